@@ -1,0 +1,1 @@
+"""Optimiser plugins, one module per algorithm (imported as ``heurtune.algorithms``)."""

@@ -1,0 +1,1 @@
+"""Experiment configs (``<algorithm>_<controller>_<plant>.toml``), shipped as package data."""

@@ -1,0 +1,191 @@
+"""Experiment configs: TOML files in ``experiments/``, validated with one-line errors.
+
+A config may ``extends = "other_name"``: the other config is loaded first and this file's
+tables are merged over it key by key (lists and scalars replace, tables merge).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import tomllib
+from importlib import resources
+from pathlib import Path
+
+from heurtune.errors import ConfigError
+
+__all__ = ["experiments_dir", "list_experiments", "find_experiment", "load_config", "SCHEMA"]
+
+# Schema: key -> type spec. A dict is a table with fixed keys; ("map", spec) is a table with
+# free keys whose values follow spec; ("list", spec) a list. Leaf specs are python types or a
+# tuple of allowed strings.
+NUMBER = (int, float)
+PAIR = ("pair", NUMBER)
+
+SCHEMA = {
+    "description": str,
+    "extends": str,
+    "runs": int,
+    "seed": int,
+    "plant": {
+        "model": ("qtp",),
+        "cases": ("list", str),
+        "custom": ("map", {
+            "A": ("list", NUMBER), "a": ("list", NUMBER), "k": ("list", NUMBER),
+            "gamma": ("list", NUMBER), "levels": ("list", NUMBER), "g": NUMBER,
+        }),
+    },
+    "controller": {
+        "type": ("folqi", "iolqi", "ladr"),
+        "oustaloup_order": int,
+        "band": PAIR,
+        "realisation": ("direct", "integer_split"),
+    },
+    "scenario": {
+        "horizon": NUMBER, "dt": NUMBER,
+        "output_disturbance": PAIR, "disturbance_time": NUMBER,
+        "input_disturbance": PAIR, "input_disturbance_time": NUMBER,
+        "noise_sd": NUMBER, "noise_seed": int,
+        "saturation": PAIR,
+        "uncertainty": ("map", NUMBER),
+    },
+    "problem": {
+        "objective": ("effort", "effort_deviation", "iae", "ise", "itae"),
+        "settling_band": NUMBER,
+        "tuning_scenario": str,
+        "constraints": {"Mp": NUMBER, "ts": NUMBER, "ess": NUMBER},
+        "bounds": ("map", PAIR),
+    },
+    # Optimiser tables are validated by the optimiser registry (their settings differ).
+    "optimisers": ("list", dict),
+}
+
+
+def experiments_dir() -> Path:
+    """Folder of the shipped experiment configs."""
+    return Path(str(resources.files("heurtune.experiments")))
+
+
+def list_experiments() -> list[str]:
+    """Names of the shipped experiments, sorted."""
+    return sorted(p.stem for p in experiments_dir().glob("*.toml"))
+
+
+def find_experiment(name: str) -> Path:
+    """Path of an experiment given its name or a path to a ``.toml`` file."""
+    p = Path(name)
+    if p.suffix == ".toml":
+        if not p.is_file():
+            raise ConfigError(f"experiment file {name!r} does not exist")
+        return p
+    candidate = experiments_dir() / f"{name}.toml"
+    if not candidate.is_file():
+        raise ConfigError(
+            f"unknown experiment {name!r}; allowed: {', '.join(list_experiments())}"
+        )
+    return candidate
+
+
+def _describe(spec) -> str:
+    if isinstance(spec, tuple) and spec and spec[0] in ("list", "map", "pair"):
+        return {"list": "a list", "map": "a table", "pair": "two numbers [a, b]"}[spec[0]]
+    if isinstance(spec, tuple):
+        if all(isinstance(s, str) for s in spec):
+            return "one of " + ", ".join(repr(s) for s in spec)
+        return "a number"
+    if isinstance(spec, dict):
+        return "a table"
+    return {str: "a string", int: "an integer", dict: "a table"}.get(spec, str(spec))
+
+
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _check(value, spec, where: str, src: str):
+    """Validate ``value`` against ``spec``; raise ConfigError naming file and key."""
+
+    def fail(msg):
+        raise ConfigError(f"{src}: {where}: {msg}")
+
+    if isinstance(spec, dict):
+        if not isinstance(value, dict):
+            fail(f"expected a table, got {value!r}")
+        for key, sub in value.items():
+            if key not in spec:
+                fail(f"unknown key {key!r}; allowed: {', '.join(spec)}")
+            _check(sub, spec[key], f"{where}.{key}" if where else key, src)
+        return
+    if isinstance(spec, tuple) and spec and spec[0] == "map":
+        if not isinstance(value, dict):
+            fail(f"expected a table, got {value!r}")
+        for key, sub in value.items():
+            _check(sub, spec[1], f"{where}.{key}", src)
+        return
+    if isinstance(spec, tuple) and spec and spec[0] == "list":
+        if not isinstance(value, list):
+            fail(f"expected a list, got {value!r}")
+        for i, sub in enumerate(value):
+            _check(sub, spec[1], f"{where}[{i}]", src)
+        return
+    if isinstance(spec, tuple) and spec and spec[0] == "pair":
+        if not (isinstance(value, list) and len(value) == 2 and all(_is_number(v) for v in value)):
+            fail(f"expected two numbers [a, b], got {value!r}")
+        return
+    if spec == NUMBER:
+        if not _is_number(value) or not math.isfinite(value):
+            fail(f"expected a number, got {value!r}")
+        return
+    if isinstance(spec, tuple):  # allowed strings
+        if value not in spec:
+            fail(f"got {value!r}; allowed: {', '.join(spec)}")
+        return
+    if spec is int:
+        if not isinstance(value, int) or isinstance(value, bool):
+            fail(f"expected an integer, got {value!r}")
+        return
+    if not isinstance(value, spec):
+        fail(f"expected {_describe(spec)}, got {value!r}")
+
+
+def _merge(base: dict, over: dict) -> dict:
+    out = copy.deepcopy(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def load_config(name: str, _seen: tuple = ()) -> dict:
+    """Load, merge (``extends``) and validate an experiment config.
+
+    Parameters
+    ----------
+    name : str
+        Experiment name (a file ``experiments/<name>.toml``) or a path to a TOML file.
+
+    Returns
+    -------
+    dict
+        The resolved config with ``name`` and ``source`` added.
+    """
+    path = find_experiment(name)
+    src = path.name
+    try:
+        raw = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{src}: not valid TOML: {exc}") from None
+    _check(raw, SCHEMA, "", src)
+    parent = raw.pop("extends", None)
+    if parent is not None:
+        if parent in _seen or parent == path.stem:
+            raise ConfigError(f"{src}: extends: circular chain through {parent!r}")
+        base = load_config(parent, _seen + (path.stem,))
+        base.pop("name", None)
+        base.pop("source", None)
+        raw = _merge(base, raw)
+    raw["name"] = path.stem
+    raw["source"] = str(path)
+    return raw

@@ -1,0 +1,349 @@
+"""Experiments and their tuning problems (thesis eq. 3.10-3.11).
+
+>>> import heurtune
+>>> exp = heurtune.load_experiment("cs_folqi_qtp")
+>>> prob = exp.problem("min")
+>>> prob.names[:3]
+('Q11', 'Q22', 'Q33')
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pandas as pd
+
+from heurtune.config import load_config
+from heurtune.errors import ConfigError
+from heurtune.objectives.controllers import ControllerDesignError, decision_names, default_bounds
+from heurtune.objectives.loop import METRIC_NAMES, ClosedLoop, Scenario
+from heurtune.objectives.qtp import QTPParams, preset
+
+__all__ = ["Experiment", "Problem", "Evaluation", "load_experiment",
+           "FAILED_OBJECTIVE", "FAILED_VIOLATION"]
+
+# A candidate that cannot be simulated gets these (finite) values.
+FAILED_OBJECTIVE = 1.0e10
+FAILED_VIOLATION = 1.0e6
+
+DEFAULT_UNCERTAINTY = {"nominal": 1.0, "-30%": 0.7, "+30%": 1.3}
+DEFAULT_CONSTRAINTS = {"Mp": 10.0, "ts": 70.0, "ess": 1.0}
+_OBJECTIVES = {
+    "effort": ("J1", "J2"),
+    "effort_deviation": ("Jdev1", "Jdev2"),
+    "iae": ("IAE1", "IAE2"),
+    "ise": ("ISE1", "ISE2"),
+    "itae": ("ITAE1", "ITAE2"),
+}
+_METRIC_INDEX = {name: i for i, name in enumerate(METRIC_NAMES)}
+
+
+@dataclasses.dataclass
+class Evaluation:
+    """Batch evaluation of candidates.
+
+    Attributes
+    ----------
+    f : (n,) objective values (``FAILED_OBJECTIVE`` for failed candidates)
+    g : (n, m) normalised constraint values ``metric / limit - 1``; ``g <= 0`` is feasible
+    feasible : (n,) bool
+    metrics : (n, k) metric values in the order of ``metric_names`` (NaN when not simulated)
+    metric_names : tuple of str
+    constraint_names : tuple of str
+    reason : (n,) object array: "" for a simulated candidate, else ``invalid_parameter``,
+        ``riccati_failed``, ``invalid_controller``, ``unstable``, ``diverged`` or ``non_finite``
+    """
+
+    f: np.ndarray
+    g: np.ndarray
+    feasible: np.ndarray
+    metrics: np.ndarray
+    metric_names: tuple
+    constraint_names: tuple
+    reason: np.ndarray
+
+    def to_frame(self) -> pd.DataFrame:
+        """One row per candidate: f, feasible, reason, the constraints (g_*) and metrics."""
+        df = pd.DataFrame(self.metrics, columns=list(self.metric_names))
+        for j, name in enumerate(self.constraint_names):
+            df.insert(j, f"g_{name}", self.g[:, j])
+        df.insert(0, "reason", self.reason)
+        df.insert(0, "feasible", self.feasible)
+        df.insert(0, "f", self.f)
+        return df
+
+
+class Problem:
+    """Constrained tuning problem of one plant case.
+
+    Minimise the objective (default: effort ``J = J1 + J2``, the integral of the squared
+    absolute pump voltages) subject to ``Mp_i < Mp``, ``ts_i < ts`` and ``ess_i < ess`` for both
+    lower tanks, under the tuning scenario.
+
+    Attributes
+    ----------
+    names : tuple of str
+        Decision variables, e.g. ``Q11, Q22, Q33, Q44, R11, R22, Ki1, Ki2, alpha1, alpha2``.
+    lower, upper : (d,) ndarray
+        Bounds.
+    constraint_names : tuple of str
+        ``Mp1, Mp2, ts1, ts2, ess1, ess2`` (those configured).
+    scenarios : dict of str to Scenario
+        The tuning scenario and its uncertainty variants (``nominal``, ``-30%``, ``+30%``).
+    """
+
+    def __init__(self, case: str, loop: ClosedLoop, names, lower, upper, *, objective: str,
+                 constraints: dict, settling_band: float, scenarios: dict, tuning_scenario: str):
+        self.case = case
+        self.loop = loop
+        self.names = tuple(names)
+        self.lower = np.asarray(lower, dtype=np.float64)
+        self.upper = np.asarray(upper, dtype=np.float64)
+        self.objective = objective
+        self.constraints = dict(constraints)
+        self.settling_band = float(settling_band)
+        self.scenarios = dict(scenarios)
+        self.tuning_scenario = tuning_scenario
+        self._objective_idx = [_METRIC_INDEX[m] for m in _OBJECTIVES[objective]]
+        self._constraint_idx = []
+        self._constraint_limit = []
+        names_g = []
+        for key, limit in self.constraints.items():
+            for i in (1, 2):
+                names_g.append(f"{key}{i}")
+                self._constraint_idx.append(_METRIC_INDEX[f"{key}{i}"])
+                self._constraint_limit.append(limit)
+        self.constraint_names = tuple(names_g)
+        self._constraint_limit = np.array(self._constraint_limit)
+
+    @property
+    def dim(self) -> int:
+        return len(self.names)
+
+    def __repr__(self):
+        return (f"Problem(case={self.case!r}, controller={self.loop.kind!r}, dim={self.dim}, "
+                f"objective={self.objective!r}, constraints={self.constraints})")
+
+    # -- decision vectors -------------------------------------------------------------
+    def values(self, x) -> dict:
+        """Map a decision vector (or a dict) to ``{name: value}``, checking names and length."""
+        if isinstance(x, dict):
+            unknown = [k for k in x if k not in self.names]
+            if unknown:
+                raise ConfigError(f"unknown variable {unknown[0]!r}; allowed: {', '.join(self.names)}")
+            missing = [k for k in self.names if k not in x]
+            if missing:
+                raise ConfigError(f"missing variable(s) {', '.join(missing)}; required: {', '.join(self.names)}")
+            return {k: float(x[k]) for k in self.names}
+        x = np.asarray(x, dtype=np.float64).ravel()
+        if x.shape != (self.dim,):
+            raise ConfigError(f"decision vector must have {self.dim} values ({', '.join(self.names)}), got {x.size}")
+        return dict(zip(self.names, x.tolist()))
+
+    def parse(self, text: str) -> np.ndarray:
+        """Parse ``"Q11=0.44,Q22=0.30,..."`` into a vector, rejecting unknown, missing and
+        out-of-bounds names with a one-line ConfigError."""
+        values = {}
+        for item in filter(None, (s.strip() for s in text.split(","))):
+            key, sep, val = item.partition("=")
+            key = key.strip()
+            if not sep:
+                raise ConfigError(f"expected NAME=VALUE, got {item!r}")
+            try:
+                values[key] = float(val)
+            except ValueError:
+                raise ConfigError(f"{key}: {val.strip()!r} is not a number") from None
+        vals = self.values(values)
+        for i, name in enumerate(self.names):
+            v = vals[name]
+            if not (self.lower[i] <= v <= self.upper[i]):
+                raise ConfigError(f"{name}={v:g} is outside its bounds [{self.lower[i]:g}, {self.upper[i]:g}]")
+        return np.array([vals[n] for n in self.names])
+
+    def scenario(self, scenario) -> Scenario:
+        """A Scenario from its name in ``self.scenarios`` (or a Scenario, returned as is)."""
+        if isinstance(scenario, Scenario):
+            return scenario
+        try:
+            return self.scenarios[scenario]
+        except KeyError:
+            raise ConfigError(
+                f"unknown scenario {scenario!r}; allowed: {', '.join(self.scenarios)}"
+            ) from None
+
+    # -- evaluation -------------------------------------------------------------------
+    def _evaluate_one(self, x, scenario: Scenario, metrics_row: np.ndarray) -> str:
+        if not np.all(np.isfinite(x)):
+            return "invalid_parameter"
+        try:
+            ctrl = self.loop.controller(dict(zip(self.names, x.tolist())))
+        except ControllerDesignError as exc:
+            return exc.reason
+        except ConfigError:
+            return "invalid_parameter"
+        if not self.loop.stability_margin(ctrl) < 0.0:
+            return "unstable"
+        sim = self.loop.run(ctrl, scenario, copy=False)
+        if sim.diverged:
+            return "diverged"
+        metrics_row[:] = self.loop.metrics(sim, scenario, self.settling_band)
+        if not np.all(np.isfinite(metrics_row)):
+            return "non_finite"
+        return ""
+
+    def evaluate(self, X, scenario=None) -> Evaluation:
+        """Evaluate a batch of candidates.
+
+        Parameters
+        ----------
+        X : array_like, shape (n, d) or (d,)
+        scenario : str or Scenario, optional
+            Defaults to the tuning scenario.
+
+        Returns
+        -------
+        Evaluation
+            Never raises for a bad candidate: unstable, undesignable or diverging candidates get
+            ``FAILED_OBJECTIVE``, violations ``FAILED_VIOLATION`` and a reason.
+        """
+        X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+        if X.ndim != 2 or X.shape[1] != self.dim:
+            raise ConfigError(f"X must have shape (n, {self.dim}), got {X.shape}")
+        sc = self.scenario(self.tuning_scenario if scenario is None else scenario)
+        n = X.shape[0]
+        m = len(self.constraint_names)
+        metrics = np.full((n, len(METRIC_NAMES)), np.nan)
+        f = np.full(n, FAILED_OBJECTIVE)
+        g = np.full((n, m), FAILED_VIOLATION)
+        reason = np.empty(n, dtype=object)
+        for i in range(n):
+            reason[i] = self._evaluate_one(X[i], sc, metrics[i])
+            if reason[i] == "":
+                f[i] = metrics[i, self._objective_idx].sum()
+                g[i] = metrics[i, self._constraint_idx] / self._constraint_limit - 1.0
+            else:
+                metrics[i] = np.nan
+        feasible = (reason == "") & np.all(g <= 0.0, axis=1)
+        return Evaluation(f, g, feasible, metrics, METRIC_NAMES, self.constraint_names, reason)
+
+    def simulate(self, x, scenario="nominal", *, record_levels: bool = True) -> pd.DataFrame:
+        """Trajectories of one candidate: columns t, h1..h4, y1, y2, u1, u2.
+
+        Raises
+        ------
+        ControllerDesignError
+            When the controller cannot be designed for ``x``.
+        """
+        sc = self.scenario(scenario)
+        ctrl = self.loop.controller(self.values(x))
+        return self.loop.run(ctrl, sc, record_levels=record_levels).to_frame()
+
+    def report(self, x, scenarios=None) -> pd.DataFrame:
+        """Metrics of one candidate per scenario (rows) with its objective and feasibility."""
+        x = np.array([self.values(x)[n] for n in self.names])
+        rows = []
+        for name in (scenarios or list(self.scenarios)):
+            ev = self.evaluate(x[None, :], name)
+            row = {"scenario": name, "f": ev.f[0], "feasible": bool(ev.feasible[0]),
+                   "reason": ev.reason[0]}
+            row.update(zip(METRIC_NAMES, ev.metrics[0]))
+            row["J"] = row["J1"] + row["J2"]
+            rows.append(row)
+        return pd.DataFrame(rows).set_index("scenario")
+
+
+class Experiment:
+    """A named experiment config: plant cases, controller, scenario, problem (and optimisers).
+
+    Use :func:`load_experiment` to create one.
+    """
+
+    def __init__(self, config: dict):
+        self.config = config
+        self.name = config["name"]
+        plant = config.get("plant", {})
+        self.cases = tuple(plant.get("cases", ["min", "nmp"]))
+        if not self.cases:
+            raise ConfigError(f"{self.name}: plant.cases must name at least one case")
+        self._custom = plant.get("custom", {})
+        for case in self.cases:
+            self._plant(case)  # validate early
+        ctrl = config.get("controller", {})
+        self.controller = ctrl.get("type", "folqi")
+        self.controller_options = dict(
+            oustaloup_order=ctrl.get("oustaloup_order", 5),
+            band=tuple(ctrl.get("band", (1e-3, 1e3))),
+            realisation=ctrl.get("realisation", "direct"),
+        )
+        sc = dict(config.get("scenario", {}))
+        uncertainty = sc.pop("uncertainty", DEFAULT_UNCERTAINTY)
+        if "nominal" not in uncertainty:
+            uncertainty = {"nominal": 1.0, **uncertainty}
+        if "saturation" in sc:
+            sc["saturation"] = tuple(sc["saturation"])
+        try:
+            self.scenarios = {k: Scenario(**sc, uncertainty=float(v)) for k, v in uncertainty.items()}
+        except ConfigError as exc:
+            raise ConfigError(f"{self.name}: {exc}") from None
+        prob = config.get("problem", {})
+        self.objective = prob.get("objective", "effort")
+        self.constraints = prob.get("constraints", DEFAULT_CONSTRAINTS)
+        for key, lim in self.constraints.items():
+            if lim <= 0:
+                raise ConfigError(f"{self.name}: problem.constraints.{key} must be positive, got {lim}")
+        self.settling_band = prob.get("settling_band", 3.0)
+        if not 0 < self.settling_band < 100:
+            raise ConfigError(f"{self.name}: problem.settling_band must lie in (0, 100), got {self.settling_band}")
+        self.tuning_scenario = prob.get("tuning_scenario", "nominal")
+        if self.tuning_scenario not in self.scenarios:
+            raise ConfigError(f"{self.name}: problem.tuning_scenario {self.tuning_scenario!r}; "
+                              f"allowed: {', '.join(self.scenarios)}")
+        self.names = decision_names(self.controller)
+        bounds = default_bounds(self.controller)
+        for key, (lo, hi) in prob.get("bounds", {}).items():
+            if key not in bounds:
+                raise ConfigError(f"{self.name}: problem.bounds: unknown variable {key!r}; "
+                                  f"allowed: {', '.join(self.names)}")
+            if not lo <= hi:
+                raise ConfigError(f"{self.name}: problem.bounds.{key}: lower {lo} > upper {hi}")
+            bounds[key] = (float(lo), float(hi))
+        self.bounds = bounds
+
+    def __repr__(self):
+        return f"Experiment({self.name!r}, cases={self.cases}, controller={self.controller!r})"
+
+    def _plant(self, case: str) -> QTPParams:
+        if case in self._custom:
+            spec = self._custom[case]
+            missing = [k for k in ("A", "a", "k", "gamma", "levels") if k not in spec]
+            if missing:
+                raise ConfigError(f"{self.name}: plant.custom.{case}: missing {', '.join(missing)}")
+            return QTPParams(name=case, **spec)
+        try:
+            return preset(case)
+        except ConfigError as exc:
+            raise ConfigError(f"{self.name}: plant.cases: {exc} (or define plant.custom.{case})") from None
+
+    def problem(self, case: str) -> Problem:
+        """The tuning problem of one case (e.g. ``"min"`` or ``"nmp"``)."""
+        if case not in self.cases:
+            raise ConfigError(f"unknown case {case!r} for {self.name}; allowed: {', '.join(self.cases)}")
+        loop = ClosedLoop(self._plant(case), self.controller, **self.controller_options)
+        lower = [self.bounds[n][0] for n in self.names]
+        upper = [self.bounds[n][1] for n in self.names]
+        return Problem(case, loop, self.names, lower, upper, objective=self.objective,
+                       constraints=self.constraints, settling_band=self.settling_band,
+                       scenarios=self.scenarios, tuning_scenario=self.tuning_scenario)
+
+
+def load_experiment(name: str) -> Experiment:
+    """Load an experiment by name (``experiments/<name>.toml``) or path.
+
+    Raises
+    ------
+    ConfigError
+        With a one-line message naming the file, the key and the allowed values.
+    """
+    return Experiment(load_config(name))

@@ -1,0 +1,259 @@
+"""Numba kernels of the QTP closed loop and its metrics.
+
+Arrays and scalars in, preallocated arrays out; no globals, no allocation inside the time loop,
+random numbers drawn by the caller. Shapes and dtypes are float64 unless stated.
+"""
+
+import math
+
+import numpy as np
+from numba import njit
+
+# Status codes returned by simulate_loop.
+STATUS_OK = 0
+STATUS_DIVERGED = 1
+
+# Levels beyond this (cm, in magnitude) count as a diverged simulation.
+LEVEL_LIMIT = 1.0e6
+
+# Index of each metric in the vector written by loop_metrics.
+METRIC_NAMES = (
+    "Mp1", "Mp2", "ts1", "ts2", "ess1", "ess2",
+    "IAE1", "IAE2", "ISE1", "ISE2", "ITAE1", "ITAE2",
+    "J1", "J2", "Jdev1", "Jdev2", "TV1", "TV2",
+)
+N_METRICS = len(METRIC_NAMES)
+
+
+@njit(cache=True, inline="always")
+def _qtp_rhs(h, u1, u2, p, dh):
+    """dh/dt of the QTP. p = [A1..A4, a1..a4, k1, k2, gamma1, gamma2, g]."""
+    two_g = 2.0 * p[12]
+    q1 = p[4] * math.sqrt(two_g * max(h[0], 0.0))
+    q2 = p[5] * math.sqrt(two_g * max(h[1], 0.0))
+    q3 = p[6] * math.sqrt(two_g * max(h[2], 0.0))
+    q4 = p[7] * math.sqrt(two_g * max(h[3], 0.0))
+    f1 = p[8] * u1
+    f2 = p[9] * u2
+    dh[0] = (-q1 + q3 + p[10] * f1) / p[0]
+    dh[1] = (-q2 + q4 + p[11] * f2) / p[1]
+    dh[2] = (-q3 + (1.0 - p[11]) * f2) / p[2]
+    dh[3] = (-q4 + (1.0 - p[10]) * f1) / p[3]
+
+
+@njit(cache=True)
+def qtp_rhs(h, u, p):
+    """Python-callable wrapper of the kernel right-hand side (for tests)."""
+    dh = np.empty(4)
+    _qtp_rhs(h, u[0], u[1], p, dh)
+    return dh
+
+
+@njit(cache=True)
+def simulate_loop(p, h_init, h_op, u_op, Ad, Bd, Cc, Dc, block_start, block_channel,
+                  dt, n_steps, i_out_dist, out_dist, i_in_dist, in_dist, noise,
+                  saturate, u_min, u_max, y_rec, u_rec, h_rec):
+    """Fixed-step closed loop: sampled linear controller, RK4 nonlinear plant.
+
+    At each sample ``k`` (``t = k dt``) the controller reads the measured deviations
+    ``w = [h1 + d1 - h1o, h2 + d2 - h2o, h3 - h3o, h4 - h4o] (+ noise)``, outputs
+    ``u = u_op + Cc z + Dc w`` (optionally clipped to [u_min, u_max]), which is held over the
+    step while RK4 integrates the plant; then ``z <- Ad z + Bd w`` (exact ZOH discretisation).
+    A controller block whose pump is saturated is not updated (conditional integration).
+
+    Parameters
+    ----------
+    p : (13,) plant parameters (see ``QTPParams.as_array``)
+    h_init, h_op : (4,) initial and operating levels; u_op : (2,) operating voltages
+    Ad : (nz, nz), Bd : (nz, 4), Cc : (2, nz), Dc : (2, 4)
+    block_start : (nb + 1,) int64, block b spans states [block_start[b], block_start[b+1])
+    block_channel : (nb,) int64, pump driven by each block
+    dt : float; n_steps : int, the horizon is ``n_steps * dt``
+    i_out_dist : int, first sample with the measured-level disturbance ``out_dist`` (2,)
+    i_in_dist : int, first sample with the pump-voltage disturbance ``in_dist`` (2,)
+    noise : (n_steps + 1, 4) measurement noise, or shape (0, 4) for none
+    saturate : bool; u_min, u_max : float
+    y_rec, u_rec : (n_steps + 1, 2) outputs: measured levels and applied voltages
+    h_rec : (n_steps + 1, 4) or (0, 4): true levels, recorded when it has rows
+
+    Returns
+    -------
+    status : int
+        STATUS_OK, or STATUS_DIVERGED (records past the last finite sample are NaN).
+    last : int
+        Index of the last recorded sample.
+    """
+    nz = Ad.shape[0]
+    nb = block_start.shape[0] - 1
+    z = np.zeros(nz)
+    z_new = np.zeros(nz)
+    w = np.zeros(4)
+    h = h_init.copy()
+    k1 = np.empty(4)
+    k2 = np.empty(4)
+    k3 = np.empty(4)
+    k4 = np.empty(4)
+    tmp = np.empty(4)
+    frozen = np.zeros(2, dtype=np.bool_)
+    has_noise = noise.shape[0] > 0
+    rec_h = h_rec.shape[0] > 0
+    half = 0.5 * dt
+    for k in range(n_steps + 1):
+        d1 = out_dist[0] if k >= i_out_dist else 0.0
+        d2 = out_dist[1] if k >= i_out_dist else 0.0
+        w[0] = h[0] + d1 - h_op[0]
+        w[1] = h[1] + d2 - h_op[1]
+        w[2] = h[2] - h_op[2]
+        w[3] = h[3] - h_op[3]
+        if has_noise:
+            for i in range(4):
+                w[i] += noise[k, i]
+        u1 = u_op[0]
+        u2 = u_op[1]
+        for j in range(nz):
+            u1 += Cc[0, j] * z[j]
+            u2 += Cc[1, j] * z[j]
+        for i in range(4):
+            u1 += Dc[0, i] * w[i]
+            u2 += Dc[1, i] * w[i]
+        frozen[0] = False
+        frozen[1] = False
+        if saturate:
+            if u1 > u_max:
+                u1 = u_max
+                frozen[0] = True
+            elif u1 < u_min:
+                u1 = u_min
+                frozen[0] = True
+            if u2 > u_max:
+                u2 = u_max
+                frozen[1] = True
+            elif u2 < u_min:
+                u2 = u_min
+                frozen[1] = True
+        y_rec[k, 0] = w[0] + h_op[0]
+        y_rec[k, 1] = w[1] + h_op[1]
+        u_rec[k, 0] = u1
+        u_rec[k, 1] = u2
+        if rec_h:
+            for i in range(4):
+                h_rec[k, i] = h[i]
+        if k == n_steps:
+            break
+        # Controller update, block by block (A is block diagonal).
+        for b in range(nb):
+            s = block_start[b]
+            e = block_start[b + 1]
+            if frozen[block_channel[b]]:
+                for i in range(s, e):
+                    z_new[i] = z[i]
+                continue
+            for i in range(s, e):
+                acc = Bd[i, 0] * w[0] + Bd[i, 1] * w[1] + Bd[i, 2] * w[2] + Bd[i, 3] * w[3]
+                for j in range(s, e):
+                    acc += Ad[i, j] * z[j]
+                z_new[i] = acc
+        for i in range(nz):
+            z[i] = z_new[i]
+        # Plant: classic RK4 with the pump voltages held over the step.
+        if k >= i_in_dist:
+            u1 += in_dist[0]
+            u2 += in_dist[1]
+        _qtp_rhs(h, u1, u2, p, k1)
+        for i in range(4):
+            tmp[i] = h[i] + half * k1[i]
+        _qtp_rhs(tmp, u1, u2, p, k2)
+        for i in range(4):
+            tmp[i] = h[i] + half * k2[i]
+        _qtp_rhs(tmp, u1, u2, p, k3)
+        for i in range(4):
+            tmp[i] = h[i] + dt * k3[i]
+        _qtp_rhs(tmp, u1, u2, p, k4)
+        ok = True
+        for i in range(4):
+            h[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+            if not (abs(h[i]) < LEVEL_LIMIT):  # catches NaN too
+                ok = False
+        if not ok:
+            for kk in range(k + 1, n_steps + 1):
+                y_rec[kk, 0] = np.nan
+                y_rec[kk, 1] = np.nan
+                u_rec[kk, 0] = np.nan
+                u_rec[kk, 1] = np.nan
+                if rec_h:
+                    for i in range(4):
+                        h_rec[kk, i] = np.nan
+            return STATUS_DIVERGED, k
+    return STATUS_OK, n_steps
+
+
+@njit(cache=True)
+def loop_metrics(y, u, y_op, u_op, dt, i_dist, band_pct, out):
+    """Performance metrics of a sampled closed-loop response.
+
+    Parameters
+    ----------
+    y : (n + 1, 2) measured levels at t = 0, dt, ..., n dt
+    u : (n + 1, 2) applied voltages; ``u[k]`` is held over [k dt, (k + 1) dt)
+    y_op : (2,) operating levels; u_op : (2,) operating voltages
+    dt : float; i_dist : int, sample index of the disturbance time t_d
+    band_pct : float, settling band in percent of the operating level
+    out : (N_METRICS,) written in the order of METRIC_NAMES:
+
+        Mp_i   max over t >= t_d of |y_i - y_op_i| / y_op_i * 100
+        ts_i   time after t_d from which that deviation stays inside the band (linear
+               interpolation of the last exit); 0 if it never leaves, T - t_d if it ends outside
+        ess_i  |y_i(T) - y_op_i| / y_op_i * 100
+        IAE_i, ISE_i, ITAE_i  trapezoidal integrals of |e|, e^2, t |e| over [0, T], e = y_i - y_op_i
+        J_j    integral of u_j^2 over [0, T] (exact for the held input)
+        Jdev_j integral of (u_j - u_op_j)^2 over [0, T]
+        TV_j   sum of |u_j[k+1] - u_j[k]|
+    """
+    n = y.shape[0] - 1
+    for i in range(2):
+        y0 = y_op[i]
+        band = band_pct / 100.0 * y0
+        mp = 0.0
+        last_out = -1
+        iae = 0.0
+        ise = 0.0
+        itae = 0.0
+        prev_a = abs(y[0, i] - y0)
+        for k in range(n + 1):
+            a = abs(y[k, i] - y0)
+            if k >= i_dist:
+                if a > mp:
+                    mp = a
+                if a > band:
+                    last_out = k
+            if k > 0:
+                iae += 0.5 * dt * (a + prev_a)
+                ise += 0.5 * dt * (a * a + prev_a * prev_a)
+                itae += 0.5 * dt * (k * dt * a + (k - 1) * dt * prev_a)
+            prev_a = a
+        if last_out < 0:
+            ts = 0.0
+        elif last_out == n:
+            ts = (n - i_dist) * dt
+        else:
+            a0 = abs(y[last_out, i] - y0)
+            a1 = abs(y[last_out + 1, i] - y0)
+            frac = (a0 - band) / (a0 - a1) if a0 > a1 else 1.0
+            ts = (last_out - i_dist + frac) * dt
+        out[i] = mp / y0 * 100.0
+        out[2 + i] = ts
+        out[4 + i] = abs(y[n, i] - y0) / y0 * 100.0
+        out[6 + i] = iae
+        out[8 + i] = ise
+        out[10 + i] = itae
+        j_abs = 0.0
+        j_dev = 0.0
+        tv = 0.0
+        for k in range(n):
+            v = u[k, i]
+            j_abs += v * v * dt
+            j_dev += (v - u_op[i]) * (v - u_op[i]) * dt
+            tv += abs(u[k + 1, i] - v)
+        out[12 + i] = j_abs
+        out[14 + i] = j_dev
+        out[16 + i] = tv

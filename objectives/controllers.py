@@ -1,0 +1,272 @@
+"""Linear controllers of the QTP as continuous-time state-space blocks.
+
+Every controller maps the measured deviations ``w = [y1 - h1o, y2 - h2o, h3 - h3o, h4 - h4o]``
+to the pump-voltage deviations ``du`` (the applied voltage is ``u = u_o + du``)::
+
+    z' = A z + B w,    du = C z + D w
+
+with ``A`` block diagonal: block ``b`` occupies states ``blocks[b]`` and is driven by the
+whole ``w``; ``block_channel[b]`` names the pump it acts on (used by anti-windup).
+
+Conventions
+-----------
+(FO)LQI (thesis eq. 3.9)::
+
+    du = -K dx + diag(Ki1 / s^alpha1, Ki2 / s^alpha2) e,   e = r - dy = -dy (regulation)
+
+``K = R^-1 B^T P`` from the CARE of the linearised plant. A positive ``Ki`` integrates the
+error ``r - y`` and so removes it (the QTP has positive DC gains). Note python-control's
+``lqr(..., integral_action=C)`` integrates ``C x`` instead: its integral gains have the opposite
+sign.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import scipy.linalg
+
+from heurtune.errors import ConfigError
+from heurtune.objectives.oustaloup import REALISATIONS, fractional_integrator
+
+__all__ = [
+    "LinearController",
+    "ControllerDesignError",
+    "lqr_gain",
+    "CONTROLLER_TYPES",
+    "decision_names",
+    "default_bounds",
+    "build_controller",
+]
+
+N_MEASURED = 4
+N_INPUTS = 2
+
+
+class ControllerDesignError(RuntimeError):
+    """A candidate's controller cannot be built (Riccati failure, invalid parameter)."""
+
+    def __init__(self, reason: str, detail: str = ""):
+        super().__init__(f"{reason}: {detail}" if detail else reason)
+        self.reason = reason
+
+
+@dataclasses.dataclass(frozen=True)
+class LinearController:
+    """Continuous-time linear controller ``z' = A z + B w``, ``du = C z + D w``.
+
+    Attributes
+    ----------
+    A : (nz, nz) ndarray, block diagonal per ``blocks``
+    B : (nz, 4) ndarray
+    C : (2, nz) ndarray
+    D : (2, 4) ndarray
+    blocks : tuple of (start, stop)
+    block_channel : tuple of int
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    blocks: tuple
+    block_channel: tuple
+
+    @property
+    def n_states(self) -> int:
+        return self.A.shape[0]
+
+    def discretise(self, dt: float):
+        """Exact zero-order-hold discretisation, block by block.
+
+        Returns
+        -------
+        Ad : (nz, nz) ndarray
+        Bd : (nz, 4) ndarray
+            ``z[k+1] = Ad z[k] + Bd w[k]`` with ``w`` held over the step.
+        """
+        nz, nw = self.B.shape
+        Ad = np.zeros((nz, nz))
+        Bd = np.zeros((nz, nw))
+        for start, stop in self.blocks:
+            n = stop - start
+            if n == 0:
+                continue
+            M = np.zeros((n + nw, n + nw))
+            M[:n, :n] = self.A[start:stop, start:stop]
+            M[:n, n:] = self.B[start:stop]
+            E = scipy.linalg.expm(M * dt)
+            Ad[start:stop, start:stop] = E[:n, :n]
+            Bd[start:stop] = E[:n, n:]
+        return Ad, Bd
+
+    def closed_loop_matrix(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
+        """State matrix of the loop with the linearised plant ``dx' = A dx + B du`` (w = dx)."""
+        return np.block([[A + B @ self.D, B @ self.C], [self.B, self.A]])
+
+
+def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """State-feedback gain ``K = R^-1 B^T P`` from the continuous algebraic Riccati equation.
+
+    Raises
+    ------
+    ControllerDesignError
+        With reason ``riccati_failed`` when the CARE has no stabilising solution.
+    """
+    try:
+        P = scipy.linalg.solve_continuous_are(A, B, Q, R)
+        K = np.linalg.solve(R, B.T @ P)
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise ControllerDesignError("riccati_failed", str(exc)) from None
+    if not np.all(np.isfinite(K)):
+        raise ControllerDesignError("riccati_failed", "non-finite gain")
+    return K
+
+
+CONTROLLER_TYPES = ("folqi", "iolqi", "ladr")
+
+_LQI_NAMES = ("Q11", "Q22", "Q33", "Q44", "R11", "R22", "Ki1", "Ki2")
+_LADR_BETAS = tuple(f"beta{i}{j}" for j in (1, 2, 3) for i in (1, 2, 3, 4))
+_LADR_NAMES = _LADR_BETAS + ("b1", "b2", "b3", "b4", "r1", "r2", "r3", "r4")
+
+
+def decision_names(kind: str) -> tuple:
+    """Names of the tuning variables of a controller type, in decision-vector order."""
+    if kind == "folqi":
+        return _LQI_NAMES + ("alpha1", "alpha2")
+    if kind == "iolqi":
+        return _LQI_NAMES
+    if kind == "ladr":
+        return _LADR_NAMES
+    raise ConfigError(f"unknown controller type {kind!r}; allowed: {', '.join(CONTROLLER_TYPES)}")
+
+
+def default_bounds(kind: str) -> dict:
+    """Thesis bounds (sec. 4.3 and 5.3): Q in [0.01, 2.5], R in [0.1, 5], Ki in [0.1, 10],
+    alpha in [0.1, 2]; LADR beta in [0, 150], b and r in [0, 10]."""
+    out = {}
+    for name in decision_names(kind):
+        if name.startswith("Q"):
+            out[name] = (0.01, 2.5)
+        elif name.startswith("R"):
+            out[name] = (0.1, 5.0)
+        elif name.startswith("Ki"):
+            out[name] = (0.1, 10.0)
+        elif name.startswith("alpha"):
+            out[name] = (0.1, 2.0)
+        elif name.startswith("beta"):
+            out[name] = (0.0, 150.0)
+        else:
+            out[name] = (0.0, 10.0)
+    return out
+
+
+def _folqi(values: dict, A, B, alphas, order, band, realisation) -> LinearController:
+    Q = np.diag([values["Q11"], values["Q22"], values["Q33"], values["Q44"]])
+    R = np.diag([values["R11"], values["R22"]])
+    K = lqr_gain(A, B, Q, R)
+    ki = (values["Ki1"], values["Ki2"])
+    parts = [fractional_integrator(a, order, band, realisation).state_space() for a in alphas]
+    nz = sum(p[0].shape[0] for p in parts)
+    Ac = np.zeros((nz, nz))
+    Bc = np.zeros((nz, N_MEASURED))
+    Cc = np.zeros((N_INPUTS, nz))
+    Dc = -K.copy()
+    blocks = []
+    start = 0
+    for ch, (Af, bf, cf, df) in enumerate(parts):
+        stop = start + Af.shape[0]
+        Ac[start:stop, start:stop] = Af
+        Bc[start:stop, ch] = -bf  # e_ch = -w_ch
+        Cc[ch, start:stop] = ki[ch] * cf
+        Dc[ch, ch] -= ki[ch] * df
+        blocks.append((start, stop))
+        start = stop
+    return LinearController(Ac, Bc, Cc, Dc, tuple(blocks), (0, 1))
+
+
+def _ladr(values: dict) -> LinearController:
+    """LADR of the thesis Appendix A (eq. A.1-A.22), implemented as printed.
+
+    Channel 1 (pump 1) observes tanks 1 and 4 with states (Z1, Z4, Z5, Z7); channel 2 observes
+    tanks 2 and 3 with (Z2, Z3, Z6, Z8). Printed quirks kept as written: A.4 has ``+ b4 u1`` in
+    the extended state Z5 while A.9 has no input term; A.5 uses ``beta12`` (``beta42`` is never
+    used); A.18/A.21 add two gains on the same error. With a zero set-point (``x_id = 0``) the
+    tracking-differentiator states Z11..Z14 stay at zero, so they are left out of the
+    realisation and ``r1..r4`` have no effect on the regulator.
+    """
+    b = [values[f"b{i}"] for i in (1, 2, 3, 4)]
+    if min(b) <= 0.0:
+        raise ControllerDesignError("invalid_controller", "LADR needs b1..b4 > 0 (u = ... - Z/b)")
+    beta = {name: values[name] for name in _LADR_BETAS}
+    # channel: (pump, measured pair, observer gains, b pair, feedback gain, extended-state terms)
+    channels = [
+        dict(ch=0, meas=(0, 3), l=(beta["beta11"], beta["beta41"]), bb=(b[0], b[3]),
+             kp=beta["beta13"] + beta["beta43"],
+             ext=((-beta["beta12"], b[3]), (-beta["beta12"], 0.0))),
+        dict(ch=1, meas=(1, 2), l=(beta["beta21"], beta["beta31"]), bb=(b[1], b[2]),
+             kp=beta["beta23"] + beta["beta33"],
+             ext=((-beta["beta22"], 0.0), (-beta["beta32"], 0.0))),
+    ]
+    nz = 8
+    Ac = np.zeros((nz, nz))
+    Bc = np.zeros((nz, N_MEASURED))
+    Cc = np.zeros((N_INPUTS, nz))
+    Dc = np.zeros((N_INPUTS, N_MEASURED))
+    blocks = []
+    for c in channels:
+        s = 4 * c["ch"]  # local states: [Zp, Zq, Ep, Eq] (observer pair and extended states)
+        ip, iq, ep, eq = s, s + 1, s + 2, s + 3
+        # u = kp (0 - Zp - Zq) - Ep / bp - Eq / bq
+        cu = np.zeros(nz)
+        cu[ip] = cu[iq] = -c["kp"]
+        cu[ep] = -1.0 / c["bb"][0]
+        cu[eq] = -1.0 / c["bb"][1]
+        Cc[c["ch"]] = cu
+        # observer error e = Zp + Zq - x_p - x_q
+        ce = np.zeros(nz)
+        ce[ip] = ce[iq] = 1.0
+        de = np.zeros(N_MEASURED)
+        de[list(c["meas"])] = -1.0
+        for row, ext, gain, bu in ((ip, ep, c["l"][0], c["bb"][0]), (iq, eq, c["l"][1], c["bb"][1])):
+            Ac[row, ext] += 1.0
+            Ac[row] += -gain * ce + bu * cu
+            Bc[row] += -gain * de
+        for row, (ge, gu) in zip((ep, eq), c["ext"]):
+            Ac[row] += ge * ce + gu * cu
+            Bc[row] += ge * de
+        blocks.append((s, s + 4))
+    return LinearController(Ac, Bc, Cc, Dc, tuple(blocks), (0, 1))
+
+
+def build_controller(kind: str, values: dict, A: np.ndarray, B: np.ndarray, *,
+                     oustaloup_order: int = 5, band: tuple = (1e-3, 1e3),
+                     realisation: str = "direct") -> LinearController:
+    """Build a controller from its named tuning variables and the linearised plant.
+
+    Parameters
+    ----------
+    kind : {"folqi", "iolqi", "ladr"}
+    values : dict
+        Tuning variables by name (see :func:`decision_names`).
+    A, B : ndarray
+        Linearised plant used for the LQR design (nominal model).
+    oustaloup_order, band, realisation :
+        Fractional-integrator options (FOLQI only).
+
+    Raises
+    ------
+    ControllerDesignError
+        The design fails for this candidate (reason in ``.reason``).
+    """
+    if realisation not in REALISATIONS:
+        raise ConfigError(f"unknown realisation {realisation!r}; allowed: {', '.join(REALISATIONS)}")
+    if kind == "folqi":
+        return _folqi(values, A, B, (values["alpha1"], values["alpha2"]),
+                      oustaloup_order, band, realisation)
+    if kind == "iolqi":
+        return _folqi(values, A, B, (1.0, 1.0), oustaloup_order, band, realisation)
+    if kind == "ladr":
+        return _ladr(values)
+    raise ConfigError(f"unknown controller type {kind!r}; allowed: {', '.join(CONTROLLER_TYPES)}")

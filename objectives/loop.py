@@ -1,0 +1,239 @@
+"""The QTP closed loop: scenario, controller design for one plant case, simulation, metrics.
+
+This is the Python facade over the jitted kernels in :mod:`heurtune.objectives._kernels`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pandas as pd
+
+from heurtune.errors import ConfigError
+from heurtune.objectives import _kernels
+from heurtune.objectives.controllers import LinearController, build_controller
+from heurtune.objectives.qtp import QTPParams, linearise, operating_point
+
+__all__ = ["Scenario", "ClosedLoop", "SimulationResult", "METRIC_NAMES"]
+
+METRIC_NAMES = _kernels.METRIC_NAMES
+
+
+def _pair(key, value):
+    try:
+        a, b = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"scenario.{key} must be two numbers, got {value!r}") from None
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise ConfigError(f"scenario.{key} must be finite, got {value!r}")
+    return (a, b)
+
+
+@dataclasses.dataclass(frozen=True)
+class Scenario:
+    """What a closed-loop simulation exercises.
+
+    Parameters
+    ----------
+    horizon : float
+        Simulated time T in s (thesis: 350).
+    dt : float
+        Fixed step in s (default 0.01); ``horizon`` must be a whole number of steps.
+    output_disturbance : (float, float)
+        Additive step on the measured levels y1 = h1 + d1, y2 = h2 + d2 in cm (thesis: 1 cm).
+    disturbance_time : float
+        When the output disturbance starts, s (thesis: 50).
+    input_disturbance : (float, float)
+        Additive step on the pump voltages in V (off by default).
+    input_disturbance_time : float
+        When the input disturbance starts, s.
+    noise_sd : float
+        Standard deviation in cm of white measurement noise on all four measured levels.
+    noise_seed : int
+        Seed of that noise.
+    saturation : (float, float) or None
+        Pump limits [u_min, u_max] in V with conditional-integration anti-windup; None = off.
+    uncertainty : float
+        Factor on every A_i and a_i of the plant (1.0 nominal; thesis robustness 0.7 and 1.3).
+    """
+
+    horizon: float = 350.0
+    dt: float = 0.01
+    output_disturbance: tuple = (1.0, 1.0)
+    disturbance_time: float = 50.0
+    input_disturbance: tuple = (0.0, 0.0)
+    input_disturbance_time: float = 0.0
+    noise_sd: float = 0.0
+    noise_seed: int = 0
+    saturation: tuple | None = None
+    uncertainty: float = 1.0
+
+    def __post_init__(self):
+        for key in ("horizon", "dt", "disturbance_time", "input_disturbance_time", "noise_sd",
+                    "uncertainty"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ConfigError(f"scenario.{key} must be a finite number, got {v!r}")
+        if self.dt <= 0 or self.horizon <= 0:
+            raise ConfigError(f"scenario.dt and scenario.horizon must be positive, got {self.dt}, {self.horizon}")
+        if abs(self.n_steps * self.dt - self.horizon) > 1e-9 * self.horizon:
+            raise ConfigError(f"scenario.horizon ({self.horizon}) must be a whole number of steps dt ({self.dt})")
+        for key in ("disturbance_time", "input_disturbance_time"):
+            t = getattr(self, key)
+            if not 0 <= t <= self.horizon:
+                raise ConfigError(f"scenario.{key} must lie in [0, horizon], got {t}")
+            if abs(round(t / self.dt) * self.dt - t) > 1e-9 * max(1.0, t):
+                raise ConfigError(f"scenario.{key} ({t}) must be a multiple of dt ({self.dt})")
+        if self.noise_sd < 0:
+            raise ConfigError(f"scenario.noise_sd must be >= 0, got {self.noise_sd}")
+        if self.uncertainty <= 0:
+            raise ConfigError(f"scenario.uncertainty must be positive, got {self.uncertainty}")
+        if isinstance(self.noise_seed, bool) or not isinstance(self.noise_seed, int) or self.noise_seed < 0:
+            raise ConfigError(f"scenario.noise_seed must be a non-negative integer, got {self.noise_seed!r}")
+        object.__setattr__(self, "output_disturbance", _pair("output_disturbance", self.output_disturbance))
+        object.__setattr__(self, "input_disturbance", _pair("input_disturbance", self.input_disturbance))
+        if self.saturation is not None:
+            lo, hi = _pair("saturation", self.saturation)
+            if not lo < hi:
+                raise ConfigError(f"scenario.saturation needs u_min < u_max, got {self.saturation!r}")
+            object.__setattr__(self, "saturation", (lo, hi))
+
+    @property
+    def n_steps(self) -> int:
+        return int(round(self.horizon / self.dt))
+
+    @property
+    def disturbance_index(self) -> int:
+        return int(round(self.disturbance_time / self.dt))
+
+    @property
+    def input_disturbance_index(self) -> int:
+        return int(round(self.input_disturbance_time / self.dt))
+
+    def noise(self) -> np.ndarray:
+        """Measurement noise (n_steps + 1, 4) drawn from ``noise_seed``, or an empty (0, 4)."""
+        if self.noise_sd == 0:
+            return np.zeros((0, 4))
+        rng = np.random.default_rng(self.noise_seed)
+        return rng.normal(0.0, self.noise_sd, size=(self.n_steps + 1, 4))
+
+
+@dataclasses.dataclass
+class SimulationResult:
+    """Sampled response: ``y`` (n+1, 2) measured levels, ``u`` (n+1, 2) voltages, ``h`` true
+    levels (n+1, 4) when recorded, ``diverged`` flag and the operating point used."""
+
+    t: np.ndarray
+    y: np.ndarray
+    u: np.ndarray
+    h: np.ndarray | None
+    diverged: bool
+    h_op: np.ndarray
+    u_op: np.ndarray
+
+    def to_frame(self) -> pd.DataFrame:
+        """Columns t, h1..h4 (if recorded), y1, y2, u1, u2."""
+        cols = {"t": self.t}
+        if self.h is not None:
+            for i in range(4):
+                cols[f"h{i + 1}"] = self.h[:, i]
+        cols.update(y1=self.y[:, 0], y2=self.y[:, 1], u1=self.u[:, 0], u2=self.u[:, 1])
+        return pd.DataFrame(cols)
+
+
+class ClosedLoop:
+    """One plant case under one controller type: design, stability check, simulation, metrics.
+
+    Parameters
+    ----------
+    plant : QTPParams
+        The nominal plant; controllers are designed on its linearisation.
+    kind : {"folqi", "iolqi", "ladr"}
+    oustaloup_order, band, realisation :
+        Fractional-integrator options (FOLQI).
+    """
+
+    def __init__(self, plant: QTPParams, kind: str, *, oustaloup_order: int = 5,
+                 band: tuple = (1e-3, 1e3), realisation: str = "direct"):
+        self.plant = plant
+        self.kind = kind
+        self.options = dict(oustaloup_order=oustaloup_order, band=tuple(band), realisation=realisation)
+        self.op = operating_point(plant)
+        self.A, self.B, self.C = linearise(plant, self.op)
+        self._buffers = {}
+        self._plants = {}
+
+    # -- design ---------------------------------------------------------------------------
+    def controller(self, values: dict) -> LinearController:
+        """Design the controller for named tuning ``values`` (raises ControllerDesignError)."""
+        return build_controller(self.kind, values, self.A, self.B, **self.options)
+
+    def stability_margin(self, ctrl: LinearController) -> float:
+        """Largest real part of the linearised closed-loop eigenvalues (negative = stable)."""
+        Acl = ctrl.closed_loop_matrix(self.A, self.B)
+        if not np.all(np.isfinite(Acl)):
+            return math.inf
+        return float(np.max(np.linalg.eigvals(Acl).real))
+
+    # -- simulation -----------------------------------------------------------------------
+    def _perturbed(self, factor: float):
+        if factor not in self._plants:
+            p = self.plant if factor == 1.0 else self.plant.scaled(factor)
+            self._plants[factor] = (p.as_array(), operating_point(p).u)
+        return self._plants[factor]
+
+    def _buffer(self, n: int, record_levels: bool):
+        key = (n, record_levels)
+        if key not in self._buffers:
+            self._buffers[key] = (
+                np.empty((n + 1, 2)), np.empty((n + 1, 2)),
+                np.empty((n + 1, 4)) if record_levels else np.zeros((0, 4)),
+            )
+        return self._buffers[key]
+
+    def run(self, ctrl: LinearController, scenario: Scenario, *, record_levels: bool = False,
+            copy: bool = True) -> SimulationResult:
+        """Simulate the nonlinear loop (kernel :func:`simulate_loop`).
+
+        With ``copy=False`` the arrays are internal buffers reused by the next call.
+        """
+        p_arr, u_op = self._perturbed(scenario.uncertainty)
+        n = scenario.n_steps
+        y, u, h = self._buffer(n, record_levels)
+        Ad, Bd = ctrl.discretise(scenario.dt)
+        block_start = np.array([b[0] for b in ctrl.blocks] + [ctrl.blocks[-1][1]], dtype=np.int64) \
+            if ctrl.blocks else np.zeros(1, dtype=np.int64)
+        block_channel = np.array(ctrl.block_channel, dtype=np.int64)
+        sat = scenario.saturation
+        status, _ = _kernels.simulate_loop(
+            p_arr, self.op.h, self.op.h, u_op, Ad, Bd, ctrl.C, ctrl.D, block_start, block_channel,
+            scenario.dt, n, scenario.disturbance_index, np.asarray(scenario.output_disturbance),
+            scenario.input_disturbance_index, np.asarray(scenario.input_disturbance),
+            scenario.noise(), sat is not None, sat[0] if sat else 0.0, sat[1] if sat else 0.0,
+            y, u, h,
+        )
+        t = np.arange(n + 1) * scenario.dt
+        if copy:
+            y, u, h = y.copy(), u.copy(), h.copy()
+        return SimulationResult(t, y, u, h if record_levels else None,
+                                status != _kernels.STATUS_OK, self.op.h.copy(), u_op.copy())
+
+    def metrics(self, sim: SimulationResult, scenario: Scenario, settling_band: float) -> np.ndarray:
+        """Metric vector in the order of METRIC_NAMES (NaN when the run diverged)."""
+        out = np.full(_kernels.N_METRICS, np.nan)
+        if sim.diverged:
+            return out
+        _kernels.loop_metrics(sim.y, sim.u, sim.h_op[:2], sim.u_op, scenario.dt,
+                              scenario.disturbance_index, settling_band, out)
+        return out
+
+    def warm_up(self):
+        """Compile (or load from cache) the kernels on a tiny problem."""
+        sc = Scenario(horizon=0.02, dt=0.01, disturbance_time=0.0)
+        A = np.zeros((1, 1))
+        ctrl = LinearController(A, np.zeros((1, 4)), np.zeros((2, 1)), np.zeros((2, 4)), ((0, 1),), (0,))
+        sim = self.run(ctrl, sc)
+        self.metrics(sim, sc, 3.0)
+
