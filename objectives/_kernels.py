@@ -24,50 +24,76 @@ METRIC_NAMES = (
 )
 N_METRICS = len(METRIC_NAMES)
 
+# Floating-point licence for the simulation kernel: reassociation lets LLVM vectorise the
+# controller's matrix-vector products; NaN and inf keep their IEEE meaning (divergence checks).
+_FAST = {"reassoc", "contract", "nsz", "arcp"}
+
+
+def plant_coefficients(p):
+    """Coefficients of the QTP right-hand side, so that the kernels need no division.
+
+    Parameters
+    ----------
+    p : (13,) ``[A1..A4, a1..a4, k1, k2, gamma1, gamma2, g]`` (see ``QTPParams.as_array``)
+
+    Returns
+    -------
+    (10,) ndarray ``[c1, c2, c3, c4, c31, c42, b11, b22, b32, b41]`` with::
+
+        dh1 = -c1 sqrt(h1) + c31 sqrt(h3) + b11 u1      dh3 = -c3 sqrt(h3) + b32 u2
+        dh2 = -c2 sqrt(h2) + c42 sqrt(h4) + b22 u2      dh4 = -c4 sqrt(h4) + b41 u1
+    """
+    A, a, k1, k2, g1, g2, g = p[0:4], p[4:8], p[8], p[9], p[10], p[11], p[12]
+    r = math.sqrt(2.0 * g)
+    return np.array([
+        a[0] * r / A[0], a[1] * r / A[1], a[2] * r / A[2], a[3] * r / A[3],
+        a[2] * r / A[0], a[3] * r / A[1],
+        g1 * k1 / A[0], g2 * k2 / A[1], (1.0 - g2) * k2 / A[2], (1.0 - g1) * k1 / A[3],
+    ])
+
 
 @njit(cache=True, inline="always")
-def _qtp_rhs(h, u1, u2, p, dh):
-    """dh/dt of the QTP. p = [A1..A4, a1..a4, k1, k2, gamma1, gamma2, g]."""
-    two_g = 2.0 * p[12]
-    q1 = p[4] * math.sqrt(two_g * max(h[0], 0.0))
-    q2 = p[5] * math.sqrt(two_g * max(h[1], 0.0))
-    q3 = p[6] * math.sqrt(two_g * max(h[2], 0.0))
-    q4 = p[7] * math.sqrt(two_g * max(h[3], 0.0))
-    f1 = p[8] * u1
-    f2 = p[9] * u2
-    dh[0] = (-q1 + q3 + p[10] * f1) / p[0]
-    dh[1] = (-q2 + q4 + p[11] * f2) / p[1]
-    dh[2] = (-q3 + (1.0 - p[11]) * f2) / p[2]
-    dh[3] = (-q4 + (1.0 - p[10]) * f1) / p[3]
+def _qtp_rhs(h, u1, u2, c, dh):
+    """dh/dt of the QTP (levels clipped at 0 under the roots); ``c`` from plant_coefficients."""
+    s1 = math.sqrt(max(h[0], 0.0))
+    s2 = math.sqrt(max(h[1], 0.0))
+    s3 = math.sqrt(max(h[2], 0.0))
+    s4 = math.sqrt(max(h[3], 0.0))
+    dh[0] = c[4] * s3 - c[0] * s1 + c[6] * u1
+    dh[1] = c[5] * s4 - c[1] * s2 + c[7] * u2
+    dh[2] = c[8] * u2 - c[2] * s3
+    dh[3] = c[9] * u1 - c[3] * s4
 
 
 @njit(cache=True)
-def qtp_rhs(h, u, p):
-    """Python-callable wrapper of the kernel right-hand side (for tests)."""
+def qtp_rhs(h, u, c):
+    """Kernel right-hand side callable from Python (for tests); ``c`` from plant_coefficients."""
     dh = np.empty(4)
-    _qtp_rhs(h, u[0], u[1], p, dh)
+    _qtp_rhs(h, u[0], u[1], c, dh)
     return dh
 
 
-@njit(cache=True)
-def simulate_loop(p, h_init, h_op, u_op, Ad, Bd, Cc, Dc, block_start, block_channel,
+@njit(cache=True, fastmath=_FAST)
+def simulate_loop(c, h_init, h_op, u_op, ad, Bd, Ad, Cc, Dc, state_channel,
                   dt, n_steps, i_out_dist, out_dist, i_in_dist, in_dist, noise,
                   saturate, u_min, u_max, y_rec, u_rec, h_rec):
     """Fixed-step closed loop: sampled linear controller, RK4 nonlinear plant.
 
     At each sample ``k`` (``t = k dt``) the controller reads the measured deviations
-    ``w = [h1 + d1 - h1o, h2 + d2 - h2o, h3 - h3o, h4 - h4o] (+ noise)``, outputs
-    ``u = u_op + Cc z + Dc w`` (optionally clipped to [u_min, u_max]), which is held over the
-    step while RK4 integrates the plant; then ``z <- Ad z + Bd w`` (exact ZOH discretisation).
-    A controller block whose pump is saturated is not updated (conditional integration).
+    ``w = [h1 + d1 - h1o, h2 + d2 - h2o, h3 - h3o, h4 - h4o] (+ noise)`` and outputs
+    ``u = u_op + Cc z + Dc w`` (optionally clipped to [u_min, u_max]); ``u`` is held over the
+    step while classic RK4 integrates the plant, and the controller advances by its exact
+    zero-order-hold discretisation. The first ``nd = ad.size`` controller states are modal
+    (``z_i <- ad_i z_i + Bd_i w``), the remaining ``nz - nd`` evolve with the dense ``Ad``.
+    With saturation on, the states of a saturated pump's channel are held (conditional
+    integration anti-windup).
 
     Parameters
     ----------
-    p : (13,) plant parameters (see ``QTPParams.as_array``)
+    c : (10,) plant coefficients (see plant_coefficients)
     h_init, h_op : (4,) initial and operating levels; u_op : (2,) operating voltages
-    Ad : (nz, nz), Bd : (nz, 4), Cc : (2, nz), Dc : (2, 4)
-    block_start : (nb + 1,) int64, block b spans states [block_start[b], block_start[b+1])
-    block_channel : (nb,) int64, pump driven by each block
+    ad : (nd,) modal state factors; Bd : (nz, 4); Ad : (nz - nd, nz - nd)
+    Cc : (2, nz); Dc : (2, 4); state_channel : (nz,) int64, pump each state belongs to
     dt : float; n_steps : int, the horizon is ``n_steps * dt``
     i_out_dist : int, first sample with the measured-level disturbance ``out_dist`` (2,)
     i_in_dist : int, first sample with the pump-voltage disturbance ``in_dist`` (2,)
@@ -79,12 +105,12 @@ def simulate_loop(p, h_init, h_op, u_op, Ad, Bd, Cc, Dc, block_start, block_chan
     Returns
     -------
     status : int
-        STATUS_OK, or STATUS_DIVERGED (records past the last finite sample are NaN).
+        STATUS_OK, or STATUS_DIVERGED (records after the divergence are NaN).
     last : int
-        Index of the last recorded sample.
+        Index of the last finite sample.
     """
-    nz = Ad.shape[0]
-    nb = block_start.shape[0] - 1
+    nz = Bd.shape[0]
+    nd = ad.shape[0]
     z = np.zeros(nz)
     z_new = np.zeros(nz)
     w = np.zeros(4)
@@ -98,6 +124,7 @@ def simulate_loop(p, h_init, h_op, u_op, Ad, Bd, Cc, Dc, block_start, block_chan
     has_noise = noise.shape[0] > 0
     rec_h = h_rec.shape[0] > 0
     half = 0.5 * dt
+    sixth = dt / 6.0
     for k in range(n_steps + 1):
         d1 = out_dist[0] if k >= i_out_dist else 0.0
         d2 = out_dist[1] if k >= i_out_dist else 0.0
@@ -108,29 +135,16 @@ def simulate_loop(p, h_init, h_op, u_op, Ad, Bd, Cc, Dc, block_start, block_chan
         if has_noise:
             for i in range(4):
                 w[i] += noise[k, i]
-        u1 = u_op[0]
-        u2 = u_op[1]
+        u1 = u_op[0] + Dc[0, 0] * w[0] + Dc[0, 1] * w[1] + Dc[0, 2] * w[2] + Dc[0, 3] * w[3]
+        u2 = u_op[1] + Dc[1, 0] * w[0] + Dc[1, 1] * w[1] + Dc[1, 2] * w[2] + Dc[1, 3] * w[3]
         for j in range(nz):
             u1 += Cc[0, j] * z[j]
             u2 += Cc[1, j] * z[j]
-        for i in range(4):
-            u1 += Dc[0, i] * w[i]
-            u2 += Dc[1, i] * w[i]
-        frozen[0] = False
-        frozen[1] = False
         if saturate:
-            if u1 > u_max:
-                u1 = u_max
-                frozen[0] = True
-            elif u1 < u_min:
-                u1 = u_min
-                frozen[0] = True
-            if u2 > u_max:
-                u2 = u_max
-                frozen[1] = True
-            elif u2 < u_min:
-                u2 = u_min
-                frozen[1] = True
+            frozen[0] = u1 > u_max or u1 < u_min
+            frozen[1] = u2 > u_max or u2 < u_min
+            u1 = min(max(u1, u_min), u_max)
+            u2 = min(max(u2, u_min), u_max)
         y_rec[k, 0] = w[0] + h_op[0]
         y_rec[k, 1] = w[1] + h_op[1]
         u_rec[k, 0] = u1
@@ -140,39 +154,39 @@ def simulate_loop(p, h_init, h_op, u_op, Ad, Bd, Cc, Dc, block_start, block_chan
                 h_rec[k, i] = h[i]
         if k == n_steps:
             break
-        # Controller update, block by block (A is block diagonal).
-        for b in range(nb):
-            s = block_start[b]
-            e = block_start[b + 1]
-            if frozen[block_channel[b]]:
-                for i in range(s, e):
-                    z_new[i] = z[i]
-                continue
-            for i in range(s, e):
-                acc = Bd[i, 0] * w[0] + Bd[i, 1] * w[1] + Bd[i, 2] * w[2] + Bd[i, 3] * w[3]
-                for j in range(s, e):
-                    acc += Ad[i, j] * z[j]
-                z_new[i] = acc
-        for i in range(nz):
-            z[i] = z_new[i]
+        # Controller: modal states, then the dense part.
+        for i in range(nd):
+            z_new[i] = ad[i] * z[i] + Bd[i, 0] * w[0] + Bd[i, 1] * w[1] + Bd[i, 2] * w[2] + Bd[i, 3] * w[3]
+        for i in range(nd, nz):
+            acc = Bd[i, 0] * w[0] + Bd[i, 1] * w[1] + Bd[i, 2] * w[2] + Bd[i, 3] * w[3]
+            for j in range(nd, nz):
+                acc += Ad[i - nd, j - nd] * z[j]
+            z_new[i] = acc
+        if saturate:
+            for i in range(nz):
+                if not frozen[state_channel[i]]:
+                    z[i] = z_new[i]
+        else:
+            for i in range(nz):
+                z[i] = z_new[i]
         # Plant: classic RK4 with the pump voltages held over the step.
         if k >= i_in_dist:
             u1 += in_dist[0]
             u2 += in_dist[1]
-        _qtp_rhs(h, u1, u2, p, k1)
+        _qtp_rhs(h, u1, u2, c, k1)
         for i in range(4):
             tmp[i] = h[i] + half * k1[i]
-        _qtp_rhs(tmp, u1, u2, p, k2)
+        _qtp_rhs(tmp, u1, u2, c, k2)
         for i in range(4):
             tmp[i] = h[i] + half * k2[i]
-        _qtp_rhs(tmp, u1, u2, p, k3)
+        _qtp_rhs(tmp, u1, u2, c, k3)
         for i in range(4):
             tmp[i] = h[i] + dt * k3[i]
-        _qtp_rhs(tmp, u1, u2, p, k4)
+        _qtp_rhs(tmp, u1, u2, c, k4)
         ok = True
         for i in range(4):
-            h[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
-            if not (abs(h[i]) < LEVEL_LIMIT):  # catches NaN too
+            h[i] += sixth * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
+            if not (abs(h[i]) < LEVEL_LIMIT):  # also catches NaN
                 ok = False
         if not ok:
             for kk in range(k + 1, n_steps + 1):

@@ -32,6 +32,7 @@ from heurtune.objectives.oustaloup import REALISATIONS, fractional_integrator
 
 __all__ = [
     "LinearController",
+    "DiscreteController",
     "ControllerDesignError",
     "lqr_gain",
     "CONTROLLER_TYPES",
@@ -42,6 +43,8 @@ __all__ = [
 
 N_MEASURED = 4
 N_INPUTS = 2
+# Largest eigenvector condition number for which a block is simulated in modal form.
+MODAL_COND_LIMIT = 1e6
 
 
 class ControllerDesignError(RuntimeError):
@@ -77,48 +80,97 @@ class LinearController:
     def n_states(self) -> int:
         return self.A.shape[0]
 
-    def discretise(self, dt: float):
+    def discretise(self, dt: float) -> "DiscreteController":
         """Exact zero-order-hold discretisation, block by block.
 
-        Returns
-        -------
-        Ad : (nz, nz) ndarray
-        Bd : (nz, 4) ndarray
-            ``z[k+1] = Ad z[k] + Bd w[k]`` with ``w`` held over the step.
+        A block whose eigenvalues are real with a well-conditioned eigenvector matrix
+        (``cond(V) < MODAL_COND_LIMIT``; e.g. Oustaloup cascades with at most one integrator)
+        is put in modal form, so that each of its states advances by one multiplication; other
+        blocks (complex modes, Jordan chains such as a double integrator) keep a dense matrix
+        exponential.
         """
-        nz, nw = self.B.shape
-        Ad = np.zeros((nz, nz))
-        Bd = np.zeros((nz, nw))
-        for start, stop in self.blocks:
-            n = stop - start
-            if n == 0:
-                continue
-            M = np.zeros((n + nw, n + nw))
-            M[:n, :n] = self.A[start:stop, start:stop]
-            M[:n, n:] = self.B[start:stop]
-            E = scipy.linalg.expm(M * dt)
-            Ad[start:stop, start:stop] = E[:n, :n]
-            Bd[start:stop] = E[:n, n:]
-        return Ad, Bd
+        nw = self.B.shape[1]
+        modal, dense = [], []
+        for (start, stop), ch in zip(self.blocks, self.block_channel):
+            A = self.A[start:stop, start:stop]
+            B = self.B[start:stop]
+            C = self.C[:, start:stop]
+            lam, V = np.linalg.eig(A)
+            if not np.iscomplexobj(lam) and np.linalg.cond(V) < MODAL_COND_LIMIT:
+                Vi = np.linalg.inv(V)
+                x = lam * dt
+                # (e^{lam dt} - 1) / lam, which is dt for lam = 0
+                phi = np.where(np.abs(x) > 1e-300, np.expm1(x) / np.where(x == 0, 1.0, lam), dt)
+                modal.append((np.exp(x), phi[:, None] * (Vi @ B), C @ V, ch))
+            else:
+                n = stop - start
+                M = np.zeros((n + nw, n + nw))
+                M[:n, :n] = A
+                M[:n, n:] = B
+                E = scipy.linalg.expm(M * dt)
+                dense.append((E[:n, :n], E[:n, n:], C, ch))
+        nd = sum(m[0].size for m in modal)
+        nzd = sum(d[0].shape[0] for d in dense)
+        ad = np.concatenate([m[0] for m in modal]) if modal else np.zeros(0)
+        Ad = scipy.linalg.block_diag(*[d[0] for d in dense]) if dense else np.zeros((0, 0))
+        Bd = np.vstack([m[1] for m in modal] + [d[1] for d in dense]) if nd + nzd else np.zeros((0, nw))
+        Cc = np.hstack([m[2] for m in modal] + [d[2] for d in dense]) if nd + nzd else np.zeros((2, 0))
+        channel = np.concatenate(
+            [np.full(m[0].size, m[3]) for m in modal] + [np.full(d[0].shape[0], d[3]) for d in dense]
+        ).astype(np.int64) if nd + nzd else np.zeros(0, dtype=np.int64)
+        return DiscreteController(ad, np.ascontiguousarray(Ad), np.ascontiguousarray(Bd),
+                                  np.ascontiguousarray(Cc), np.ascontiguousarray(self.D), channel, dt)
 
     def closed_loop_matrix(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
         """State matrix of the loop with the linearised plant ``dx' = A dx + B du`` (w = dx)."""
         return np.block([[A + B @ self.D, B @ self.C], [self.B, self.A]])
 
 
+@dataclasses.dataclass(frozen=True)
+class DiscreteController:
+    """Sampled controller as the simulation kernel takes it.
+
+    ``z[k+1] = diag(ad) z_m[k] (+) Ad z_d[k] + Bd w[k]``, ``du[k] = Cc z[k] + Dc w[k]``; the first
+    ``ad.size`` states are modal, the rest dense. ``state_channel`` names each state's pump.
+    """
+
+    ad: np.ndarray
+    Ad: np.ndarray
+    Bd: np.ndarray
+    Cc: np.ndarray
+    Dc: np.ndarray
+    state_channel: np.ndarray
+    dt: float
+
+
 def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
     """State-feedback gain ``K = R^-1 B^T P`` from the continuous algebraic Riccati equation.
+
+    ``P`` comes from the ordered real Schur form of the Hamiltonian
+    ``H = [[A, -B R^-1 B^T], [-Q, -A^T]]`` (Laub's method): with the stable invariant subspace
+    spanned by ``[U11; U21]``, ``P = U21 U11^-1``. For the 4-state QTP this is about four times
+    faster than ``scipy.linalg.solve_continuous_are`` (whose balancing and QZ steps matter for
+    larger, badly scaled problems); the tests compare both, and python-control's ``lqr``.
 
     Raises
     ------
     ControllerDesignError
-        With reason ``riccati_failed`` when the CARE has no stabilising solution.
+        With reason ``riccati_failed`` when there is no stabilising solution.
     """
+    n = A.shape[0]
     try:
-        P = scipy.linalg.solve_continuous_are(A, B, Q, R)
-        K = np.linalg.solve(R, B.T @ P)
+        Rinv_Bt = np.linalg.solve(R, B.T)
+        H = np.block([[A, -B @ Rinv_Bt], [-Q, -A.T]])
+        _, Z, sdim = scipy.linalg.schur(H, output="real", sort="lhp")
+        if sdim != n:
+            raise ControllerDesignError("riccati_failed", f"{sdim} stable Hamiltonian eigenvalues, need {n}")
+        U11, U21 = Z[:n, :n], Z[n:, :n]
+        if np.linalg.cond(U11) > 1e12:
+            raise ControllerDesignError("riccati_failed", "ill-conditioned stable subspace")
+        P = np.linalg.solve(U11.T, U21.T).T
     except (np.linalg.LinAlgError, ValueError) as exc:
         raise ControllerDesignError("riccati_failed", str(exc)) from None
+    K = Rinv_Bt @ (0.5 * (P + P.T))
     if not np.all(np.isfinite(K)):
         raise ControllerDesignError("riccati_failed", "non-finite gain")
     return K

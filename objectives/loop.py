@@ -181,7 +181,7 @@ class ClosedLoop:
     def _perturbed(self, factor: float):
         if factor not in self._plants:
             p = self.plant if factor == 1.0 else self.plant.scaled(factor)
-            self._plants[factor] = (p.as_array(), operating_point(p).u)
+            self._plants[factor] = (_kernels.plant_coefficients(p.as_array()), operating_point(p).u)
         return self._plants[factor]
 
     def _buffer(self, n: int, record_levels: bool):
@@ -199,16 +199,13 @@ class ClosedLoop:
 
         With ``copy=False`` the arrays are internal buffers reused by the next call.
         """
-        p_arr, u_op = self._perturbed(scenario.uncertainty)
+        coef, u_op = self._perturbed(scenario.uncertainty)
         n = scenario.n_steps
         y, u, h = self._buffer(n, record_levels)
-        Ad, Bd = ctrl.discretise(scenario.dt)
-        block_start = np.array([b[0] for b in ctrl.blocks] + [ctrl.blocks[-1][1]], dtype=np.int64) \
-            if ctrl.blocks else np.zeros(1, dtype=np.int64)
-        block_channel = np.array(ctrl.block_channel, dtype=np.int64)
+        dc = ctrl.discretise(scenario.dt)
         sat = scenario.saturation
         status, _ = _kernels.simulate_loop(
-            p_arr, self.op.h, self.op.h, u_op, Ad, Bd, ctrl.C, ctrl.D, block_start, block_channel,
+            coef, self.op.h, self.op.h, u_op, dc.ad, dc.Bd, dc.Ad, dc.Cc, dc.Dc, dc.state_channel,
             scenario.dt, n, scenario.disturbance_index, np.asarray(scenario.output_disturbance),
             scenario.input_disturbance_index, np.asarray(scenario.input_disturbance),
             scenario.noise(), sat is not None, sat[0] if sat else 0.0, sat[1] if sat else 0.0,
