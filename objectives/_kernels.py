@@ -218,7 +218,9 @@ def loop_metrics(y, u, y_op, u_op, dt, i_dist, band_pct, out):
         ts_i   time after t_d from which that deviation stays inside the band (linear
                interpolation of the last exit); 0 if it never leaves, T - t_d if it ends outside
         ess_i  |y_i(T) - y_op_i| / y_op_i * 100
-        IAE_i, ISE_i, ITAE_i  trapezoidal integrals of |e|, e^2, t |e| over [0, T], e = y_i - y_op_i
+        IAE_i, ISE_i, ITAE_i  integrals of |e|, e^2, t |e| over [0, T], e = y_i - y_op_i, by the
+               trapezoid rule except on the step just before t_d, where the measured level
+               jumps and the left value holds
         J_j    integral of u_j^2 over [0, T] (exact for the held input)
         Jdev_j integral of (u_j - u_op_j)^2 over [0, T]
         TV_j   sum of |u_j[k+1] - u_j[k]|
@@ -240,7 +242,12 @@ def loop_metrics(y, u, y_op, u_op, dt, i_dist, band_pct, out):
                     mp = a
                 if a > band:
                     last_out = k
-            if k > 0:
+            if k == i_dist and k > 0:
+                # The step disturbance jumps at t_d: the interval before it holds the old value.
+                iae += dt * prev_a
+                ise += dt * prev_a * prev_a
+                itae += dt * (k - 1) * dt * prev_a
+            elif k > 0:
                 iae += 0.5 * dt * (a + prev_a)
                 ise += 0.5 * dt * (a * a + prev_a * prev_a)
                 itae += 0.5 * dt * (k * dt * a + (k - 1) * dt * prev_a)

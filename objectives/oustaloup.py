@@ -52,10 +52,13 @@ def oustaloup_zpk(r: float, order: int = 5, band: tuple = (1e-3, 1e3)):
     gain : float
         ``wh^r``.
     """
-    wb, wh = float(band[0]), float(band[1])
+    try:
+        wb, wh = (float(v) for v in band)
+    except (TypeError, ValueError):
+        raise ConfigError(f"oustaloup band must be two numbers (wb, wh), got {band!r}") from None
     if not (0 < wb < wh) or not math.isfinite(wh):
         raise ConfigError(f"oustaloup band must satisfy 0 < wb < wh, got {band!r}")
-    if int(order) != order or order < 1:
+    if isinstance(order, bool) or not isinstance(order, (int, np.integer)) or order < 1:
         raise ConfigError(f"oustaloup order must be a positive integer, got {order!r}")
     if not -1.0 < r < 1.0:
         raise ConfigError(f"oustaloup order r must lie in (-1, 1), got {r!r}")
@@ -68,7 +71,7 @@ def oustaloup_zpk(r: float, order: int = 5, band: tuple = (1e-3, 1e3)):
     return -zk, -pk, wh**r
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)
 class FractionalIntegrator:
     """A rational realisation of ``1 / s^alpha``: ``n_integrators`` exact integrators in series
     with ``gain * prod (s - zeros) / (s - poles)`` (empty zeros/poles for integer alpha)."""
@@ -96,8 +99,9 @@ class FractionalIntegrator:
         """Cascade state-space realisation ``(A, B, C, D)`` of the integrator.
 
         The filter sections ``(s - z) / (s - p) = 1 + (p - z) / (s - p)`` come first, then the
-        integrators; the state matrix is lower bidiagonal-triangular and well conditioned
-        even when the poles span six decades.
+        integrators. The state matrix is lower triangular with the poles on its diagonal, so
+        the poles are exact whatever their spread; the tests check the realisation against
+        :meth:`freqresp` to 1e-9.
 
         Returns
         -------

@@ -1,0 +1,83 @@
+"""Evaluate one controller of an experiment under its scenarios.
+
+Usage::
+
+    python -m heurtune.evaluate cs_folqi_qtp --case min \\
+        --x "Q11=0.4431,Q22=0.3027,Q33=0.4434,Q44=1.5722,R11=4.2253,R22=2.5994,Ki1=1.7411,Ki2=7.1716,alpha1=0.9814,alpha2=0.8437" \\
+        [--scenario nominal --scenario +30%] [--out traj.parquet] [--plot resp.png]
+
+Prints one row per scenario: overshoot Mp (%), settling time ts (s) and steady-state error
+ess (%) per output, effort J per input and in total, and feasibility. Mistakes in the command
+(unknown experiment, case, scenario or variable, a missing variable, a value out of bounds) give
+a one-line error and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import pandas as pd
+
+from heurtune.errors import ConfigError
+from heurtune.objectives.controllers import ControllerDesignError
+from heurtune.problem import load_experiment
+
+TABLE_COLUMNS = ["Mp1", "Mp2", "ts1", "ts2", "ess1", "ess2", "J1", "J2", "J", "feasible", "reason"]
+
+
+def _parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="python -m heurtune.evaluate", description=__doc__.split("\n")[0])
+    ap.add_argument("experiment", help="experiment name (experiments/<name>.toml) or a .toml path")
+    ap.add_argument("--case", required=True, help="plant case, e.g. min or nmp")
+    ap.add_argument("--x", required=True, help='decision variables as "NAME=VALUE,NAME=VALUE,..."')
+    ap.add_argument("--scenario", action="append", default=None,
+                    help="scenario to evaluate (repeatable; default: all of the experiment's)")
+    ap.add_argument("--out", help="write trajectories (scenario, t, h1..h4, y1, y2, u1, u2) to this parquet file")
+    ap.add_argument("--plot", help="draw levels and pump voltages to this PNG file")
+    return ap
+
+
+def run(argv=None) -> int:
+    """Entry point; returns the process exit code."""
+    args = _parser().parse_args(argv)
+    try:
+        exp = load_experiment(args.experiment)
+        prob = exp.problem(args.case)
+        x = prob.parse(args.x)
+        scenarios = args.scenario or list(prob.scenarios)
+        for name in scenarios:
+            prob.scenario(name)
+        table = prob.report(x, scenarios)
+        trajectories = None
+        if args.out or args.plot:
+            trajectories = pd.concat(
+                [prob.simulate(x, name).assign(scenario=name) for name in scenarios], ignore_index=True
+            )
+            trajectories = trajectories[["scenario", "t", "h1", "h2", "h3", "h4", "y1", "y2", "u1", "u2"]]
+    except (ConfigError, ControllerDesignError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{exp.name} / case {args.case} / {exp.controller}")
+    with pd.option_context("display.width", 200, "display.max_columns", 20,
+                           "display.float_format", "{:.4f}".format):
+        print(table[TABLE_COLUMNS].to_string())
+    if args.out:
+        from heurtune.io import write_parquet
+
+        write_parquet(trajectories, args.out)
+        print(f"trajectories written to {args.out}")
+    if args.plot:
+        from heurtune.plots import plot_responses
+
+        plot_responses(trajectories, args.plot, title=f"{exp.name} / {args.case}")
+        print(f"figure written to {args.plot}")
+    return 0
+
+
+def main() -> None:
+    sys.exit(run())
+
+
+if __name__ == "__main__":
+    main()

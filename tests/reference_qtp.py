@@ -1,0 +1,140 @@
+"""An independent continuous-time model of the QTP (FO)LQI loop, integrated with scipy.
+
+Nothing here calls heurtune's simulator, controller builder or Oustaloup code: the plant, the
+operating point, the linearisation, the Oustaloup filter (via scipy.signal.zpk2ss) and the LQR
+gain (python-control) are all written or obtained anew, so agreement with the jitted loop is a
+real check. Used by the tests and by benchmarks/bench_evaluate.py as the speed reference.
+"""
+
+from __future__ import annotations
+
+import math
+
+import control
+import numpy as np
+import scipy.signal
+from scipy.integrate import solve_ivp
+
+G = 981.0
+
+
+def plant_rhs(h, u, P):
+    """Johansson's equations, levels clipped at zero under the roots."""
+    A, a, k, gm = P["A"], P["a"], P["k"], P["gamma"]
+    q = [a[i] * math.sqrt(2 * G * max(h[i], 0.0)) for i in range(4)]
+    return np.array([
+        (-q[0] + q[2] + gm[0] * k[0] * u[0]) / A[0],
+        (-q[1] + q[3] + gm[1] * k[1] * u[1]) / A[1],
+        (-q[2] + (1 - gm[1]) * k[1] * u[1]) / A[2],
+        (-q[3] + (1 - gm[0]) * k[0] * u[0]) / A[3],
+    ])
+
+
+def equilibrium(P):
+    gm, k, a = P["gamma"], P["k"], P["a"]
+    h1, h2 = P["levels"]
+    M = np.array([[gm[0] * k[0], (1 - gm[1]) * k[1]], [(1 - gm[0]) * k[0], gm[1] * k[1]]])
+    u = np.linalg.solve(M, [a[0] * math.sqrt(2 * G * h1), a[1] * math.sqrt(2 * G * h2)])
+    h3 = ((1 - gm[1]) * k[1] * u[1] / a[2]) ** 2 / (2 * G)
+    h4 = ((1 - gm[0]) * k[0] * u[0] / a[3]) ** 2 / (2 * G)
+    return np.array([h1, h2, h3, h4]), u
+
+
+def jacobians(P, h0, u0, eps=1e-6):
+    """Central finite differences of plant_rhs."""
+    A = np.zeros((4, 4))
+    B = np.zeros((4, 2))
+    for j in range(4):
+        dh = np.zeros(4)
+        dh[j] = eps * max(1.0, h0[j])
+        A[:, j] = (plant_rhs(h0 + dh, u0, P) - plant_rhs(h0 - dh, u0, P)) / (2 * dh[j])
+    for j in range(2):
+        du = np.zeros(2)
+        du[j] = eps
+        B[:, j] = (plant_rhs(h0, u0 + du, P) - plant_rhs(h0, u0 - du, P)) / (2 * eps)
+    return A, B
+
+
+def frac_integrator_ss(alpha, N=5, wb=1e-3, wh=1e3, realisation="direct"):
+    """1/s^alpha as (A, B, C, D) via scipy.signal.zpk2ss (Oustaloup, thesis eq. 3.4)."""
+    n_int = math.floor(alpha + 1e-12)
+    frac = alpha - n_int
+    zeros, poles, gain = [], [], 1.0
+    if frac > 1e-12:
+        r = -frac if realisation == "direct" else 1 - frac
+        if realisation != "direct":
+            n_int += 1
+        mu = wh / wb
+        for kk in range(-N, N + 1):
+            zeros.append(-wb * mu ** ((kk + N + 0.5 * (1 - r)) / (2 * N + 1)))
+            poles.append(-wb * mu ** ((kk + N + 0.5 * (1 + r)) / (2 * N + 1)))
+        gain = wh**r
+    poles += [0.0] * n_int
+    A, B, C, D = scipy.signal.zpk2ss(zeros, poles, gain)
+    return A, B.ravel(), C.ravel(), float(np.squeeze(D))
+
+
+def reference_loop(P, gains, t_eval, *, d=(1.0, 1.0), t_d=50.0, factor=1.0,
+                   realisation="direct", method="Radau", rtol=1e-9, atol=1e-11):
+    """Continuous FOLQI loop ``u = u0 - K dx_meas + Ki/s^alpha (-dy_meas)``.
+
+    Parameters
+    ----------
+    P : dict with A, a, k, gamma, levels (nominal plant)
+    gains : dict with Q11..Q44, R11, R22, Ki1, Ki2 and optionally alpha1, alpha2 (default 1)
+    t_eval : sample times; d, t_d : measured-level step; factor : scaling of A_i and a_i
+
+    Returns
+    -------
+    y : (len(t_eval), 2) measured levels; u : (len(t_eval), 2) pump voltages
+    """
+    h0, _ = equilibrium(P)
+    A, B = jacobians(P, h0, equilibrium(P)[1])
+    Q = np.diag([gains[f"Q{i}{i}"] for i in (1, 2, 3, 4)])
+    R = np.diag([gains["R11"], gains["R22"]])
+    K, _, _ = control.lqr(A, B, Q, R)
+    Pp = dict(P, A=[x * factor for x in P["A"]], a=[x * factor for x in P["a"]])
+    _, u0 = equilibrium(Pp)
+    filters = [frac_integrator_ss(gains.get(f"alpha{i}", 1.0), realisation=realisation) for i in (1, 2)]
+    sizes = [f[0].shape[0] for f in filters]
+    ki = (gains["Ki1"], gains["Ki2"])
+
+    def control_law(h, xc, dist):
+        w = h - h0
+        w[:2] += dist
+        u = u0 - K @ w
+        e = -w[:2]
+        out = []
+        off = 0
+        for i, (Af, Bf, Cf, Df) in enumerate(filters):
+            xf = xc[off:off + sizes[i]]
+            u[i] += ki[i] * (Cf @ xf + Df * e[i])
+            out.append(Af @ xf + Bf * e[i])
+            off += sizes[i]
+        return u, np.concatenate(out)
+
+    def rhs(t, s, dist):
+        h, xc = s[:4], s[4:]
+        u, dxc = control_law(h.copy(), xc, dist)
+        return np.concatenate([plant_rhs(h, u, Pp), dxc])
+
+    s0 = np.concatenate([h0, np.zeros(sum(sizes))])
+    y = np.empty((len(t_eval), 2))
+    u = np.empty((len(t_eval), 2))
+    t_eval = np.asarray(t_eval)
+    T = t_eval[-1]
+    pieces = [(0.0, t_d, np.zeros(2)), (t_d, T, np.asarray(d, dtype=float))]
+    for t0, t1, dist in pieces:
+        mask = (t_eval >= t0) & ((t_eval < t1) if t1 < T else (t_eval <= t1))
+        te = t_eval[mask]
+        te_full = te if len(te) and te[-1] >= t1 else np.append(te, t1)
+        sol = solve_ivp(rhs, (t0, t1), s0, method=method, t_eval=te_full, args=(dist,),
+                        rtol=rtol, atol=atol)
+        if not sol.success:
+            raise RuntimeError(sol.message)
+        for j, idx in enumerate(np.flatnonzero(mask)):
+            h, xc = sol.y[:4, j], sol.y[4:, j]
+            y[idx] = h[:2] + dist
+            u[idx], _ = control_law(h.copy(), xc, dist)
+        s0 = sol.y[:, -1]
+    return y, u
