@@ -180,9 +180,10 @@ def load_config(name: str, _seen: tuple = ()) -> dict:
     _check(raw, SCHEMA, "", src)
     parent = raw.pop("extends", None)
     if parent is not None:
-        if parent in _seen or parent == path.stem:
+        chain = _seen + (path.resolve(),)
+        if find_experiment(parent).resolve() in chain:
             raise ConfigError(f"{src}: extends: circular chain through {parent!r}")
-        base = load_config(parent, _seen + (path.stem,))
+        base = load_config(parent, chain)
         base.pop("name", None)
         base.pop("source", None)
         raw = _merge(base, raw)

@@ -10,14 +10,15 @@
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 import pandas as pd
 
 from heurtune.config import load_config
 from heurtune.errors import ConfigError
-from heurtune.objectives.controllers import ControllerDesignError, decision_names, default_bounds
+from heurtune.objectives.controllers import (
+    CONTROLLER_TYPES, ControllerDesignError, decision_names, default_bounds,
+)
 from heurtune.objectives.loop import METRIC_NAMES, ClosedLoop, Scenario
 from heurtune.objectives.qtp import QTPParams, preset
 
@@ -302,13 +303,17 @@ class Experiment:
                               f"allowed: {', '.join(self.scenarios)}")
         self.names = decision_names(self.controller)
         bounds = default_bounds(self.controller)
+        # Bounds of variables another controller type uses (e.g. alpha inherited by an IOLQI
+        # config extending a FOLQI one) are ignored; a name no controller knows is an error.
+        known = {n for kind in CONTROLLER_TYPES for n in decision_names(kind)}
         for key, (lo, hi) in prob.get("bounds", {}).items():
-            if key not in bounds:
+            if key not in known:
                 raise ConfigError(f"{self.name}: problem.bounds: unknown variable {key!r}; "
                                   f"allowed: {', '.join(self.names)}")
             if not lo <= hi:
                 raise ConfigError(f"{self.name}: problem.bounds.{key}: lower {lo} > upper {hi}")
-            bounds[key] = (float(lo), float(hi))
+            if key in bounds:
+                bounds[key] = (float(lo), float(hi))
         self.bounds = bounds
 
     def __repr__(self):
