@@ -67,6 +67,9 @@ class LinearController:
     D : (2, 4) ndarray
     blocks : tuple of (start, stop)
     block_channel : tuple of int
+    minimal : bool
+        False when the realisation may hold uncontrollable or unobservable modes (LADR): the
+        stability check then works on a minimal realisation.
     """
 
     A: np.ndarray
@@ -75,6 +78,7 @@ class LinearController:
     D: np.ndarray
     blocks: tuple
     block_channel: tuple
+    minimal: bool = True
 
     @property
     def n_states(self) -> int:
@@ -122,8 +126,19 @@ class LinearController:
                                   np.ascontiguousarray(Cc), np.ascontiguousarray(self.D), channel, dt)
 
     def closed_loop_matrix(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
-        """State matrix of the loop with the linearised plant ``dx' = A dx + B du`` (w = dx)."""
-        return np.block([[A + B @ self.D, B @ self.C], [self.B, self.A]])
+        """State matrix of the loop with the linearised plant ``dx' = A dx + B du`` (w = dx).
+
+        A non-minimal controller is first reduced with python-control's ``minreal`` (SLICOT
+        TB01PD), so that modes the loop can neither excite nor see (e.g. the LADR's structural
+        zero eigenvalues) do not decide stability.
+        """
+        Ac, Bc, Cc, Dc = self.A, self.B, self.C, self.D
+        if not self.minimal and Ac.shape[0]:
+            import control
+
+            red = control.ss(Ac, Bc, Cc, Dc).minreal()
+            Ac, Bc, Cc = np.asarray(red.A), np.asarray(red.B), np.asarray(red.C)
+        return np.block([[A + B @ Dc, B @ Cc], [Bc, Ac]])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -246,7 +261,9 @@ def _ladr(values: dict) -> LinearController:
     the extended state Z5 while A.9 has no input term; A.5 uses ``beta12`` (``beta42`` is never
     used); A.18/A.21 add two gains on the same error. With a zero set-point (``x_id = 0``) the
     tracking-differentiator states Z11..Z14 stay at zero, so they are left out of the
-    realisation and ``r1..r4`` have no effect on the regulator.
+    realisation and ``r1..r4`` have no effect on the regulator. As printed, the observer has
+    structural zero eigenvalues (``Z1 - Z4`` and ``Z2 - Z3`` are never fed back, ``beta32 Z6 -
+    beta22 Z8`` never changes), so the realisation is marked non-minimal for the stability check.
     """
     b = [values[f"b{i}"] for i in (1, 2, 3, 4)]
     if min(b) <= 0.0:
@@ -289,7 +306,7 @@ def _ladr(values: dict) -> LinearController:
             Ac[row] += ge * ce + gu * cu
             Bc[row] += ge * de
         blocks.append((s, s + 4))
-    return LinearController(Ac, Bc, Cc, Dc, tuple(blocks), (0, 1))
+    return LinearController(Ac, Bc, Cc, Dc, tuple(blocks), (0, 1), minimal=False)
 
 
 def build_controller(kind: str, values: dict, A: np.ndarray, B: np.ndarray, *,
