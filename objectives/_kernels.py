@@ -74,7 +74,7 @@ def qtp_rhs(h, u, c):
 
 
 @njit(cache=True, fastmath=_FAST)
-def simulate_loop(c, h_init, h_op, u_op, ad, Bd, Ad, Cc, Dc, state_channel,
+def simulate_loop(c, h_init, h_op, u_op, ad, bd, col_start, Ad, Bd, Cc, Dc, state_channel,
                   dt, n_steps, i_out_dist, out_dist, i_in_dist, in_dist, noise,
                   saturate, u_min, u_max, y_rec, u_rec, h_rec):
     """Fixed-step closed loop: sampled linear controller, RK4 nonlinear plant.
@@ -83,8 +83,9 @@ def simulate_loop(c, h_init, h_op, u_op, ad, Bd, Ad, Cc, Dc, state_channel,
     ``w = [h1 + d1 - h1o, h2 + d2 - h2o, h3 - h3o, h4 - h4o] (+ noise)`` and outputs
     ``u = u_op + Cc z + Dc w`` (optionally clipped to [u_min, u_max]); ``u`` is held over the
     step while classic RK4 integrates the plant, and the controller advances by its exact
-    zero-order-hold discretisation. The first ``nd = ad.size`` controller states are modal
-    (``z_i <- ad_i z_i + Bd_i w``), the remaining ``nz - nd`` evolve with the dense ``Ad``.
+    zero-order-hold discretisation. The first ``nd = ad.size`` controller states are modal and
+    single-input (``z_i <- ad_i z_i + bd_i w_c`` for ``i`` in ``[col_start[c], col_start[c+1])``),
+    the remaining ones evolve with the dense ``Ad`` and ``Bd``.
     With saturation on, the states of a saturated pump's channel are held (conditional
     integration anti-windup).
 
@@ -92,8 +93,9 @@ def simulate_loop(c, h_init, h_op, u_op, ad, Bd, Ad, Cc, Dc, state_channel,
     ----------
     c : (10,) plant coefficients (see plant_coefficients)
     h_init, h_op : (4,) initial and operating levels; u_op : (2,) operating voltages
-    ad : (nd,) modal state factors; Bd : (nz, 4); Ad : (nz - nd, nz - nd)
-    Cc : (2, nz); Dc : (2, 4); state_channel : (nz,) int64, pump each state belongs to
+    ad, bd : (nd,) modal factors and input gains; col_start : (5,) int64
+    Ad : (nq, nq), Bd : (nq, 4) dense part; Cc : (2, nd + nq); Dc : (2, 4)
+    state_channel : (nd + nq,) int64, pump each state belongs to
     dt : float; n_steps : int, the horizon is ``n_steps * dt``
     i_out_dist : int, first sample with the measured-level disturbance ``out_dist`` (2,)
     i_in_dist : int, first sample with the pump-voltage disturbance ``in_dist`` (2,)
@@ -109,8 +111,8 @@ def simulate_loop(c, h_init, h_op, u_op, ad, Bd, Ad, Cc, Dc, state_channel,
     last : int
         Index of the last finite sample.
     """
-    nz = Bd.shape[0]
     nd = ad.shape[0]
+    nz = nd + Ad.shape[0]
     z = np.zeros(nz)
     z_new = np.zeros(nz)
     w = np.zeros(4)
@@ -155,13 +157,15 @@ def simulate_loop(c, h_init, h_op, u_op, ad, Bd, Ad, Cc, Dc, state_channel,
         if k == n_steps:
             break
         # Controller: modal states, then the dense part.
-        for i in range(nd):
-            z_new[i] = ad[i] * z[i] + Bd[i, 0] * w[0] + Bd[i, 1] * w[1] + Bd[i, 2] * w[2] + Bd[i, 3] * w[3]
-        for i in range(nd, nz):
+        for col in range(4):
+            wc = w[col]
+            for i in range(col_start[col], col_start[col + 1]):
+                z_new[i] = ad[i] * z[i] + bd[i] * wc
+        for i in range(nz - nd):
             acc = Bd[i, 0] * w[0] + Bd[i, 1] * w[1] + Bd[i, 2] * w[2] + Bd[i, 3] * w[3]
-            for j in range(nd, nz):
-                acc += Ad[i - nd, j - nd] * z[j]
-            z_new[i] = acc
+            for j in range(nz - nd):
+                acc += Ad[i, j] * z[nd + j]
+            z_new[nd + i] = acc
         if saturate:
             for i in range(nz):
                 if not frozen[state_channel[i]]:
@@ -201,7 +205,7 @@ def simulate_loop(c, h_init, h_op, u_op, ad, Bd, Ad, Cc, Dc, state_channel,
     return STATUS_OK, n_steps
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FAST)
 def loop_metrics(y, u, y_op, u_op, dt, i_dist, band_pct, out):
     """Performance metrics of a sampled closed-loop response.
 

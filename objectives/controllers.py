@@ -87,25 +87,27 @@ class LinearController:
     def discretise(self, dt: float) -> "DiscreteController":
         """Exact zero-order-hold discretisation, block by block.
 
-        A block whose eigenvalues are real with a well-conditioned eigenvector matrix
-        (``cond(V) < MODAL_COND_LIMIT``; e.g. Oustaloup cascades with at most one integrator)
-        is put in modal form, so that each of its states advances by one multiplication; other
-        blocks (complex modes, Jordan chains such as a double integrator) keep a dense matrix
-        exponential.
+        A block driven by a single measured signal whose eigenvalues are real with a
+        well-conditioned eigenvector matrix (``cond(V) < MODAL_COND_LIMIT``; e.g. an Oustaloup
+        cascade with at most one integrator) is put in modal form: each of its states then
+        advances by ``z <- a z + b w_col``. Other blocks (several inputs, complex modes, Jordan
+        chains such as a double integrator) keep a dense matrix exponential.
         """
         nw = self.B.shape[1]
-        modal, dense = [], []
+        modal = [[] for _ in range(nw)]  # per input column: (a, b, C V, channel)
+        dense = []
         for (start, stop), ch in zip(self.blocks, self.block_channel):
             A = self.A[start:stop, start:stop]
             B = self.B[start:stop]
             C = self.C[:, start:stop]
+            cols = np.flatnonzero(np.any(B != 0.0, axis=0))
             lam, V = np.linalg.eig(A)
-            if not np.iscomplexobj(lam) and np.linalg.cond(V) < MODAL_COND_LIMIT:
-                Vi = np.linalg.inv(V)
+            if len(cols) == 1 and not np.iscomplexobj(lam) and np.linalg.cond(V) < MODAL_COND_LIMIT:
                 x = lam * dt
                 # (e^{lam dt} - 1) / lam, which is dt for lam = 0
-                phi = np.where(np.abs(x) > 1e-300, np.expm1(x) / np.where(x == 0, 1.0, lam), dt)
-                modal.append((np.exp(x), phi[:, None] * (Vi @ B), C @ V, ch))
+                phi = np.where(x != 0.0, np.expm1(x) / np.where(x == 0.0, 1.0, lam), dt)
+                b = phi * np.linalg.solve(V, B[:, cols[0]])
+                modal[cols[0]].append((np.exp(x), b, C @ V, ch))
             else:
                 n = stop - start
                 M = np.zeros((n + nw, n + nw))
@@ -113,17 +115,23 @@ class LinearController:
                 M[:n, n:] = B
                 E = scipy.linalg.expm(M * dt)
                 dense.append((E[:n, :n], E[:n, n:], C, ch))
-        nd = sum(m[0].size for m in modal)
-        nzd = sum(d[0].shape[0] for d in dense)
-        ad = np.concatenate([m[0] for m in modal]) if modal else np.zeros(0)
-        Ad = scipy.linalg.block_diag(*[d[0] for d in dense]) if dense else np.zeros((0, 0))
-        Bd = np.vstack([m[1] for m in modal] + [d[1] for d in dense]) if nd + nzd else np.zeros((0, nw))
-        Cc = np.hstack([m[2] for m in modal] + [d[2] for d in dense]) if nd + nzd else np.zeros((2, 0))
-        channel = np.concatenate(
-            [np.full(m[0].size, m[3]) for m in modal] + [np.full(d[0].shape[0], d[3]) for d in dense]
-        ).astype(np.int64) if nd + nzd else np.zeros(0, dtype=np.int64)
-        return DiscreteController(ad, np.ascontiguousarray(Ad), np.ascontiguousarray(Bd),
-                                  np.ascontiguousarray(Cc), np.ascontiguousarray(self.D), channel, dt)
+        flat = [m for col in modal for m in col]
+        col_start = np.cumsum([0] + [sum(m[0].size for m in col) for col in modal]).astype(np.int64)
+        parts_C = [m[2] for m in flat] + [d[2] for d in dense]
+        sizes = [m[0].size for m in flat] + [d[0].shape[0] for d in dense]
+        channels = [m[3] for m in flat] + [d[3] for d in dense]
+        cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0)  # noqa: E731
+        return DiscreteController(
+            ad=cat([m[0] for m in flat]),
+            bd=cat([m[1] for m in flat]),
+            col_start=col_start,
+            Ad=np.ascontiguousarray(scipy.linalg.block_diag(*[d[0] for d in dense])) if dense else np.zeros((0, 0)),
+            Bd=np.vstack([d[1] for d in dense]) if dense else np.zeros((0, nw)),
+            Cc=np.ascontiguousarray(np.hstack(parts_C)) if parts_C else np.zeros((2, 0)),
+            Dc=np.ascontiguousarray(self.D),
+            state_channel=np.repeat(np.array(channels, dtype=np.int64), sizes),
+            dt=dt,
+        )
 
     def closed_loop_matrix(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
         """State matrix of the loop with the linearised plant ``dx' = A dx + B du`` (w = dx).
@@ -141,21 +149,45 @@ class LinearController:
         return np.block([[A + B @ Dc, B @ Cc], [Bc, Ac]])
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)
 class DiscreteController:
     """Sampled controller as the simulation kernel takes it.
 
-    ``z[k+1] = diag(ad) z_m[k] (+) Ad z_d[k] + Bd w[k]``, ``du[k] = Cc z[k] + Dc w[k]``; the first
-    ``ad.size`` states are modal, the rest dense. ``state_channel`` names each state's pump.
+    States ``[0, nd)`` are modal and single-input: for each measured signal ``c`` the states
+    ``[col_start[c], col_start[c + 1])`` advance by ``z_i <- ad_i z_i + bd_i w_c``. The remaining
+    states advance densely, ``z_d <- Ad z_d + Bd w``. The output is ``du = Cc z + Dc w``;
+    ``state_channel`` names each state's pump (for anti-windup).
     """
 
     ad: np.ndarray
+    bd: np.ndarray
+    col_start: np.ndarray
     Ad: np.ndarray
     Bd: np.ndarray
     Cc: np.ndarray
     Dc: np.ndarray
     state_channel: np.ndarray
     dt: float
+
+    def __post_init__(self):
+        # The kernel does no bounds checking: make inconsistent shapes fail here instead.
+        nd, nq = self.ad.size, self.Ad.shape[0]
+        ok = (self.bd.shape == (nd,) and self.col_start.shape == (5,) and self.col_start[-1] == nd
+              and self.Ad.shape == (nq, nq) and self.Bd.shape == (nq, 4)
+              and self.Cc.shape == (2, nd + nq) and self.Dc.shape == (2, 4)
+              and self.state_channel.shape == (nd + nq,))
+        if not ok:
+            raise ValueError("inconsistent DiscreteController shapes")
+
+    @property
+    def n_states(self) -> int:
+        return self.ad.size + self.Ad.shape[0]
+
+    def step(self, z: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """One controller update in Python (reference for tests): returns ``z[k+1]``."""
+        nd = self.ad.size
+        wm = np.repeat(w, np.diff(self.col_start))
+        return np.concatenate([self.ad * z[:nd] + self.bd * wm, self.Ad @ z[nd:] + self.Bd @ w])
 
 
 def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
