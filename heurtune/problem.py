@@ -229,6 +229,15 @@ class Problem:
         feasible = (reason == "") & np.all(g <= 0.0, axis=1)
         return Evaluation(f, g, feasible, metrics, METRIC_NAMES, self.constraint_names, reason)
 
+    def __call__(self, X):
+        """``(f, g)`` of a batch, the form :func:`heurtune.minimize` and the evaluators take."""
+        ev = self.evaluate(X)
+        return ev.f, ev.g
+
+    def warm_up(self):
+        """Compile or load the jitted kernels (call in the parent before starting workers)."""
+        self.loop.warm_up()
+
     def simulate(self, x, scenario="nominal", *, record_levels: bool = True) -> pd.DataFrame:
         """Trajectories of one candidate: columns t, h1..h4, y1, y2, u1, u2.
 

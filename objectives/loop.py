@@ -165,6 +165,13 @@ class ClosedLoop:
         self._buffers = {}
         self._plants = {}
 
+    def __getstate__(self):
+        # Buffers and caches are rebuilt on demand: do not ship megabytes to workers.
+        state = self.__dict__.copy()
+        state["_buffers"] = {}
+        state["_plants"] = {}
+        return state
+
     # -- design ---------------------------------------------------------------------------
     def controller(self, values: dict) -> LinearController:
         """Design the controller for named tuning ``values`` (raises ControllerDesignError)."""
