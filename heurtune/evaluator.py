@@ -1,4 +1,4 @@
-"""Batch evaluation in-process, in a persistent joblib (loky) pool, or on a Dask cluster.
+"""Batch evaluation in-process, in a persistent joblib (loky) process pool, or on a Dask cluster.
 
 The evaluator splits a batch into contiguous chunks, evaluates them where configured and
 concatenates the results in order, so the numbers never depend on the number of workers.
@@ -13,6 +13,7 @@ from heurtune.errors import ConfigError
 __all__ = ["Evaluator", "BACKENDS", "normalise"]
 
 BACKENDS = ("loky", "dask")
+CHUNKS_PER_WORKER = 4
 
 
 def normalise(result, constraints, X):
@@ -35,19 +36,36 @@ def normalise(result, constraints, X):
     return f, g
 
 
-def _evaluate_block(fun, constraints, X):
-    """Worker-side evaluation of one chunk, with BLAS pinned to one thread."""
+# Worker-process state: the objective is shipped once, when the worker starts.
+_WORKER = {}
+
+
+def _init_worker(fun, constraints):
+    """Loky worker initialiser: pin BLAS to one thread, keep the objective, warm its kernels."""
     from threadpoolctl import threadpool_limits
 
-    with threadpool_limits(1):
-        return normalise(fun(X), constraints, X)
+    _WORKER["limits"] = threadpool_limits(1)
+    _WORKER["fun"] = (fun, constraints)
+    warm = getattr(fun, "warm_up", None)
+    if callable(warm):
+        warm()
+
+
+def _worker_block(X):
+    fun, constraints = _WORKER["fun"]
+    return normalise(fun(X), constraints, X)
 
 
 def _run_task(fn, item):
+    return fn(item)
+
+
+def _dask_block(fun_and_constraints, X):
     from threadpoolctl import threadpool_limits
 
+    fun, constraints = fun_and_constraints
     with threadpool_limits(1):
-        return fn(item)
+        return normalise(fun(X), constraints, X)
 
 
 class Evaluator:
@@ -119,16 +137,17 @@ class Evaluator:
                     self._owns_client = True
                 self._remote_fun = self._client.scatter((self.fun, self.constraints), broadcast=True, hash=False)
         elif self.n_jobs > 1 and self._parallel is None:
-            import joblib
+            # joblib's process pool (loky), reused across calls and across evaluators of the
+            # same objective; the objective travels once per worker, in the initialiser.
+            from joblib.externals.loky import get_reusable_executor
 
-            self._parallel = joblib.Parallel(n_jobs=self.n_jobs, backend="loky")
-            self._parallel.__enter__()
+            self._parallel = get_reusable_executor(max_workers=self.n_jobs, initializer=_init_worker,
+                                                   initargs=(self.fun, self.constraints))
         return self
 
     def close(self):
-        if self._parallel is not None:
-            self._parallel.__exit__(None, None, None)
-            self._parallel = None
+        """Forget the pool (its processes stay alive for reuse until the interpreter exits)."""
+        self._parallel = None
         if self._client is not None:
             if self._owns_client:
                 self._client.close()
@@ -137,7 +156,9 @@ class Evaluator:
 
     # -- work -------------------------------------------------------------------------------
     def _chunks(self, n: int):
-        k = min(n, self.workers)
+        # Several chunks per worker even out candidates of unequal cost (a failed design
+        # returns in 0.1 ms, a full simulation takes milliseconds); order is kept.
+        k = min(n, self.workers * (CHUNKS_PER_WORKER if self.workers > 1 else 1))
         bounds = np.linspace(0, n, k + 1).round().astype(int)
         return [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
@@ -150,14 +171,12 @@ class Evaluator:
             if self.backend == "dask" or self.n_jobs > 1:
                 self.open()
         if self._client is not None:
-            futures = [self._client.submit(_remote_block, self._remote_fun, X[a:b], pure=False)
+            futures = [self._client.submit(_dask_block, self._remote_fun, X[a:b], pure=False)
                        for a, b in self._chunks(X.shape[0])]
             parts = self._client.gather(futures)
         elif self._parallel is not None:
-            import joblib
-
-            parts = self._parallel(joblib.delayed(_evaluate_block)(self.fun, self.constraints, X[a:b])
-                                   for a, b in self._chunks(X.shape[0]))
+            futures = [self._parallel.submit(_worker_block, X[a:b]) for a, b in self._chunks(X.shape[0])]
+            parts = [fut.result() for fut in futures]
         else:
             parts = [normalise(self.fun(X), self.constraints, X)]
         f = np.concatenate([p[0] for p in parts])
@@ -175,12 +194,6 @@ class Evaluator:
             futures = self._client.map(_run_task, [fn] * len(items), items, pure=False)
             return self._client.gather(futures)
         if self._parallel is not None:
-            import joblib
-
-            return self._parallel(joblib.delayed(_run_task)(fn, item) for item in items)
+            futures = [self._parallel.submit(_run_task, fn, item) for item in items]
+            return [fut.result() for fut in futures]
         return [fn(item) for item in items]
-
-
-def _remote_block(fun_and_constraints, X):
-    fun, constraints = fun_and_constraints
-    return _evaluate_block(fun, constraints, X)
