@@ -345,8 +345,8 @@ def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=No
         raise ConfigError(f"max_time must be positive, got {max_time!r}")
     if tol is not None and not tol >= 0:
         raise ConfigError(f"tol must be >= 0, got {tol!r}")
-    if max_evals is None and max_epochs is None and max_time is None:
-        max_epochs = DEFAULT_MAX_EPOCHS
+    if max_evals is None and max_epochs is None and max_time is None and info.kind != "driver":
+        max_epochs = DEFAULT_MAX_EPOCHS  # drivers end when their starts are done
     compare = Comparator(constraint_handling, penalty)
     seed_seq = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
     rng = np.random.default_rng(seed_seq)

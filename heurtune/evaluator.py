@@ -105,6 +105,7 @@ class Evaluator:
         self._client = None
         self._owns_client = False
         self._remote_fun = None
+        self._controller = None
 
     # -- lifecycle ------------------------------------------------------------------------
     def __enter__(self):
@@ -154,6 +155,14 @@ class Evaluator:
             self._client = None
             self._remote_fun = None
 
+    def _blas_one_thread(self):
+        """BLAS pinned to one thread in-process too, so that n_jobs never changes a number."""
+        if self._controller is None:
+            from threadpoolctl import ThreadpoolController
+
+            self._controller = ThreadpoolController()
+        return self._controller.limit(limits=1, user_api="blas")
+
     # -- work -------------------------------------------------------------------------------
     def _chunks(self, n: int):
         # Several chunks per worker even out candidates of unequal cost (a failed design
@@ -178,7 +187,8 @@ class Evaluator:
             futures = [self._parallel.submit(_worker_block, X[a:b]) for a, b in self._chunks(X.shape[0])]
             parts = [fut.result() for fut in futures]
         else:
-            parts = [normalise(self.fun(X), self.constraints, X)]
+            with self._blas_one_thread():
+                parts = [normalise(self.fun(X), self.constraints, X)]
         f = np.concatenate([p[0] for p in parts])
         widths = {p[1].shape[1] for p in parts}
         if len(widths) != 1:
@@ -196,4 +206,5 @@ class Evaluator:
         if self._parallel is not None:
             futures = [self._parallel.submit(_run_task, fn, item) for item in items]
             return [fut.result() for fut in futures]
-        return [fn(item) for item in items]
+        with self._blas_one_thread():
+            return [fn(item) for item in items]

@@ -1,0 +1,253 @@
+"""Multistart SQP: ``scipy.optimize.minimize(method="SLSQP")`` from many starts in the box.
+
+Each local solve runs whole on a worker (``Evaluator.map``): it calls the user's objective
+itself, one point at a time, evaluating f and g together once per point (a small cache serves
+SLSQP's separate requests for f, g and their finite-difference Jacobians, which use the same
+points). Constraints ``g(x) <= 0`` go to SLSQP as inequalities ``-g(x) >= 0``; the box as
+bounds. Gradients are SLSQP's own forward differences (absolute step ``fd_step``, scipy's
+default ``sqrt(machine eps)``, one-sided away from the faces).
+
+Starts and budget
+-----------------
+Starts are drawn in the parent from the run's generator, a round at a time (a Latin
+hypercube, or uniform). Round 1 has ``starts`` starts (at most ``max_evals``). With an
+evaluation budget each start of a round gets a cap: the budget remaining when the round begins,
+split evenly in start order (the first ``remaining % k`` starts get one more). A start that
+reaches its cap stops gracefully ("evaluation cap reached") and keeps its best point. What the
+starts of a round did not use rolls over: with ``fill_budget`` (default) further rounds of
+starts are launched while budget remains, each start keeping about the round-1 cap, until the
+budget is spent exactly. Without a budget there is one round of ``starts`` starts.
+
+Every start's result depends only on its start point and cap, which depend only on the seed
+and the budget - never on the number of workers or on ``batch``. ``batch`` starts (default
+2 x workers) form one epoch of the history: after each batch the evaluations are counted, the
+best is updated and the engine may stop the run (``max_epochs`` counts batches, ``max_time``,
+``tol``). Hence ``x``, ``f``, ``n_evals`` and ``details`` are identical for any ``n_jobs``; the
+grouping of the history into epochs (and where ``max_epochs`` / ``max_time`` cut) follows
+``batch`` - set it explicitly for histories that do not depend on the worker count.
+
+The point kept from a local solve is its best *evaluated* point under the run's comparator
+(Deb's rules or penalty), not necessarily SLSQP's last iterate. ``details`` (a DataFrame, one
+row per start): start, round, cap, x0, x, f, violation, nfev, nit, success, message.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import functools
+import math
+import warnings
+
+import numpy as np
+import pandas as pd
+
+from heurtune.engine import Driver, violation
+from heurtune.evaluator import normalise
+from heurtune.registry import register
+
+SAMPLING = ("lhs", "uniform")
+
+
+@dataclasses.dataclass(frozen=True)
+class SQPSettings:
+    starts: int = dataclasses.field(default=1000, metadata={"help": "local solves in round 1 (thesis: 1000)"})
+    max_iter: int = dataclasses.field(default=100, metadata={"help": "SLSQP iterations per start"})
+    ftol: float = dataclasses.field(default=1e-6, metadata={"help": "SLSQP precision goal on f (thesis: 1e-6)"})
+    sampling: str = dataclasses.field(default="lhs", metadata={"help": "start points: 'lhs' or 'uniform'"})
+    batch: int = dataclasses.field(default=0, metadata={"help": "starts per epoch; 0 = 2 x workers"})
+    fd_step: float = dataclasses.field(default=0.0, metadata={
+        "help": "absolute finite-difference step of SLSQP's gradients; 0 = scipy's sqrt(eps)"})
+    fill_budget: bool = dataclasses.field(default=True, metadata={
+        "help": "with max_evals, keep launching rounds of starts until the budget is spent"})
+
+    def __post_init__(self):
+        if self.starts < 1:
+            raise ValueError(f"starts must be >= 1, got {self.starts}")
+        if self.max_iter < 1:
+            raise ValueError(f"max_iter must be >= 1, got {self.max_iter}")
+        if not self.ftol > 0:
+            raise ValueError(f"ftol must be positive, got {self.ftol}")
+        if self.sampling not in SAMPLING:
+            raise ValueError(f"sampling must be one of {', '.join(SAMPLING)}, got {self.sampling!r}")
+        if self.batch < 0:
+            raise ValueError(f"batch must be >= 0 (0 = 2 x workers), got {self.batch}")
+        if not self.fd_step >= 0:
+            raise ValueError(f"fd_step must be >= 0 (0 = scipy's default), got {self.fd_step}")
+
+
+class _CapReached(Exception):
+    """A local solve asked for an evaluation beyond its cap."""
+
+
+class _BadIterate(Exception):
+    """SLSQP produced a non-finite iterate."""
+
+
+@dataclasses.dataclass(frozen=True)
+class _Task:
+    """Everything a worker needs for a local solve except the start (picklable)."""
+
+    fun: object
+    constraints: object
+    lower: np.ndarray
+    upper: np.ndarray
+    compare: object
+    max_iter: int
+    ftol: float
+    fd_step: float
+
+
+class _Tracked:
+    """The user's objective seen one point at a time: caches, counts, caps, keeps the best."""
+
+    def __init__(self, task: _Task, cap):
+        self.task = task
+        self.cap = cap
+        self.nfev = 0
+        self.cache = collections.OrderedDict()
+        self.cache_size = 2 * task.lower.size + 4  # x and both sets of difference points
+        self.best = None  # (x, f, v, g)
+
+    def values(self, x):
+        x = np.clip(np.asarray(x, dtype=np.float64).reshape(-1), self.task.lower, self.task.upper)
+        if not np.all(np.isfinite(x)):
+            raise _BadIterate
+        key = x.tobytes()
+        hit = self.cache.get(key)
+        if hit is not None:
+            return hit
+        if self.cap is not None and self.nfev >= self.cap:
+            raise _CapReached
+        X = x[None, :]
+        f, g = normalise(self.task.fun(X), self.task.constraints, X)
+        self.nfev += 1
+        f = float(np.where(np.isnan(f[0]), np.inf, f[0]))
+        g = g[0]
+        v = float(violation(g[None, :])[0])
+        if self.best is None or self.task.compare.better(f, v, self.best[1], self.best[2]):
+            self.best = (x, f, v, g)
+        self.cache[key] = (f, g)
+        if len(self.cache) > self.cache_size:
+            self.cache.popitem(last=False)
+        return f, g
+
+    def objective(self, x):
+        return self.values(x)[0]
+
+    def ineq(self, x):
+        return -self.values(x)[1]
+
+
+def _local_solve(task: _Task, item):
+    """One SLSQP run from ``item = (start, x0, cap)``; executed on a worker.
+
+    BLAS is pinned to one thread here, in-process as on the workers: scipy's SLSQP calls
+    OpenBLAS, whose results differ in the last bits between one and several threads, even on
+    3-vectors - and a last-bit difference in an iterate changes the whole local solve.
+    """
+    from scipy.optimize import Bounds, minimize
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1, user_api="blas"):
+        return _solve_pinned(task, item, Bounds, minimize)
+
+
+def _solve_pinned(task: _Task, item, Bounds, minimize):
+
+    start, x0, cap = item
+    tracked = _Tracked(task, cap)
+    nit = [0]
+    options = dict(maxiter=task.max_iter, ftol=task.ftol)
+    if task.fd_step > 0:
+        options["eps"] = task.fd_step
+    success, message = False, ""
+    try:
+        f0, g0 = tracked.values(x0)
+        cons = [{"type": "ineq", "fun": tracked.ineq}] if g0.size else []
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore", RuntimeWarning)
+            res = minimize(tracked.objective, x0, method="SLSQP", bounds=Bounds(task.lower, task.upper),
+                           constraints=cons, options=options,
+                           callback=lambda xk: nit.__setitem__(0, nit[0] + 1))
+        nit[0], success, message = int(res.nit), bool(res.success), str(res.message)
+    except _CapReached:
+        message = "evaluation cap reached"
+    except _BadIterate:
+        message = "non-finite iterate"
+    x, f, v, g = tracked.best
+    return dict(start=start, x0=np.array(x0), x=x, f=f, violation=v, g=g, nfev=tracked.nfev,
+                nit=nit[0], success=success, message=message)
+
+
+def even_caps(budget: int, k: int) -> list:
+    """``budget`` split over ``k`` starts in order: the first ``budget % k`` get one more."""
+    q, r = divmod(budget, k)
+    return [q + (1 if i < r else 0) for i in range(k)]
+
+
+@register("sqp_multistart", kind="driver", settings=SQPSettings,
+          source="scipy SLSQP (Kraft 1988) from Latin-hypercube starts; thesis: 1000 starts, ftol 1e-6",
+          description="Multistart SLSQP, each local solve whole on a worker; exact evaluation budgets")
+class SQPMultistart(Driver):
+    def __init__(self, space, settings, rng, compare):
+        super().__init__(space, settings, rng, compare)
+        self.details = []
+
+    def _sample(self, k: int) -> np.ndarray:
+        if self.settings.sampling == "uniform":
+            return self.space.uniform(self.rng, k)
+        from scipy.stats import qmc
+
+        try:
+            sampler = qmc.LatinHypercube(d=self.space.dim, rng=self.rng)
+        except TypeError:  # scipy < 1.15
+            sampler = qmc.LatinHypercube(d=self.space.dim, seed=self.rng)
+        return self.space.lower + sampler.random(k) * self.space.width
+
+    def run(self, ctx):
+        records = self.details = []
+        try:
+            self._run(ctx, records)
+        finally:
+            self.details = pd.DataFrame(records, columns=["start", "round", "cap", "x0", "x", "f", "violation",
+                                                          "nfev", "nit", "success", "message"])
+
+    def _run(self, ctx, records):
+        s = self.settings
+        task = _Task(ctx.evaluator.fun, ctx.evaluator.constraints, self.space.lower, self.space.upper,
+                     self.compare, s.max_iter, s.ftol, s.fd_step)
+        solve = functools.partial(_local_solve, task)
+        batch = s.batch or 2 * ctx.evaluator.workers
+        budget = ctx.remaining
+        next_start, round_no, first_k = 0, 0, None
+        while True:
+            left = ctx.remaining
+            if left is not None and left <= 0:
+                ctx.check_stop()
+                return
+            if round_no == 0:
+                k = s.starts if left is None else min(s.starts, left)
+                first_k = k
+            elif left is None or not s.fill_budget:
+                return
+            else:  # keep each start's cap near round 1's
+                k = min(s.starts, left, max(1, math.ceil(left * first_k / budget)))
+            X0 = self._sample(k)
+            caps = [None] * k if left is None else even_caps(left, k)
+            for a in range(0, k, batch):
+                b = min(a + batch, k)
+                results = ctx.evaluator.map(solve, [(next_start + i, X0[i], caps[i]) for i in range(a, b)])
+                for res, cap in zip(results, caps[a:b]):
+                    res["round"], res["cap"] = round_no, cap
+                    records.append(res)
+                f = np.array([r["f"] for r in results])
+                v = np.array([r["violation"] for r in results])
+                X = np.array([r["x"] for r in results])
+                G = np.array([r["g"] for r in results]).reshape(len(results), -1)
+                ctx.n_evals += sum(r["nfev"] for r in results)
+                ctx.offer(X, f, v, G)
+                if ctx.record_epoch(f, v):
+                    return
+            next_start += k
+            round_no += 1
