@@ -28,6 +28,8 @@ __all__ = ["Experiment", "Problem", "Evaluation", "load_experiment",
 # A candidate that cannot be simulated gets these (finite) values.
 FAILED_OBJECTIVE = 1.0e10
 FAILED_VIOLATION = 1.0e6
+# Unstable candidates' violations grow with the largest closed-loop real part, up to this cap.
+UNSTABLE_MARGIN_CAP = 1.0e3
 
 DEFAULT_UNCERTAINTY = {"nominal": 1.0, "-30%": 0.7, "+30%": 1.3}
 DEFAULT_CONSTRAINTS = {"Mp": 10.0, "ts": 70.0, "ess": 1.0}
@@ -48,7 +50,9 @@ class Evaluation:
     Attributes
     ----------
     f : (n,) objective values (``FAILED_OBJECTIVE`` for failed candidates)
-    g : (n, m) normalised constraint values ``metric / limit - 1``; ``g <= 0`` is feasible
+    g : (n, m) normalised constraint values ``metric / limit - 1``; ``g <= 0`` is feasible.
+        Failed candidates get ``FAILED_VIOLATION``; unstable ones ``FAILED_VIOLATION * (1 +
+        max Re(eig))``, so that less unstable candidates rank better
     feasible : (n,) bool
     metrics : (n, k) metric values in the order of ``metric_names`` (NaN when not simulated)
     metric_names : tuple of str
@@ -175,24 +179,26 @@ class Problem:
             ) from None
 
     # -- evaluation -------------------------------------------------------------------
-    def _evaluate_one(self, x, scenario: Scenario, metrics_row: np.ndarray) -> str:
+    def _evaluate_one(self, x, scenario: Scenario, metrics_row: np.ndarray):
+        """Reason ("" when simulated) and, for an unstable loop, its eigenvalue margin."""
         if not np.all(np.isfinite(x)):
-            return "invalid_parameter"
+            return "invalid_parameter", 0.0
         try:
             ctrl = self.loop.controller(dict(zip(self.names, x.tolist())))
         except ControllerDesignError as exc:
-            return exc.reason
+            return exc.reason, 0.0
         except ConfigError:
-            return "invalid_parameter"
-        if not self.loop.stability_margin(ctrl) < 0.0:
-            return "unstable"
+            return "invalid_parameter", 0.0
+        margin = self.loop.stability_margin(ctrl)
+        if not margin < 0.0:
+            return "unstable", margin
         sim = self.loop.run(ctrl, scenario, copy=False)
         if sim.diverged:
-            return "diverged"
+            return "diverged", 0.0
         metrics_row[:] = self.loop.metrics(sim, scenario, self.settling_band)
         if not np.all(np.isfinite(metrics_row)):
-            return "non_finite"
-        return ""
+            return "non_finite", 0.0
+        return "", 0.0
 
     def evaluate(self, X, scenario=None) -> Evaluation:
         """Evaluate a batch of candidates.
@@ -220,12 +226,16 @@ class Problem:
         g = np.full((n, m), FAILED_VIOLATION)
         reason = np.empty(n, dtype=object)
         for i in range(n):
-            reason[i] = self._evaluate_one(X[i], sc, metrics[i])
+            reason[i], margin = self._evaluate_one(X[i], sc, metrics[i])
             if reason[i] == "":
                 f[i] = metrics[i, self._objective_idx].sum()
                 g[i] = metrics[i, self._constraint_idx] / self._constraint_limit - 1.0
             else:
                 metrics[i] = np.nan
+                if reason[i] == "unstable":
+                    # Graded: the less unstable, the smaller the violation, so Deb's rules and
+                    # SLSQP both see a way back to stability.
+                    g[i] = FAILED_VIOLATION * (1.0 + min(margin, UNSTABLE_MARGIN_CAP))
         feasible = (reason == "") & np.all(g <= 0.0, axis=1)
         return Evaluation(f, g, feasible, metrics, METRIC_NAMES, self.constraint_names, reason)
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import heurtune
-from heurtune.problem import FAILED_OBJECTIVE
+from heurtune.problem import FAILED_OBJECTIVE, FAILED_VIOLATION
 
 THESIS_MIN = dict(Q11=0.4431, Q22=0.3027, Q33=0.4434, Q44=1.5722, R11=4.2253, R22=2.5994,
                   Ki1=1.7411, Ki2=7.1716, alpha1=0.9814, alpha2=0.8437)
@@ -109,3 +109,12 @@ def test_both_cases_load(name):
     for case in exp.cases:
         p = exp.problem(case)
         assert p.evaluate((p.lower + p.upper) / 2).f.shape == (1,)
+
+
+def test_unstable_candidates_get_graded_violations(problem):
+    """The less unstable of two unstable designs has the smaller violation."""
+    mild = dict(THESIS_MIN, alpha1=2.0, alpha2=2.0, Ki1=1.0, Ki2=1.0)
+    wild = dict(THESIS_MIN, alpha1=2.0, alpha2=2.0, Ki1=10.0, Ki2=10.0)
+    ev = problem.evaluate(np.vstack([vector(problem, mild), vector(problem, wild)]))
+    assert list(ev.reason) == ["unstable", "unstable"]
+    assert FAILED_VIOLATION < ev.g[0, 0] < ev.g[1, 0]
