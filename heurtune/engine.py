@@ -327,6 +327,9 @@ def _population_loop(opt: Optimizer, ctx: RunContext) -> None:
         if generation_done or k < len(X) or ctx.remaining == 0:
             if ctx.record_epoch(opt.f, opt.v):
                 return
+            if getattr(opt, "finished", False):  # an optimiser may declare itself done
+                ctx.stop_reason = "finished"
+                return
 
 
 def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=None, seed=0,

@@ -1,0 +1,28 @@
+"""DFP quasi-Newton method with finite-difference gradients and a batched Armijo line search.
+
+Inverse-Hessian update :func:`dfp_update` (Davidon 1959; Fletcher & Powell 1963; Nocedal &
+Wright 2006, eq. 6.15), skipped when the curvature condition ``s^T y > 0`` fails; ``H_0 = I``
+in box units (see ``QuasiNewtonOptimizer``). Finite differences, bounds, the static penalty
+for constraints, fallbacks, convergence and restarts: see ``algorithms/_gradient.py``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from heurtune.registry import register
+
+from heurtune.algorithms._gradient import GradientSettings, QuasiNewtonOptimizer, dfp_update
+
+
+@dataclasses.dataclass(frozen=True)
+class DFPSettings(GradientSettings):
+    pass
+
+
+@register("dfp", settings=DFPSettings,
+          source="Davidon (1959); Fletcher & Powell (1963); Nocedal & Wright (2006), sec. 6.1",
+          description=("DFP quasi-Newton, "
+                       "FD gradient + batched Armijo line search (2d + K evaluations per iteration)"))
+class DFP(QuasiNewtonOptimizer):
+    update = staticmethod(dfp_update)
