@@ -9,22 +9,17 @@ default ``sqrt(machine eps)``, one-sided away from the faces).
 
 Starts and budget
 -----------------
-Starts are drawn in the parent from the run's generator, a round at a time (a Latin
-hypercube, or uniform). Round 1 has ``starts`` starts (at most ``max_evals``). With an
-evaluation budget each start of a round gets a cap: the budget remaining when the round begins,
-split evenly in start order (the first ``remaining % k`` starts get one more). A start that
-reaches its cap stops gracefully ("evaluation cap reached") and keeps its best point. What the
-starts of a round did not use rolls over: with ``fill_budget`` (default) further rounds of
-starts are launched while budget remains, each start keeping about the round-1 cap, until the
-budget is spent exactly. Without a budget there is one round of ``starts`` starts.
+Starts are drawn in the parent from the run's generator, ``batch`` at a time (a Latin
+hypercube, or uniform); a batch is one epoch of the history and runs spread over the workers.
+With an evaluation budget each start of a batch gets a cap: the budget remaining when the batch
+begins, split evenly in start order (the first ``remaining % k`` get one more). A start that
+reaches its cap stops gracefully ("evaluation cap reached") and keeps its best point; what a
+batch did not use rolls over to the next. After ``starts`` starts the run ends, unless
+``fill_budget`` (default) and budget remain: then further batches are launched until the budget
+is spent exactly.
 
-Every start's result depends only on its start point and cap, which depend only on the seed
-and the budget - never on the number of workers or on ``batch``. ``batch`` starts (default
-2 x workers) form one epoch of the history: after each batch the evaluations are counted, the
-best is updated and the engine may stop the run (``max_epochs`` counts batches, ``max_time``,
-``tol``). Hence ``x``, ``f``, ``n_evals`` and ``details`` are identical for any ``n_jobs``; the
-grouping of the history into epochs (and where ``max_epochs`` / ``max_time`` cut) follows
-``batch`` - set it explicitly for histories that do not depend on the worker count.
+Caps depend only on the seed, the budget and ``batch`` (a fixed number, not the worker count),
+so ``x``, ``f``, ``n_evals``, ``details`` and the history are identical for any ``n_jobs``.
 
 The point kept from a local solve is its best *evaluated* point under the run's comparator
 (Deb's rules or penalty), not necessarily SLSQP's last iterate. ``details`` (a DataFrame, one
@@ -51,11 +46,11 @@ SAMPLING = ("lhs", "uniform")
 
 @dataclasses.dataclass(frozen=True)
 class SQPSettings:
-    starts: int = dataclasses.field(default=1000, metadata={"help": "local solves in round 1 (thesis: 1000)"})
+    starts: int = dataclasses.field(default=1000, metadata={"help": "local solves (thesis: 1000)"})
     max_iter: int = dataclasses.field(default=100, metadata={"help": "SLSQP iterations per start"})
     ftol: float = dataclasses.field(default=1e-6, metadata={"help": "SLSQP precision goal on f (thesis: 1e-6)"})
     sampling: str = dataclasses.field(default="lhs", metadata={"help": "start points: 'lhs' or 'uniform'"})
-    batch: int = dataclasses.field(default=0, metadata={"help": "starts per epoch; 0 = 2 x workers"})
+    batch: int = dataclasses.field(default=16, metadata={"help": "starts per epoch (run in parallel)"})
     fd_step: float = dataclasses.field(default=0.0, metadata={
         "help": "absolute finite-difference step of SLSQP's gradients; 0 = scipy's sqrt(eps)"})
     fill_budget: bool = dataclasses.field(default=True, metadata={
@@ -70,8 +65,8 @@ class SQPSettings:
             raise ValueError(f"ftol must be positive, got {self.ftol}")
         if self.sampling not in SAMPLING:
             raise ValueError(f"sampling must be one of {', '.join(SAMPLING)}, got {self.sampling!r}")
-        if self.batch < 0:
-            raise ValueError(f"batch must be >= 0 (0 = 2 x workers), got {self.batch}")
+        if self.batch < 1:
+            raise ValueError(f"batch must be >= 1, got {self.batch}")
         if not self.fd_step >= 0:
             raise ValueError(f"fd_step must be >= 0 (0 = scipy's default), got {self.fd_step}")
 
@@ -218,36 +213,31 @@ class SQPMultistart(Driver):
         task = _Task(ctx.evaluator.fun, ctx.evaluator.constraints, self.space.lower, self.space.upper,
                      self.compare, s.max_iter, s.ftol, s.fd_step)
         solve = functools.partial(_local_solve, task)
-        batch = s.batch or 2 * ctx.evaluator.workers
-        budget = ctx.remaining
-        next_start, round_no, first_k = 0, 0, None
+        launched, round_no = 0, 0
         while True:
             left = ctx.remaining
             if left is not None and left <= 0:
                 ctx.check_stop()
                 return
-            if round_no == 0:
-                k = s.starts if left is None else min(s.starts, left)
-                first_k = k
-            elif left is None or not s.fill_budget:
+            more = s.starts - launched
+            if more <= 0 and (left is None or not s.fill_budget):
                 return
-            else:  # keep each start's cap near round 1's
-                k = min(s.starts, left, max(1, math.ceil(left * first_k / budget)))
+            k = s.batch if more <= 0 else min(s.batch, more)
+            if left is not None:
+                k = min(k, left)
             X0 = self._sample(k)
             caps = [None] * k if left is None else even_caps(left, k)
-            for a in range(0, k, batch):
-                b = min(a + batch, k)
-                results = ctx.evaluator.map(solve, [(next_start + i, X0[i], caps[i]) for i in range(a, b)])
-                for res, cap in zip(results, caps[a:b]):
-                    res["round"], res["cap"] = round_no, cap
-                    records.append(res)
-                f = np.array([r["f"] for r in results])
-                v = np.array([r["violation"] for r in results])
-                X = np.array([r["x"] for r in results])
-                G = np.array([r["g"] for r in results]).reshape(len(results), -1)
-                ctx.n_evals += sum(r["nfev"] for r in results)
-                ctx.offer(X, f, v, G)
-                if ctx.record_epoch(f, v):
-                    return
-            next_start += k
+            results = ctx.evaluator.map(solve, [(launched + i, X0[i], caps[i]) for i in range(k)])
+            for res, cap in zip(results, caps):
+                res["round"], res["cap"] = round_no, cap
+                records.append(res)
+            f = np.array([r["f"] for r in results])
+            v = np.array([r["violation"] for r in results])
+            X = np.array([r["x"] for r in results])
+            G = np.array([r["g"] for r in results]).reshape(len(results), -1)
+            ctx.n_evals += sum(r["nfev"] for r in results)
+            ctx.offer(X, f, v, G)
+            launched += k
             round_no += 1
+            if ctx.record_epoch(f, v):
+                return

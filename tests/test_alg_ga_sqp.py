@@ -213,7 +213,7 @@ def test_sqp_is_bit_identical_with_one_and_two_workers():
         return f, (X[:, 0] ** 2 - X[:, 1] - 0.5)[:, None]
 
     lo, hi = [-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]
-    # default batch (2 x workers): the epochs differ, the results must not
+    # default batch: results and history must not depend on the workers
     kw = dict(seed=7, max_evals=300, settings=dict(starts=6, max_iter=20))
     a = heurtune.minimize(wavy, lo, hi, "sqp_multistart", n_jobs=1, **kw)
     b = heurtune.minimize(wavy, lo, hi, "sqp_multistart", n_jobs=2, **kw)
@@ -221,7 +221,7 @@ def test_sqp_is_bit_identical_with_one_and_two_workers():
     np.testing.assert_array_equal(a.x, b.x)
     assert a.f == b.f and a.violation == b.violation
     pd.testing.assert_frame_equal(a.details, b.details)
-    # fixed batch: the history is the same too
+    # another batch size: the history is the same too
     kw["settings"] = dict(starts=6, max_iter=20, batch=4)
     a = heurtune.minimize(wavy, lo, hi, "sqp_multistart", n_jobs=1, **kw)
     b = heurtune.minimize(wavy, lo, hi, "sqp_multistart", n_jobs=2, **kw)
