@@ -56,8 +56,14 @@ SCHEMA = {
         "constraints": {"Mp": NUMBER, "ts": NUMBER, "ess": NUMBER},
         "bounds": ("map", PAIR),
     },
-    # Optimiser tables are validated by the optimiser registry (their settings differ).
-    "optimisers": ("list", dict),
+    # Optimiser plugins outside algorithms/: .py paths or importable module names.
+    "plugins": ("list", str),
+    # Each optimiser's settings are validated by the registry (they differ per optimiser).
+    "optimisers": ("list", {
+        "name": str, "settings": ("map", None), "max_epochs": int, "max_evals": int,
+        "max_time": NUMBER, "tol": NUMBER, "tol_window": int,
+        "constraint_handling": ("deb", "penalty"), "penalty": NUMBER, "bound_handling": ("clip", "reflect"),
+    }),
 }
 
 
@@ -131,6 +137,8 @@ def _check(value, spec, where: str, src: str):
     if isinstance(spec, tuple) and spec and spec[0] == "pair":
         if not (isinstance(value, list) and len(value) == 2 and all(_is_number(v) for v in value)):
             fail(f"expected two numbers [a, b], got {value!r}")
+        return
+    if spec is None:  # free value, validated elsewhere
         return
     if spec == NUMBER:
         if not _is_number(value) or not math.isfinite(value):

@@ -334,6 +334,20 @@ class Experiment:
             if key in bounds:
                 bounds[key] = (float(lo), float(hi))
         self.bounds = bounds
+        from heurtune import registry
+
+        for spec in config.get("plugins", []):
+            registry.load_plugin(spec)
+        self.optimisers = []
+        for i, opt in enumerate(config.get("optimisers", [])):
+            where = f"{self.name}: optimisers[{i}]"
+            if "name" not in opt:
+                raise ConfigError(f"{where}: missing key 'name'")
+            try:
+                settings = registry.make_settings(opt["name"], opt.get("settings", {}))
+            except ConfigError as exc:
+                raise ConfigError(f"{where}: {exc}") from None
+            self.optimisers.append(dict(opt, settings=settings))
 
     def __repr__(self):
         return f"Experiment({self.name!r}, cases={self.cases}, controller={self.controller!r})"

@@ -55,6 +55,9 @@ def test_custom_plant_case(tmp_path):
     ('extends = "cs_folqi_qtp"\n[problem]\nobjective = "speed"\n', r"problem.objective: got 'speed'; allowed: effort"),
     ('extends = "no_such_experiment"\n', r"unknown experiment 'no_such_experiment'; allowed: .*cs_folqi_qtp"),
     ('[plant\ncases = 1', r"exp.toml: not valid TOML"),
+    ('extends = "cs_folqi_qtp"\n[[optimisers]]\nname = "hillclimb"\n', r"optimisers\[0\]: unknown optimiser 'hillclimb'; allowed: .*cs"),
+    ('extends = "cs_folqi_qtp"\n[[optimisers]]\nname = "cs"\nsettings = {npop = 3}\n', r"optimisers\[0\]: cs: unknown setting 'npop'; allowed: n, pa"),
+    ('extends = "cs_folqi_qtp"\n[[optimisers]]\nname = "cs"\nbudget = 3\n', r"optimisers\[0\]: unknown key 'budget'; allowed: name, settings"),
     ('extends = "cs_folqi_qtp"\n[plant]\ncases = ["rig"]\n[plant.custom.rig]\nA = [1, 1, 1, 1]\n', r"plant.custom.rig: missing a, k, gamma, levels"),
 ])
 def test_config_errors_are_one_line_and_name_the_key(tmp_path, text, message):
