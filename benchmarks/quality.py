@@ -15,10 +15,7 @@ import numpy as np
 
 import heurtune
 from heurtune import registry
-from heurtune.testfunctions import PROBLEMS
-
-BUDGETS = {"sphere": 10_000, "rosenbrock": 50_000, "rastrigin": 50_000, "ackley": 20_000,
-           "pressure_vessel": 20_000}
+from heurtune.testfunctions import BUDGETS, PROBLEMS
 
 
 def measure(name, problem, seeds):

@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-__all__ = ["SHIFT", "sphere", "rosenbrock", "rastrigin", "ackley", "pressure_vessel", "PROBLEMS"]
+__all__ = ["SHIFT", "sphere", "rosenbrock", "rastrigin", "ackley", "pressure_vessel", "PROBLEMS", "BUDGETS"]
 
 SHIFT = 1.3  # optimum of the shifted functions at x_i = 1.3 (inside [-5, 5])
 
@@ -64,3 +64,7 @@ PROBLEMS = {
     "ackley": (ackley, [-5.0] * D, [5.0] * D, 0.0),
     "pressure_vessel": (pressure_vessel, [0.0625, 0.0625, 10.0, 10.0], [6.1875, 6.1875, 200.0, 200.0], 5885.3327),
 }
+
+# Evaluation budgets of the quality table (docs/quality.md) and tests/test_quality.py.
+BUDGETS = {"sphere": 10_000, "rosenbrock": 50_000, "rastrigin": 50_000, "ackley": 20_000,
+           "pressure_vessel": 20_000}
