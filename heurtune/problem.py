@@ -192,10 +192,10 @@ class Problem:
         margin = self.loop.stability_margin(ctrl)
         if not margin < 0.0:
             return "unstable", margin
-        sim = self.loop.run(ctrl, scenario, copy=False)
+        sim = self.loop.run(ctrl, scenario, settling_band=self.settling_band, record=False)
         if sim.diverged:
             return "diverged", 0.0
-        metrics_row[:] = self.loop.metrics(sim, scenario, self.settling_band)
+        metrics_row[:] = sim.metrics
         if not np.all(np.isfinite(metrics_row)):
             return "non_finite", 0.0
         return "", 0.0

@@ -122,19 +122,23 @@ class Scenario:
 
 @dataclasses.dataclass
 class SimulationResult:
-    """Sampled response: ``y`` (n+1, 2) measured levels, ``u`` (n+1, 2) voltages, ``h`` true
-    levels (n+1, 4) when recorded, ``diverged`` flag and the operating point used."""
+    """A closed-loop run: ``metrics`` (in the order of METRIC_NAMES; NaN when diverged), the
+    ``diverged`` flag, the operating point used and, when recorded, the sampled response ``y``
+    (n+1, 2) measured levels, ``u`` (n+1, 2) voltages and ``h`` (n+1, 4) true levels."""
 
     t: np.ndarray
-    y: np.ndarray
-    u: np.ndarray
+    y: np.ndarray | None
+    u: np.ndarray | None
     h: np.ndarray | None
     diverged: bool
     h_op: np.ndarray
     u_op: np.ndarray
+    metrics: np.ndarray
 
     def to_frame(self) -> pd.DataFrame:
         """Columns t, h1..h4 (if recorded), y1, y2, u1, u2."""
+        if self.y is None:
+            raise ValueError("this run was not recorded (run(..., record=True))")
         cols = {"t": self.t}
         if self.h is not None:
             for i in range(4):
@@ -162,13 +166,11 @@ class ClosedLoop:
         self.options = dict(oustaloup_order=oustaloup_order, band=tuple(band), realisation=realisation)
         self.op = operating_point(plant)
         self.A, self.B, self.C = linearise(plant, self.op)
-        self._buffers = {}
         self._plants = {}
 
     def __getstate__(self):
-        # Buffers and caches are rebuilt on demand: do not ship megabytes to workers.
+        # Caches are rebuilt on demand.
         state = self.__dict__.copy()
-        state["_buffers"] = {}
         state["_plants"] = {}
         return state
 
@@ -191,24 +193,18 @@ class ClosedLoop:
             self._plants[factor] = (_kernels.plant_coefficients(p.as_array()), operating_point(p).u)
         return self._plants[factor]
 
-    def _buffer(self, n: int, record_levels: bool):
-        key = (n, record_levels)
-        if key not in self._buffers:
-            self._buffers[key] = (
-                np.empty((n + 1, 2)), np.empty((n + 1, 2)),
-                np.empty((n + 1, 4)) if record_levels else np.zeros((0, 4)),
-            )
-        return self._buffers[key]
+    def run(self, ctrl: LinearController, scenario: Scenario, *, settling_band: float = 3.0,
+            record: bool = True, record_levels: bool = False) -> SimulationResult:
+        """Simulate the nonlinear loop and its metrics (kernel :func:`simulate_loop`).
 
-    def run(self, ctrl: LinearController, scenario: Scenario, *, record_levels: bool = False,
-            copy: bool = True) -> SimulationResult:
-        """Simulate the nonlinear loop (kernel :func:`simulate_loop`).
-
-        With ``copy=False`` the arrays are internal buffers reused by the next call.
+        With ``record=False`` only the metrics are kept (what a tuning evaluation needs).
         """
         coef, u_op = self._perturbed(scenario.uncertainty)
         n = scenario.n_steps
-        y, u, h = self._buffer(n, record_levels)
+        rows = n + 1 if record else 0
+        y, u = np.empty((rows, 2)), np.empty((rows, 2))
+        h = np.empty((n + 1 if record_levels else 0, 4))
+        metrics = np.empty(_kernels.N_METRICS)
         dc = ctrl.discretise(scenario.dt)
         sat = scenario.saturation
         status, _ = _kernels.simulate_loop(
@@ -217,16 +213,15 @@ class ClosedLoop:
             scenario.dt, n, scenario.disturbance_index, np.asarray(scenario.output_disturbance),
             scenario.input_disturbance_index, np.asarray(scenario.input_disturbance),
             scenario.noise(), sat is not None, sat[0] if sat else 0.0, sat[1] if sat else 0.0,
-            y, u, h,
+            float(settling_band), metrics, y, u, h,
         )
         t = np.arange(n + 1) * scenario.dt
-        if copy:
-            y, u, h = y.copy(), u.copy(), h.copy()
-        return SimulationResult(t, y, u, h if record_levels else None,
-                                status != _kernels.STATUS_OK, self.op.h.copy(), u_op.copy())
+        return SimulationResult(t, y if record else None, u if record else None,
+                                h if record_levels else None, status != _kernels.STATUS_OK,
+                                self.op.h.copy(), u_op.copy(), metrics)
 
     def metrics(self, sim: SimulationResult, scenario: Scenario, settling_band: float) -> np.ndarray:
-        """Metric vector in the order of METRIC_NAMES (NaN when the run diverged)."""
+        """Metrics recomputed from a recorded run (:func:`loop_metrics`; NaN when diverged)."""
         out = np.full(_kernels.N_METRICS, np.nan)
         if sim.diverged:
             return out
@@ -239,6 +234,6 @@ class ClosedLoop:
         sc = Scenario(horizon=0.02, dt=0.01, disturbance_time=0.0)
         A = np.zeros((1, 1))
         ctrl = LinearController(A, np.zeros((1, 4)), np.zeros((2, 1)), np.zeros((2, 4)), ((0, 1),), (0,))
-        sim = self.run(ctrl, sc)
-        self.metrics(sim, sc, 3.0)
+        self.metrics(self.run(ctrl, sc), sc, 3.0)
+        self.run(ctrl, sc, record=False)
 
