@@ -36,7 +36,7 @@ SCHEMA = {
         }),
     },
     "controller": {
-        "type": ("folqi", "iolqi", "ladr"),
+        "type": ("choices", ("folqi", "iolqi", "ladr")),  # one, or a list (one case per type)
         "oustaloup_order": int,
         "band": PAIR,
         "realisation": ("direct", "integer_split"),
@@ -133,6 +133,14 @@ def _check(value, spec, where: str, src: str):
             fail(f"expected a list, got {value!r}")
         for i, sub in enumerate(value):
             _check(sub, spec[1], f"{where}[{i}]", src)
+        return
+    if isinstance(spec, tuple) and spec and spec[0] == "choices":
+        values = value if isinstance(value, list) else [value]
+        for v in values:
+            if v not in spec[1]:
+                fail(f"got {v!r}; allowed: {', '.join(spec[1])}")
+        if not values or len(set(values)) != len(values):
+            fail(f"give one or more distinct values, got {value!r}")
         return
     if isinstance(spec, tuple) and spec and spec[0] == "pair":
         if not (isinstance(value, list) and len(value) == 2 and all(_is_number(v) for v in value)):

@@ -58,7 +58,7 @@ def run(argv=None) -> int:
     except (ConfigError, ControllerDesignError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    print(f"{exp.name} / case {args.case} / {exp.controller}")
+    print(f"{exp.name} / case {args.case} / {prob.loop.kind}")
     with pd.option_context("display.width", 200, "display.max_columns", 20,
                            "display.float_format", "{:.4f}".format):
         print(table[TABLE_COLUMNS].to_string())

@@ -284,14 +284,23 @@ class Experiment:
         self.config = config
         self.name = config["name"]
         plant = config.get("plant", {})
-        self.cases = tuple(plant.get("cases", ["min", "nmp"]))
-        if not self.cases:
+        plant_cases = tuple(plant.get("cases", ["min", "nmp"]))
+        if not plant_cases:
             raise ConfigError(f"{self.name}: plant.cases must name at least one case")
         self._custom = plant.get("custom", {})
-        for case in self.cases:
+        for case in plant_cases:
             self._plant(case)  # validate early
         ctrl = config.get("controller", {})
-        self.controller = ctrl.get("type", "folqi")
+        kinds = ctrl.get("type", "folqi")
+        self.controllers = tuple(kinds) if isinstance(kinds, list) else (kinds,)
+        self.controller = self.controllers[0]
+        # One case per (controller, plant case); named by the plant alone when there is one
+        # controller ("min"), else "<plant>-<controller>" ("min-folqi").
+        self._variants = {}
+        for kind in self.controllers:
+            for pc in plant_cases:
+                self._variants[pc if len(self.controllers) == 1 else f"{pc}-{kind}"] = (pc, kind)
+        self.cases = tuple(self._variants)
         self.controller_options = dict(
             oustaloup_order=ctrl.get("oustaloup_order", 5),
             band=tuple(ctrl.get("band", (1e-3, 1e3))),
@@ -320,15 +329,17 @@ class Experiment:
         if self.tuning_scenario not in self.scenarios:
             raise ConfigError(f"{self.name}: problem.tuning_scenario {self.tuning_scenario!r}; "
                               f"allowed: {', '.join(self.scenarios)}")
-        self.names = decision_names(self.controller)
-        bounds = default_bounds(self.controller)
-        # Bounds of variables another controller type uses (e.g. alpha inherited by an IOLQI
+        names = [n for kind in self.controllers for n in decision_names(kind)]
+        bounds = {}
+        for kind in self.controllers:
+            bounds.update(default_bounds(kind))
+        # Bounds of variables no configured controller uses (e.g. alpha inherited by an IOLQI
         # config extending a FOLQI one) are ignored; a name no controller knows is an error.
         known = {n for kind in CONTROLLER_TYPES for n in decision_names(kind)}
         for key, (lo, hi) in prob.get("bounds", {}).items():
             if key not in known:
                 raise ConfigError(f"{self.name}: problem.bounds: unknown variable {key!r}; "
-                                  f"allowed: {', '.join(self.names)}")
+                                  f"allowed: {', '.join(dict.fromkeys(names))}")
             if not lo <= hi:
                 raise ConfigError(f"{self.name}: problem.bounds.{key}: lower {lo} > upper {hi}")
             if key in bounds:
@@ -350,7 +361,17 @@ class Experiment:
             self.optimisers.append(dict(opt, settings=settings))
 
     def __repr__(self):
-        return f"Experiment({self.name!r}, cases={self.cases}, controller={self.controller!r})"
+        return f"Experiment({self.name!r}, cases={self.cases}, controllers={self.controllers})"
+
+    def controller_of(self, case: str) -> str:
+        """The controller type of a case."""
+        return self._variant(case)[1]
+
+    def _variant(self, case: str):
+        try:
+            return self._variants[case]
+        except KeyError:
+            raise ConfigError(f"unknown case {case!r} for {self.name}; allowed: {', '.join(self.cases)}") from None
 
     def _plant(self, case: str) -> QTPParams:
         if case in self._custom:
@@ -365,13 +386,14 @@ class Experiment:
             raise ConfigError(f"{self.name}: plant.cases: {exc} (or define plant.custom.{case})") from None
 
     def problem(self, case: str) -> Problem:
-        """The tuning problem of one case (e.g. ``"min"`` or ``"nmp"``)."""
-        if case not in self.cases:
-            raise ConfigError(f"unknown case {case!r} for {self.name}; allowed: {', '.join(self.cases)}")
-        loop = ClosedLoop(self._plant(case), self.controller, **self.controller_options)
-        lower = [self.bounds[n][0] for n in self.names]
-        upper = [self.bounds[n][1] for n in self.names]
-        return Problem(case, loop, self.names, lower, upper, objective=self.objective,
+        """The tuning problem of one case (e.g. ``"min"``, or ``"min-folqi"`` when the experiment
+        names several controllers)."""
+        plant_case, kind = self._variant(case)
+        loop = ClosedLoop(self._plant(plant_case), kind, **self.controller_options)
+        names = decision_names(kind)
+        lower = [self.bounds[n][0] for n in names]
+        upper = [self.bounds[n][1] for n in names]
+        return Problem(case, loop, names, lower, upper, objective=self.objective,
                        constraints=self.constraints, settling_band=self.settling_band,
                        scenarios=self.scenarios, tuning_scenario=self.tuning_scenario)
 

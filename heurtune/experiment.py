@@ -1,0 +1,479 @@
+"""Run a named experiment: many seeded tuning runs, logged to parquet, resumable.
+
+Usage::
+
+    python -m heurtune.experiment NAME [--runs N] [--max-epochs E] [--jobs J] [--seed S]
+        [--out DIR] [--smoke] [--fresh] [--backend loky|dask --scheduler ADDRESS]
+        [--plugin FILE_OR_MODULE ...] [--list] [--list-algorithms]
+
+Every (case, optimiser, run) is one tuning run with its own seed,
+``SeedSequence(root_seed, spawn_key=(case index, optimiser index, run))``, so a run's result
+depends on nothing but the config and the root seed: not on the order, on the number of workers
+or on which runs were already done. Each finished run is written at once, atomically, to
+``DIR/parts/``; re-running the same command skips finished runs (``--fresh`` starts over), so an
+interrupt loses at most the runs in flight. At the end the parts are gathered into
+``runs.parquet`` and ``history.parquet``, with ``meta.json`` (resolved config, seeds, package
+versions, git commit), ``margins.parquet`` and figures.
+
+With more pending runs than workers, whole runs go to the workers; otherwise the runs go one
+after the other, each evaluating its batches on all workers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import dataclasses
+import hashlib
+import json
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from heurtune import registry
+from heurtune.config import list_experiments, load_config
+from heurtune.engine import SearchSpace, run as run_optimiser
+from heurtune.errors import ConfigError
+from heurtune.evaluator import BACKENDS, Evaluator
+from heurtune.io import atomic_path, write_parquet
+from heurtune.problem import Experiment
+
+__all__ = ["RunSpec", "plan", "execute", "problem_id", "run_experiment", "main"]
+
+# Budgets of --smoke: the same problem, a quick check.
+SMOKE_RUNS = 2
+SMOKE_EPOCHS = 2
+SMOKE_SETTINGS = {"n": 6, "starts": 2, "max_iter": 5, "batch": 2}
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpec:
+    """One tuning run of an experiment."""
+
+    case: str
+    case_index: int
+    algorithm: str
+    optimiser_index: int
+    run: int
+    settings: dict
+    budget: dict
+    root_seed: int
+
+    @property
+    def spawn_key(self) -> tuple:
+        return (self.case_index, self.optimiser_index, self.run)
+
+    @property
+    def seed_key(self) -> str:
+        return ".".join(map(str, self.spawn_key))
+
+    @property
+    def part_name(self) -> str:
+        safe = self.case.replace("/", "_")
+        return f"{safe}__{self.optimiser_index}-{self.algorithm}__{self.run:04d}"
+
+
+def problem_id(exp: Experiment, case: str) -> str:
+    """A short hash of everything that defines a case's tuning problem (for comparisons)."""
+    prob = exp.problem(case)
+    p = prob.loop.plant
+    payload = dict(
+        plant=dict(A=p.A, a=p.a, k=p.k, gamma=p.gamma, levels=p.levels, g=p.g),
+        controller=prob.loop.kind, options={k: list(v) if isinstance(v, tuple) else v
+                                            for k, v in prob.loop.options.items()},
+        scenario=dataclasses.asdict(prob.scenario(prob.tuning_scenario)),
+        objective=prob.objective, constraints=prob.constraints, band=prob.settling_band,
+        bounds=dict(zip(prob.names, zip(prob.lower.tolist(), prob.upper.tolist()))),
+    )
+    text = json.dumps(payload, sort_keys=True, default=list)
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+
+def plan(exp: Experiment, *, runs=None, max_epochs=None, seed=None, smoke=False) -> list:
+    """All runs of an experiment, in a fixed order (case, optimiser, run)."""
+    if not exp.optimisers:
+        raise ConfigError(f"{exp.name}: no [[optimisers]] to run")
+    n_runs = runs if runs is not None else exp.config.get("runs", 10)
+    root = seed if seed is not None else exp.config.get("seed", 0)
+    if smoke:
+        n_runs = min(n_runs, SMOKE_RUNS)
+    specs = []
+    for ci, case in enumerate(exp.cases):
+        for oi, opt in enumerate(exp.optimisers):
+            name = opt["name"]
+            settings = dataclasses.asdict(opt["settings"])
+            budget = {k: opt[k] for k in ("max_epochs", "max_evals", "max_time", "tol", "tol_window",
+                                          "constraint_handling", "penalty", "bound_handling") if k in opt}
+            if max_epochs is not None:
+                budget["max_epochs"] = max_epochs
+                budget.pop("max_evals", None)
+            if smoke:
+                budget["max_epochs"] = min(budget.get("max_epochs", SMOKE_EPOCHS), SMOKE_EPOCHS)
+                if "max_evals" in budget:
+                    budget["max_evals"] = min(budget["max_evals"], 200)
+                for key, small in SMOKE_SETTINGS.items():
+                    if key in settings:
+                        settings[key] = min(settings[key], small)
+            for r in range(n_runs):
+                specs.append(RunSpec(case, ci, name, oi, r, settings, budget, root))
+    return specs
+
+
+# Per-process cache: workers rebuild each case's problem once.
+_PROBLEMS = {}
+
+
+def _problem(config: dict, case: str):
+    key = (config["name"], json.dumps(config, sort_keys=True, default=str), case)
+    if key not in _PROBLEMS:
+        _PROBLEMS[key] = Experiment(config).problem(case)
+    return _PROBLEMS[key]
+
+
+def execute(config: dict, spec: RunSpec, evaluator: Evaluator | None = None):
+    """Run one tuning run; returns its result row (dict) and history (DataFrame).
+
+    Runs in any process: the optimiser plugins named by the config are loaded here too.
+    """
+    for plugin in config.get("plugins", []):
+        registry.load_plugin(plugin)
+    prob = _problem(config, spec.case)
+    t0 = time.perf_counter()
+    seed = np.random.SeedSequence(spec.root_seed, spawn_key=spec.spawn_key)
+    space = SearchSpace(prob.lower, prob.upper, spec.budget.get("bound_handling", "clip"))
+    budget = {k: v for k, v in spec.budget.items() if k != "bound_handling"}
+    own = evaluator is None
+    ev = Evaluator(prob) if own else evaluator
+    try:
+        res = run_optimiser(spec.algorithm, ev, space, settings=spec.settings, seed=seed, **budget)
+    finally:
+        if own:
+            ev.close()
+    row = dict(case=spec.case, algorithm=spec.algorithm, optimiser_index=spec.optimiser_index,
+               run=spec.run, seed=spec.root_seed, seed_key=spec.seed_key, best_f=float(res.f),
+               feasible=bool(res.feasible), violation=float(res.violation), n_evals=int(res.n_evals),
+               n_epochs=int(res.n_epochs), convergence_epoch=int(res.convergence_epoch),
+               wall_time_s=time.perf_counter() - t0, stop_reason=res.stop_reason,
+               settings=json.dumps(spec.settings, sort_keys=True))
+    row.update(zip(prob.names, map(float, res.x)))
+    report = prob.report(res.x)
+    for scenario, values in report.iterrows():
+        for key, value in values.items():
+            row[f"{key}@{scenario}"] = value
+    hist = res.history.assign(case=spec.case, algorithm=spec.algorithm, optimiser_index=spec.optimiser_index,
+                              run=spec.run)
+    return row, hist
+
+
+def _git_commit() -> str:
+    try:
+        out = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
+                             cwd=Path(__file__).resolve().parent, timeout=5)
+        return out.stdout.strip() if out.returncode == 0 else ""
+    except (OSError, subprocess.SubprocessError):
+        return ""
+
+
+def _versions() -> dict:
+    from importlib import metadata
+
+    out = {"python": sys.version.split()[0]}
+    for pkg in ("heurtune", "numpy", "scipy", "numba", "joblib", "control", "pandas", "pyarrow", "matplotlib"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            out[pkg] = None
+    return out
+
+
+class Progress:
+    """One status line: runs done, evaluations per second, best so far per case."""
+
+    def __init__(self, total: int, done: int, stream=sys.stdout):
+        self.total, self.done = total, done
+        self.stream = stream
+        self.tty = stream.isatty()
+        self.t0 = time.perf_counter()
+        self.evals = 0
+        self.best = {}
+
+    def update(self, row: dict):
+        self.done += 1
+        self.evals += row["n_evals"]
+        key = row["case"]
+        cand = (not row["feasible"], row["best_f"] if row["feasible"] else row["violation"])
+        if key not in self.best or cand < self.best[key][0]:
+            self.best[key] = (cand, row["algorithm"])
+        rate = self.evals / max(time.perf_counter() - self.t0, 1e-9)
+        width = 24
+        filled = int(width * self.done / max(self.total, 1))
+        bests = ", ".join(f"{c}: {v[0][1]:.6g}{'' if not v[0][0] else ' (infeasible)'} [{v[1]}]"
+                          for c, v in self.best.items())
+        line = (f"[{'#' * filled}{'.' * (width - filled)}] {self.done}/{self.total} runs, "
+                f"{rate:.0f} evals/s, best {bests}")
+        if self.tty:
+            self.stream.write("\r" + line[:200].ljust(200))
+        else:
+            self.stream.write(line + "\n")
+        self.stream.flush()
+
+    def close(self):
+        if self.tty:
+            self.stream.write("\n")
+
+
+def _finished(parts: Path) -> set:
+    return {p.name[:-len(".run.parquet")] for p in parts.glob("*.run.parquet")}
+
+
+def _persist(parts: Path, spec: RunSpec, row: dict, hist: pd.DataFrame):
+    # History first; the run file marks the run finished.
+    write_parquet(hist, parts / f"{spec.part_name}.history.parquet")
+    write_parquet(pd.DataFrame([row]), parts / f"{spec.part_name}.run.parquet")
+
+
+def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed=None, out=None,
+                   smoke=False, fresh=False, backend="loky", scheduler=None, plugins=(),
+                   progress_stream=sys.stdout, figures=True) -> Path:
+    """Run (or resume) an experiment; returns its output folder. See the module docstring."""
+    for plugin in plugins:
+        registry.load_plugin(plugin)
+    config = load_config(name)
+    if plugins:
+        config["plugins"] = list(config.get("plugins", [])) + [str(Path(p).resolve()) if p.endswith(".py") else p
+                                                              for p in plugins]
+    exp = Experiment(config)
+    out_dir = Path(out) if out else Path("results") / exp.name
+    parts = out_dir / "parts"
+    specs = plan(exp, runs=runs, max_epochs=max_epochs, seed=seed, smoke=smoke)
+    if fresh and out_dir.exists():
+        shutil.rmtree(out_dir)
+    parts.mkdir(parents=True, exist_ok=True)
+    # What makes earlier runs reusable (a different --runs only adds or leaves out runs).
+    plan_key = dict(max_epochs=max_epochs, seed=seed, smoke=smoke)
+    meta_path = out_dir / "plan.json"
+    if meta_path.exists():
+        old = json.loads(meta_path.read_text())
+        if old != plan_key:
+            raise ConfigError(f"{out_dir} holds runs of a different plan ({old}); use --fresh or another --out")
+    else:
+        with atomic_path(meta_path) as tmp:
+            tmp.write_text(json.dumps(plan_key))
+    done = _finished(parts)
+    pending = [s for s in specs if s.part_name not in done]
+    bar = Progress(len(specs), len(specs) - len(pending), progress_stream)
+    ids = {case: problem_id(exp, case) for case in exp.cases}
+    if pending:
+        print(f"{exp.name}: {len(pending)} of {len(specs)} runs to do ({len(done)} already done), "
+              f"{jobs} worker(s), output {out_dir}", file=progress_stream)
+        _run_pending(config, pending, parts, bar, jobs=jobs, backend=backend, scheduler=scheduler)
+    bar.close()
+    _gather(exp, specs, parts, out_dir, ids, config, plan_key, figures=figures)
+    return out_dir
+
+
+def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler):
+    whole_runs = backend == "dask" or (jobs > 1 and len(pending) >= jobs)
+    if not whole_runs:
+        # Few runs: one after the other, each spreading its batches over the workers.
+        for spec in pending:
+            prob = _problem(config, spec.case)
+            with Evaluator(prob, n_jobs=jobs) as ev:
+                row, hist = execute(config, spec, ev)
+            _persist(parts, spec, row, hist)
+            bar.update(row)
+        return
+    if backend == "dask":
+        from distributed import Client, as_completed
+
+        client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
+        try:
+            futures = {client.submit(execute, config, spec, pure=False): spec for spec in pending}
+            for fut in as_completed(futures):
+                row, hist = fut.result()
+                _persist(parts, futures[fut], row, hist)
+                bar.update(row)
+        finally:
+            if not isinstance(scheduler, Client):
+                client.close()
+        return
+    from joblib.externals.loky import get_reusable_executor
+
+    # Warm the kernels here first: the workers then load them from the cache.
+    _problem(config, pending[0].case).warm_up()
+    executor = get_reusable_executor(max_workers=jobs)
+    futures = {executor.submit(execute, config, spec): spec for spec in pending}
+    try:
+        for fut in concurrent.futures.as_completed(futures):
+            row, hist = fut.result()
+            _persist(parts, futures[fut], row, hist)
+            bar.update(row)
+    except BaseException:
+        for fut in futures:
+            fut.cancel()
+        executor.shutdown(wait=False, kill_workers=True)
+        raise
+
+
+def _gather(exp, specs, parts, out_dir, ids, config, plan_key, *, figures):
+    rows, hists = [], []
+    for spec in specs:
+        run_file = parts / f"{spec.part_name}.run.parquet"
+        if run_file.exists():
+            rows.append(pd.read_parquet(run_file))
+            hists.append(pd.read_parquet(parts / f"{spec.part_name}.history.parquet"))
+    runs = pd.concat(rows, ignore_index=True)
+    runs.insert(0, "experiment", exp.name)
+    runs.insert(3, "controller", [exp.controller_of(c) for c in runs["case"]])
+    runs.insert(4, "problem_id", [ids[c] for c in runs["case"]])
+    history = pd.concat(hists, ignore_index=True)
+    history.insert(0, "experiment", exp.name)
+    lead = ["experiment", "case", "algorithm", "optimiser_index", "run"]
+    history = history[lead + [c for c in history.columns if c not in lead]]
+    write_parquet(runs, out_dir / "runs.parquet")
+    write_parquet(history, out_dir / "history.parquet")
+    meta = dict(experiment=exp.name, config=config, plan=plan_key, root_seed=specs[0].root_seed,
+                seeds={s.part_name: dict(seed=s.root_seed, spawn_key=list(s.spawn_key)) for s in specs},
+                problem_ids=ids, versions=_versions(), git_commit=_git_commit(),
+                written=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+    with atomic_path(out_dir / "meta.json") as tmp:
+        tmp.write_text(json.dumps(meta, indent=2, default=str))
+    best = _best_runs(runs)
+    try:
+        from heurtune.margins import loop_margins
+    except ImportError:  # pragma: no cover - margins module missing
+        loop_margins = None
+    if loop_margins is not None:
+        tables = []
+        for _, r in best.iterrows():
+            prob = exp.problem(r["case"])
+            x = np.array([r[n] for n in prob.names])
+            if prob.loop.kind in ("folqi", "iolqi"):
+                m = loop_margins(prob, x)
+                tables.append(m.assign(experiment=exp.name, case=r["case"], algorithm=r["algorithm"], run=r["run"]))
+        if tables:
+            margins = pd.concat(tables, ignore_index=True)
+            lead = ["experiment", "case", "algorithm", "run"]
+            write_parquet(margins[lead + [c for c in margins.columns if c not in lead]], out_dir / "margins.parquet")
+    if figures:
+        _figures(exp, runs, history, best, out_dir)
+    print_summary(runs, exp)
+
+
+def _best_runs(runs: pd.DataFrame) -> pd.DataFrame:
+    """Per case and optimiser, the best run (feasible first, then lowest objective/violation)."""
+    order = runs.assign(_inf=~runs["feasible"], _key=np.where(runs["feasible"], runs["best_f"], runs["violation"]))
+    order = order.sort_values(["case", "optimiser_index", "_inf", "_key", "run"])
+    return order.groupby(["case", "optimiser_index"], sort=False).head(1).drop(columns=["_inf", "_key"])
+
+
+def _figures(exp, runs, history, best, out_dir):
+    try:
+        from heurtune import figures
+    except ImportError:  # pragma: no cover
+        return
+    for case in exp.cases:
+        h = history[history["case"] == case]
+        figures.convergence_figure(h, out_dir / f"convergence_{_slug(case)}.png", case=case)
+        b = best[best["case"] == case].sort_values(["feasible", "best_f"], ascending=[False, True]).head(1)
+        if len(b):
+            prob = exp.problem(case)
+            r = b.iloc[0]
+            x = np.array([r[n] for n in prob.names])
+            figures.response_figure(prob, x, out_dir / f"responses_{_slug(case)}.png",
+                                    scenarios=tuple(prob.scenarios),
+                                    title=f"{exp.name} / {case}: best of {r['algorithm']} (run {r['run']})")
+    figures.boxplot_figure(runs, out_dir / "boxplot_best_f.png")
+
+
+def _slug(text: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in text)
+
+
+def print_summary(runs: pd.DataFrame, exp: Experiment, stream=sys.stdout):
+    """Per case and optimiser: best, mean, SD, median, worst objective, feasible runs, mean
+    convergence epoch, wall time and the best gains."""
+    rows = []
+    for (case, _), grp in runs.groupby(["case", "optimiser_index"], sort=False):
+        f = grp["best_f"]
+        best = _best_runs(grp).iloc[0]
+        names = exp.problem(case).names
+        rows.append({
+            "case": case, "algorithm": grp["algorithm"].iloc[0], "runs": len(grp),
+            "best": f.min(), "mean": f.mean(), "sd": f.std(ddof=1) if len(f) > 1 else 0.0,
+            "median": f.median(), "worst": f.max(), "feasible": f"{int(grp['feasible'].sum())}/{len(grp)}",
+            "conv_epoch": grp["convergence_epoch"].mean(), "wall_s": grp["wall_time_s"].sum(),
+            "best gains": " ".join(f"{n}={best[n]:.4g}" for n in names),
+        })
+    table = pd.DataFrame(rows)
+    with pd.option_context("display.width", 250, "display.max_columns", 20, "display.max_colwidth", 120,
+                           "display.float_format", "{:.2f}".format):
+        print(table.to_string(index=False), file=stream)
+
+
+def _parser():
+    ap = argparse.ArgumentParser(prog="python -m heurtune.experiment", description=__doc__.split("\n")[0])
+    ap.add_argument("name", nargs="?", help="experiment name (experiments/<name>.toml) or a .toml path")
+    ap.add_argument("--runs", type=int, help="runs per case and optimiser (overrides the config)")
+    ap.add_argument("--max-epochs", type=int, help="generation budget of every optimiser (overrides the config)")
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    ap.add_argument("--seed", type=int, help="root seed (overrides the config)")
+    ap.add_argument("--out", help="output folder (default results/NAME)")
+    ap.add_argument("--smoke", action="store_true", help="tiny budgets, same problem: a quick check")
+    ap.add_argument("--fresh", action="store_true", help="discard earlier results in the output folder")
+    ap.add_argument("--backend", default="loky", help="loky (default) or dask")
+    ap.add_argument("--scheduler", help="Dask scheduler address, with --backend dask")
+    ap.add_argument("--plugin", action="append", default=[], help="optimiser plugin: a .py file or module")
+    ap.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    ap.add_argument("--list", action="store_true", help="list the experiments")
+    ap.add_argument("--list-algorithms", action="store_true", help="list the optimisers with their settings")
+    return ap
+
+
+def run(argv=None) -> int:
+    """Command-line entry point; returns the exit code."""
+    args = _parser().parse_args(argv)
+    try:
+        for plugin in args.plugin:
+            registry.load_plugin(plugin)
+        if args.list:
+            for name in list_experiments():
+                print(f"{name:24s} {load_config(name).get('description', '')}")
+            return 0
+        if args.list_algorithms:
+            for name in registry.available():
+                print(registry.describe(name))
+            return 0
+        if not args.name:
+            raise ConfigError("name an experiment (--list shows them)")
+        for key in ("runs", "max_epochs", "jobs"):
+            value = getattr(args, key)
+            if value is not None and value < (0 if key == "max_epochs" else 1):
+                raise ConfigError(f"--{key.replace('_', '-')} must be {'>= 0' if key == 'max_epochs' else '>= 1'}, got {value}")
+        if args.backend not in BACKENDS:
+            raise ConfigError(f"unknown backend {args.backend!r}; allowed: {', '.join(BACKENDS)}")
+        if args.backend == "dask" and not args.scheduler:
+            raise ConfigError("--backend dask needs --scheduler ADDRESS")
+        run_experiment(args.name, runs=args.runs, max_epochs=args.max_epochs, jobs=args.jobs, seed=args.seed,
+                       out=args.out, smoke=args.smoke, fresh=args.fresh, backend=args.backend,
+                       scheduler=args.scheduler, plugins=args.plugin, figures=not args.no_figures)
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("\ninterrupted: finished runs are kept; run the same command again to resume", file=sys.stderr)
+        return 130
+    return 0
+
+
+def main() -> None:
+    sys.exit(run())
+
+
+if __name__ == "__main__":
+    main()
