@@ -1,0 +1,235 @@
+"""Result figures: convergence curves, final-objective box plots, closed-loop responses.
+
+Every figure is drawn with matplotlib's Agg backend (no display needed) and written as a PNG
+through :func:`heurtune.io.atomic_path`, so a figure file is either complete or absent.
+
+Examples
+--------
+>>> from heurtune.figures import convergence_figure, boxplot_figure    # doctest: +SKIP
+>>> convergence_figure(history, "results/convergence.png")             # doctest: +SKIP
+>>> boxplot_figure(runs, "results/final_objective.png")                # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import math
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from heurtune.io import atomic_path  # noqa: E402
+
+__all__ = ["convergence_figure", "boxplot_figure", "response_figure", "FAILED_THRESHOLD"]
+
+# Objective values at or above this are the problem's failure sentinel (FAILED_OBJECTIVE = 1e10,
+# see heurtune.problem): they are left out of medians and boxes, which they would otherwise swamp.
+FAILED_THRESHOLD = 1.0e10
+DPI = 110
+
+
+def _needs_log(values) -> bool:
+    """Log axis when every value is positive and they span more than two decades."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    return bool(v.size and v.min() > 0 and v.max() / v.min() > 100.0)
+
+
+def _panel_grid(n: int, width: float = 5.2, height: float = 3.8, max_cols: int = 3):
+    cols = min(n, max_cols)
+    rows = math.ceil(n / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(width * cols, height * rows), squeeze=False)
+    for ax in axes.flat[n:]:
+        ax.set_visible(False)
+    return fig, list(axes.flat[:n])
+
+
+def _save(fig, path) -> None:
+    fig.tight_layout()
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=DPI, format="png")
+    finally:
+        plt.close(fig)
+
+
+def _require(df: pd.DataFrame, cols, what: str) -> None:
+    missing = [c for c in cols if c not in df.columns]
+    if missing:
+        raise ValueError(f"{what} needs column(s) {', '.join(missing)}; got {', '.join(map(str, df.columns))}")
+
+
+def _algorithm_colors(algorithms):
+    cmap = plt.get_cmap("tab10")
+    return {a: cmap(i % 10) for i, a in enumerate(algorithms)}
+
+
+def convergence_figure(history: pd.DataFrame, path, case=None) -> None:
+    """Median best objective per epoch with its inter-quartile band (thesis Figs 5.4-5.5).
+
+    One PNG with one panel per case (side by side, at most three per row), one line per
+    algorithm: the median over runs of ``best_f`` against ``epoch``, shaded between the 25th and
+    75th percentiles.
+
+    Runs of different lengths are aligned on the union of the case's epochs: each run's
+    ``best_f`` is carried forward from its last recorded epoch (a stopped run keeps its final
+    best), and a run contributes nothing before its first recorded epoch. Values at or above
+    ``FAILED_THRESHOLD`` (the failure sentinel of a run with no simulable candidate yet) count
+    as missing. The y-axis of a panel is logarithmic when all its plotted values are positive
+    and span more than two decades.
+
+    Parameters
+    ----------
+    history : pandas.DataFrame
+        Columns ``case, algorithm, run, epoch, best_f`` (others, e.g. ``n_evals``, ignored).
+    path : str or Path
+        PNG written atomically.
+    case : str or sequence of str, optional
+        Only these cases (default: every case, in order of appearance).
+
+    Raises
+    ------
+    ValueError
+        A required column is missing, or no rows are left for the selected cases.
+    """
+    _require(history, ("case", "algorithm", "run", "epoch", "best_f"), "convergence_figure")
+    cases = list(pd.unique(history["case"])) if case is None else (
+        [case] if isinstance(case, str) else list(case))
+    data = history[history["case"].isin(cases)]
+    if data.empty:
+        raise ValueError(f"convergence_figure: no history rows for case(s) {', '.join(map(str, cases))}")
+    colors = _algorithm_colors(list(pd.unique(data["algorithm"])))
+    fig, axes = _panel_grid(len(cases))
+    for ax, name in zip(axes, cases):
+        d = data[data["case"] == name]
+        epochs = np.sort(pd.unique(d["epoch"]))
+        plotted = []
+        for alg, g in d.groupby("algorithm", sort=False):
+            f = g["best_f"].astype(float).where(lambda s: s < FAILED_THRESHOLD)
+            wide = (g.assign(best_f=f).pivot_table(index="epoch", columns="run", values="best_f",
+                                                   aggfunc="last", dropna=False)
+                    .reindex(epochs).ffill())
+            vals = wide.to_numpy()
+            ok = np.isfinite(vals).any(axis=1)
+            if not ok.any():
+                continue
+            with np.errstate(all="ignore"):
+                q25, q50, q75 = np.nanpercentile(vals[ok], [25, 50, 75], axis=1)
+            n_runs = wide.shape[1]
+            ax.plot(epochs[ok], q50, color=colors[alg], lw=1.6, label=f"{alg} (n={n_runs})")
+            ax.fill_between(epochs[ok], q25, q75, color=colors[alg], alpha=0.2, lw=0)
+            plotted.append(np.concatenate([q25, q75]))
+        ax.grid(alpha=0.3)
+        if plotted and _needs_log(np.concatenate(plotted)):
+            ax.set_yscale("log")
+            ax.grid(alpha=0.1, which="minor")
+        ax.set_title(f"case {name}")
+        ax.set_xlabel("epoch")
+        ax.set_ylabel("best objective (median, IQR band)")
+        if plotted:
+            ax.legend(fontsize=8)
+    _save(fig, path)
+
+
+def boxplot_figure(runs: pd.DataFrame, path, metric: str = "best_f") -> None:
+    """Box plots of the final objective per algorithm, one panel per case.
+
+    Each box summarises the runs whose ``metric`` is finite and below ``FAILED_THRESHOLD``
+    (whiskers at 1.5 IQR); the individual runs are overlaid as points, feasible ones as dots
+    and infeasible ones as red crosses, and every tick label gives the number of runs and of
+    infeasible runs. The y-axis of a panel is logarithmic when all its values are positive and
+    span more than two decades.
+
+    Parameters
+    ----------
+    runs : pandas.DataFrame
+        Columns ``case, algorithm, run, feasible`` and ``metric``.
+    path : str or Path
+        PNG written atomically.
+    metric : str
+        Column to plot (default ``best_f``); lower is better.
+
+    Raises
+    ------
+    ValueError
+        A required column is missing or ``runs`` is empty.
+    """
+    _require(runs, ("case", "algorithm", "run", "feasible", metric), "boxplot_figure")
+    if runs.empty:
+        raise ValueError("boxplot_figure: no runs")
+    cases = list(pd.unique(runs["case"]))
+    colors = _algorithm_colors(list(pd.unique(runs["algorithm"])))
+    rng = np.random.default_rng(0)  # jitter of the overlaid points: deterministic figures
+    fig, axes = _panel_grid(len(cases), width=max(4.5, 1.1 * runs["algorithm"].nunique() + 2))
+    for ax, name in zip(axes, cases):
+        d = runs[runs["case"] == name]
+        algs = list(pd.unique(d["algorithm"]))
+        boxes, labels, shown = [], [], []
+        for k, alg in enumerate(algs, start=1):
+            g = d[d["algorithm"] == alg]
+            v = g[metric].astype(float).to_numpy()
+            feas = g["feasible"].astype(bool).to_numpy()
+            ok = np.isfinite(v) & (v < FAILED_THRESHOLD)
+            boxes.append(v[ok])
+            shown.append(v[ok])
+            labels.append(f"{alg}\nn={len(g)}, infeas.={int((~feas).sum())}")
+            xj = k + rng.uniform(-0.15, 0.15, size=len(v))
+            ax.scatter(xj[ok & feas], v[ok & feas], s=12, color=colors[alg], alpha=0.7, zorder=3)
+            ax.scatter(xj[ok & ~feas], v[ok & ~feas], s=22, marker="x", color="red", zorder=4)
+        ax.boxplot(boxes, positions=range(1, len(algs) + 1), widths=0.55, showfliers=False,
+                   medianprops=dict(color="black", lw=1.5))
+        ax.set_xticks(range(1, len(algs) + 1), labels, fontsize=8)
+        ax.grid(alpha=0.3, axis="y")
+        if shown and _needs_log(np.concatenate(shown)):
+            ax.set_yscale("log")
+            ax.grid(alpha=0.1, axis="y", which="minor")
+        ax.set_title(f"case {name}")
+        ax.set_ylabel(f"final {metric}")
+    _save(fig, path)
+
+
+def response_figure(problem, x, path, scenarios=("nominal", "-30%", "+30%"), title: str = "",
+                    tlim=None) -> None:
+    """Closed-loop response of one candidate under several scenarios (thesis Figs 5.14-5.25).
+
+    Simulates ``x`` under each scenario and draws, per lower tank, the measured level y
+    (solid) and the true level h (dashed), and below them the pump voltages u1, u2, with
+    :func:`heurtune.plots.plot_responses`.
+
+    Parameters
+    ----------
+    problem : heurtune.Problem
+    x : array_like or dict
+        Tuning values (see ``problem.names``).
+    path : str or Path
+        PNG written atomically.
+    scenarios : sequence of str or Scenario
+        Scenario names of ``problem.scenarios`` (or Scenario objects, labelled by their
+        uncertainty factor).
+    title : str
+        Figure title; default ``"<case> / <controller>"``.
+    tlim : (float, float), optional
+        Time window in s to draw (e.g. ``(40, 150)`` to zoom on the disturbance response);
+        default the whole horizon.
+
+    Raises
+    ------
+    ControllerDesignError
+        The controller cannot be designed for ``x``.
+    ConfigError
+        An unknown scenario name.
+    """
+    from heurtune.plots import plot_responses
+
+    frames = []
+    for sc in scenarios:
+        label = sc if isinstance(sc, str) else f"x{problem.scenario(sc).uncertainty:g}"
+        df = problem.simulate(x, sc, record_levels=True)
+        if tlim is not None:
+            df = df[(df["t"] >= tlim[0]) & (df["t"] <= tlim[1])]
+        frames.append(df.assign(scenario=label))
+    traj = pd.concat(frames, ignore_index=True)
+    plot_responses(traj, path, title=title or f"{problem.case} / {problem.loop.kind}")
