@@ -77,8 +77,8 @@ def convergence_figure(history: pd.DataFrame, path, case=None) -> None:
     Runs of different lengths are aligned on the union of the case's epochs: each run's
     ``best_f`` is carried forward from its last recorded epoch (a stopped run keeps its final
     best), and a run contributes nothing before its first recorded epoch. Values at or above
-    ``FAILED_THRESHOLD`` (the failure sentinel of a run with no simulable candidate yet) count
-    as missing. The y-axis of a panel is logarithmic when all its plotted values are positive
+    ``FAILED_THRESHOLD`` (the failure sentinel of a run with no simulable candidate yet) rank as
+    +inf; epochs whose median is not finite are not drawn. The y-axis of a panel is logarithmic when all its plotted values are positive
     and span more than two decades.
 
     Parameters
@@ -108,21 +108,27 @@ def convergence_figure(history: pd.DataFrame, path, case=None) -> None:
         epochs = np.sort(pd.unique(d["epoch"]))
         plotted = []
         for alg, g in d.groupby("algorithm", sort=False):
-            f = g["best_f"].astype(float).where(lambda s: s < FAILED_THRESHOLD)
+            # A failed best (the sentinel) ranks worst, as +inf: the median stays an order
+            # statistic over all runs, so it never rises when a run finds its first candidate.
+            f = g["best_f"].astype(float).where(lambda s: s < FAILED_THRESHOLD, np.inf)
             wide = (g.assign(best_f=f).pivot_table(index="epoch", columns="run", values="best_f",
                                                    aggfunc="last", dropna=False)
                     .reindex(epochs).ffill())
             vals = wide.to_numpy()
-            ok = np.isfinite(vals).any(axis=1)
+            with np.errstate(all="ignore"):
+                q25, q50, q75 = np.nanpercentile(vals, [25, 50, 75], axis=1)
+            ok = np.isfinite(q50)
             if not ok.any():
                 continue
-            with np.errstate(all="ignore"):
-                q25, q50, q75 = np.nanpercentile(vals[ok], [25, 50, 75], axis=1)
+            q25, q50, q75 = q25[ok], q50[ok], np.where(np.isfinite(q75[ok]), q75[ok], np.nan)
             n_runs = wide.shape[1]
             ax.plot(epochs[ok], q50, color=colors[alg], lw=1.6, label=f"{alg} (n={n_runs})")
             ax.fill_between(epochs[ok], q25, q75, color=colors[alg], alpha=0.2, lw=0)
-            plotted.append(np.concatenate([q25, q75]))
+            plotted.append(np.concatenate([q25, q75[np.isfinite(q75)]]))
         ax.grid(alpha=0.3)
+        if not plotted:
+            ax.text(0.5, 0.5, "median not finite: most runs found\nno simulable candidate",
+                    ha="center", va="center", transform=ax.transAxes, fontsize=9)
         if plotted and _needs_log(np.concatenate(plotted)):
             ax.set_yscale("log")
             ax.grid(alpha=0.1, which="minor")
