@@ -3,7 +3,6 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
-THESIS_CS_FOLQI_MIN := Q11=0.4431,Q22=0.3027,Q33=0.4434,Q44=1.5722,R11=4.2253,R22=2.5994,Ki1=1.7411,Ki2=7.1716,alpha1=0.9814,alpha2=0.8437
 
 .PHONY: setup run test bench clean
 
@@ -15,11 +14,11 @@ $(STAMP): pyproject.toml
 
 setup: $(STAMP)
 
-# Main job (until the experiment runner lands): the thesis CS/FOLQI gains, minimum phase,
-# under the nominal and +-30 % plants; trajectories and figure in results/.
+# Main job: the thesis' CS/FOLQI experiment on the QTP (8 seeded runs per case), results and
+# figures in results/cs_folqi_qtp/; re-running resumes.
+JOBS ?= $(shell nproc 2>/dev/null || echo 1)
 run: $(STAMP)
-	$(BIN)/python -m heurtune.evaluate cs_folqi_qtp --case min --x "$(THESIS_CS_FOLQI_MIN)" \
-		--out results/evaluate/cs_folqi_qtp_min.parquet --plot results/evaluate/cs_folqi_qtp_min.png
+	$(BIN)/python -m heurtune.experiment cs_folqi_qtp --jobs $(JOBS)
 
 test: $(STAMP)
 	$(BIN)/pytest
