@@ -132,3 +132,33 @@ def test_all_shipped_experiments_plan(tmp_path):
     matrix = heurtune.load_experiment("thesis_heuristics")
     assert set(matrix.cases) == {"min-folqi", "nmp-folqi", "min-iolqi", "nmp-iolqi"}
     assert [o["name"] for o in matrix.optimisers] == ["cs", "apso", "firefly"]
+
+
+def test_compare_reads_two_smoke_experiments(smoke, tmp_path, capsys):
+    from heurtune import compare
+
+    other = tmp_path / "apso"
+    assert run(["apso_folqi_qtp", "--smoke", "--out", str(other), "--no-figures"]) == 0
+    capsys.readouterr()
+    assert compare.run([str(smoke), str(other)]) == 0
+    text = capsys.readouterr().out
+    assert "## Case min" in text and "## Case nmp" in text
+    assert "| cs |" in text and "| apso |" in text
+    # an IOLQI experiment is a different problem for the same case names: refused
+    iolqi = tmp_path / "iolqi"
+    assert run(["cs_iolqi_qtp", "--smoke", "--out", str(iolqi), "--no-figures"]) == 0
+    capsys.readouterr()
+    assert compare.run([str(smoke), str(iolqi)]) == 2
+    assert "problem_id" in capsys.readouterr().err
+
+
+def test_dask_backend_runs_whole_runs(smoke, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    out = tmp_path / "dask"
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        assert run(["cs_folqi_qtp", "--smoke", "--out", str(out), "--no-figures", "--backend", "dask",
+                    "--scheduler", cluster.scheduler_address]) == 0
+    a = pd.read_parquet(smoke / "runs.parquet").sort_values(["case", "run"]).reset_index(drop=True)
+    b = pd.read_parquet(out / "runs.parquet").sort_values(["case", "run"]).reset_index(drop=True)
+    pd.testing.assert_frame_equal(a[["case", "run", "best_f"] + GAINS], b[["case", "run", "best_f"] + GAINS])
