@@ -58,6 +58,7 @@ __all__ = [
     "holm",
     "friedman_test",
     "find_winners",
+    "best_run_index",
     "reevaluation_table",
     "report",
     "run",
@@ -414,7 +415,7 @@ def _scenario_columns(runs: pd.DataFrame):
     return found
 
 
-def _best_run_index(g: pd.DataFrame):
+def best_run_index(g: pd.DataFrame):
     """Index of the best run: lowest best_f among feasible runs, else lowest violation."""
     feasible = g["feasible"].fillna(False).astype(bool) if "feasible" in g else pd.Series(True, index=g.index)
     best_f = g["best_f"].astype(float)
@@ -463,7 +464,7 @@ def reevaluation_table(runs: pd.DataFrame) -> pd.DataFrame:
     rows = []
     if scen:
         for (case, alg), g in runs.groupby(["case", "algorithm"], sort=False):
-            best = g.loc[_best_run_index(g)]
+            best = g.loc[best_run_index(g)]
             for scenario, cols in scen.items():
                 row = {"case": case, "algorithm": alg, "scenario": scenario, "run": int(best["run"])}
                 for m in metrics:

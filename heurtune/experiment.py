@@ -366,10 +366,10 @@ def _gather(exp, specs, parts, out_dir, ids, config, plan_key, *, figures):
 
 
 def _best_runs(runs: pd.DataFrame) -> pd.DataFrame:
-    """Per case and optimiser, the best run (feasible first, then lowest objective/violation)."""
-    order = runs.assign(_inf=~runs["feasible"], _key=np.where(runs["feasible"], runs["best_f"], runs["violation"]))
-    order = order.sort_values(["case", "optimiser_index", "_inf", "_key", "run"])
-    return order.groupby(["case", "optimiser_index"], sort=False).head(1).drop(columns=["_inf", "_key"])
+    """Per case and optimiser, the best run (as heurtune.compare picks it)."""
+    from heurtune.compare import best_run_index
+
+    return runs.loc[[best_run_index(g) for _, g in runs.groupby(["case", "optimiser_index"], sort=False)]]
 
 
 def _figures(exp, runs, history, best, out_dir):
