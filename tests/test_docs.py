@@ -21,3 +21,22 @@ def test_listing_names_every_optimiser():
     for name in ("cs", "apso", "firefly", "pso", "ga", "sqp_multistart", "steepest_descent", "dfp", "bfgs",
                  "newton_raphson"):
         assert f"{name}: " in out
+
+
+def test_guide_plugin_runs_and_meets_the_contract(tmp_path):
+    """The one-file optimiser of docs/optimisers.md works as printed."""
+    import numpy as np
+
+    import heurtune
+    from heurtune import registry
+
+    text = (ROOT / "docs" / "optimisers.md").read_text()
+    start = text.index('```python\n"""Greedy random walk') + len("```python\n")
+    code = text[start:text.index("```", start)]
+    path = tmp_path / "random_walk.py"
+    path.write_text(code)
+    registry.load_plugin(str(path))
+    lo, hi = [-2.0, -2.0, -2.0], [2.0, 2.0, 2.0]
+    a = heurtune.minimize(lambda X: ((X - 0.5) ** 2).sum(axis=1), lo, hi, "random_walk", max_evals=2000, seed=1)
+    b = heurtune.minimize(lambda X: ((X - 0.5) ** 2).sum(axis=1), lo, hi, "random_walk", max_evals=2000, seed=1)
+    assert a.n_evals == 2000 and a.f < 1e-2 and np.array_equal(a.x, b.x)
