@@ -63,14 +63,14 @@ def main(argv=None):
                     ev(X)
                 for n in (25, 50):
                     times = [per_generation(ev, qspace, n, args.generations, seed=s)[0] for s in range(3)]
-                    rows.append((n, jobs, float(np.median(times)), None))
+                    rows.append((n, jobs, float(np.median(times))))
     print(f"engine overhead per CS generation (n = 25, trivial objective): {overhead * 1e3:.3f} ms")
     print(f"QTP FOLQI evaluation in-process: {eval_ms:.2f} ms each (random candidates)")
     print(f"  -> overhead relative to a generation's evaluation time (2 x 25 evals): "
           f"{overhead / (50 * eval_ms / 1e3) * 100:.2f} %")
     print(f"{'population':>10s} {'workers':>8s} {'s/generation':>13s} {'speed-up':>9s}")
-    base = {n: t for n, jobs, t, _ in rows if jobs == 1}
-    for n, jobs, t, f in rows:
+    base = {n: t for n, jobs, t in rows if jobs == 1}
+    for n, jobs, t in rows:
         print(f"{n:10d} {jobs:8d} {t:13.3f} {base[n] / t:9.2f}")
 
 

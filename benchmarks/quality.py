@@ -36,7 +36,7 @@ def main(argv=None):
     ap.add_argument("--problems", nargs="*", default=list(PROBLEMS))
     args = ap.parse_args(argv)
     names = args.algorithms or registry.available()
-    print(f"| optimiser | problem | budget | median f - f* | worst f - f* | feasible runs | s/run |")
+    print("| optimiser | problem | budget | median f - f* | worst f - f* | feasible runs | s/run |")
     print("| --- | --- | --- | --- | --- | --- | --- |")
     for name in names:
         for problem in args.problems:

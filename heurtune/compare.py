@@ -455,7 +455,7 @@ def reevaluation_table(runs: pd.DataFrame) -> pd.DataFrame:
     metrics = [m for m in REEVALUATION_COLUMNS if m in present]
     extra = []
     for cols in scen.values():
-        for m, c in cols.items():
+        for m in cols:
             if m not in metrics and m not in extra and m != "feasible":
                 extra.append(m)
     metrics += extra

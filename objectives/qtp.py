@@ -67,7 +67,7 @@ class QTPParams:
             try:
                 vals = tuple(float(v) for v in values)
             except (TypeError, ValueError):
-                raise ConfigError(f"plant '{self.name}': {key} must be {n} numbers, got {values!r}")
+                raise ConfigError(f"plant '{self.name}': {key} must be {n} numbers, got {values!r}") from None
             if len(vals) != n:
                 raise ConfigError(f"plant '{self.name}': {key} must have {n} values, got {len(vals)}")
             for v in vals:
