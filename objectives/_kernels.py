@@ -72,7 +72,8 @@ def qtp_rhs(h, u, c):
 
 # Metric accumulator layout (see _metrics_step): per output i, 8 slots from 8 i:
 # max deviation, last sample outside the band, its deviation, the deviation one sample later,
-# IAE, ISE, ITAE, previous deviation; per input j, 4 slots from 16 + 4 j: J, Jdev, TV, previous u.
+# the trapezoid sums of |e|, e^2 and k |e| (IAE, ISE, ITAE before their dt factors), previous
+# deviation; per input j, 4 slots from 16 + 4 j: sums of u^2 and (u - u_op)^2, TV, previous u.
 ACC_SIZE = 24
 
 
@@ -86,39 +87,37 @@ def _metrics_init(acc):
 
 @njit(cache=True, fastmath=_FAST, inline="always")
 def _metrics_step(acc, k, n, dt, i_dist, band1, band2, a1, a2, u1, u2, u_op1, u_op2):
-    """Fold sample k (deviations a = |y - y_op| of both outputs, voltages u) into ``acc``."""
-    t = k * dt
+    """Fold sample k (deviations a = |y - y_op| of both outputs, voltages u) into ``acc``.
+
+    Sums are kept without their dt factors (applied in _metrics_finish), and the
+    data-dependent updates are selects rather than branches.
+    """
+    after = k >= i_dist
     for i in range(2):
         b = 8 * i
         a = a1 if i == 0 else a2
         band = band1 if i == 0 else band2
-        if k >= i_dist:
-            if a > acc[b]:
-                acc[b] = a
-            if a > band:
-                acc[b + 1] = k
-                acc[b + 2] = a
-            elif acc[b + 1] == k - 1:
-                acc[b + 3] = a
+        acc[b] = max(acc[b], a if after else 0.0)
+        out = after and a > band
+        just_back = (not out) and acc[b + 1] == k - 1
+        acc[b + 3] = a if just_back else acc[b + 3]
+        acc[b + 1] = k if out else acc[b + 1]
+        acc[b + 2] = a if out else acc[b + 2]
         if k > 0:
             p = acc[b + 7]
-            if k == i_dist:
-                # The step disturbance jumps at t_d: the interval before it holds the old value.
-                acc[b + 4] += dt * p
-                acc[b + 5] += dt * p * p
-                acc[b + 6] += dt * (t - dt) * p
-            else:
-                acc[b + 4] += 0.5 * dt * (a + p)
-                acc[b + 5] += 0.5 * dt * (a * a + p * p)
-                acc[b + 6] += 0.5 * dt * (t * a + (t - dt) * p)
+            # The step disturbance jumps at t_d: the interval before it holds the old value p.
+            q = p if k == i_dist else a
+            acc[b + 4] += q + p
+            acc[b + 5] += q * q + p * p
+            acc[b + 6] += k * q + (k - 1) * p
         acc[b + 7] = a
     for j in range(2):
         b = 16 + 4 * j
         u = u1 if j == 0 else u2
         if k < n:
             du = u - (u_op1 if j == 0 else u_op2)
-            acc[b] += u * u * dt
-            acc[b + 1] += du * du * dt
+            acc[b] += u * u
+            acc[b + 1] += du * du
         if k > 0:
             acc[b + 2] += abs(u - acc[b + 3])
         acc[b + 3] = u
@@ -143,13 +142,13 @@ def _metrics_finish(acc, n, dt, i_dist, band1, band2, y_op1, y_op2, out):
         out[i] = acc[b] / y0 * 100.0
         out[2 + i] = ts
         out[4 + i] = acc[b + 7] / y0 * 100.0
-        out[6 + i] = acc[b + 4]
-        out[8 + i] = acc[b + 5]
-        out[10 + i] = acc[b + 6]
+        out[6 + i] = 0.5 * dt * acc[b + 4]
+        out[8 + i] = 0.5 * dt * acc[b + 5]
+        out[10 + i] = 0.5 * dt * dt * acc[b + 6]
     for j in range(2):
         b = 16 + 4 * j
-        out[12 + j] = acc[b]
-        out[14 + j] = acc[b + 1]
+        out[12 + j] = dt * acc[b]
+        out[14 + j] = dt * acc[b + 1]
         out[16 + j] = acc[b + 2]
 
 
@@ -191,7 +190,7 @@ def loop_metrics(y, u, y_op, u_op, dt, i_dist, band_pct, out):
 
 
 @njit(cache=True, fastmath=_FAST)
-def simulate_loop(c, h_init, h_op, u_op, ad, bd, col_start, Ad, Bd, Cc, Dc, state_channel,
+def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel,
                   dt, n_steps, i_out_dist, out_dist, i_in_dist, in_dist, noise,
                   saturate, u_min, u_max, band_pct, metrics, y_rec, u_rec, h_rec):
     """Fixed-step closed loop: sampled linear controller, RK4 nonlinear plant, metrics.
@@ -201,7 +200,7 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, col_start, Ad, Bd, Cc, Dc, stat
     ``u = u_op + Cc z + Dc w`` (optionally clipped to [u_min, u_max]); ``u`` is held over the
     step while classic RK4 integrates the plant, and the controller advances by its exact
     zero-order-hold discretisation. The first ``nd = ad.size`` controller states are modal and
-    single-input (``z_i <- ad_i z_i + bd_i w_c`` for ``i`` in ``[col_start[c], col_start[c+1])``),
+    single-input (``z_i <- ad_i z_i + bd_i w[state_input[i]]``),
     the remaining ones evolve with the dense ``Ad`` and ``Bd``. With saturation on, the states
     of a saturated pump's channel are held (conditional-integration anti-windup). The metrics
     of :func:`loop_metrics` are accumulated in the same pass, so an evaluation needs no
@@ -212,7 +211,7 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, col_start, Ad, Bd, Cc, Dc, stat
     ----------
     c : (10,) plant coefficients (see plant_coefficients)
     h_init, h_op : (4,) initial and operating levels; u_op : (2,) operating voltages
-    ad, bd : (nd,) modal factors and input gains; col_start : (5,) int64
+    ad, bd : (nd,) modal factors and input gains; state_input : (nd,) int64 in 0..3
     Ad : (nq, nq), Bd : (nq, 4) dense part; Cc : (2, nd + nq); Dc : (2, 4)
     state_channel : (nd + nq,) int64, pump each state belongs to
     dt : float; n_steps : int, the horizon is ``n_steps * dt``
@@ -237,6 +236,7 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, col_start, Ad, Bd, Cc, Dc, stat
     nq = Ad.shape[0]
     z = np.zeros(nd + nq)
     z_dense = np.zeros(nq)
+    wv = np.zeros(4)
     cz1 = 0.0  # Cc z of the current sample (z starts at zero)
     cz2 = 0.0
     acc = np.empty(ACC_SIZE)
@@ -282,24 +282,20 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, col_start, Ad, Bd, Cc, Dc, stat
         _metrics_step(acc, k, n_steps, dt, i_out_dist, band1, band2, abs(w0), abs(w1), u1, u2, u_op[0], u_op[1])
         if k == n_steps:
             break
-        # Controller: modal single-input states (in place), then the dense part; the output
-        # contribution Cc z of the next sample is summed on the way.
-        cz1 = 0.0
-        cz2 = 0.0
-        for col in range(4):
-            wc = w0 if col == 0 else (w1 if col == 1 else (w2 if col == 2 else w3))
-            if saturate:
-                for i in range(col_start[col], col_start[col + 1]):
-                    if not frozen[state_channel[i]]:
-                        z[i] = ad[i] * z[i] + bd[i] * wc
-                    cz1 += Cc[0, i] * z[i]
-                    cz2 += Cc[1, i] * z[i]
-            else:
-                for i in range(col_start[col], col_start[col + 1]):
-                    zi = ad[i] * z[i] + bd[i] * wc
-                    z[i] = zi
-                    cz1 += Cc[0, i] * zi
-                    cz2 += Cc[1, i] * zi
+        # Controller: modal single-input states (in place), then the dense part, then the
+        # output contribution Cc z of the next sample. Plain loops over contiguous arrays, so
+        # that LLVM vectorises them and they run in the shadow of the plant's RK4 chain.
+        wv[0] = w0
+        wv[1] = w1
+        wv[2] = w2
+        wv[3] = w3
+        if saturate:
+            for i in range(nd):
+                if not frozen[state_channel[i]]:
+                    z[i] = ad[i] * z[i] + bd[i] * wv[state_input[i]]
+        else:
+            for i in range(nd):
+                z[i] = ad[i] * z[i] + bd[i] * wv[state_input[i]]
         for i in range(nq):
             acc_i = Bd[i, 0] * w0 + Bd[i, 1] * w1 + Bd[i, 2] * w2 + Bd[i, 3] * w3
             for j in range(nq):
@@ -308,8 +304,11 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, col_start, Ad, Bd, Cc, Dc, stat
         for i in range(nq):
             if not (saturate and frozen[state_channel[nd + i]]):
                 z[nd + i] = z_dense[i]
-            cz1 += Cc[0, nd + i] * z[nd + i]
-            cz2 += Cc[1, nd + i] * z[nd + i]
+        cz1 = 0.0
+        cz2 = 0.0
+        for i in range(nd + nq):
+            cz1 += Cc[0, i] * z[i]
+            cz2 += Cc[1, i] * z[i]
         # Plant: classic RK4 with the pump voltages held over the step.
         if k >= i_in_dist:
             u1 += in_dist[0]

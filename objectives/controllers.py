@@ -116,7 +116,7 @@ class LinearController:
                 E = scipy.linalg.expm(M * dt)
                 dense.append((E[:n, :n], E[:n, n:], C, ch))
         flat = [m for col in modal for m in col]
-        col_start = np.cumsum([0] + [sum(m[0].size for m in col) for col in modal]).astype(np.int64)
+        inputs = [np.full(m[0].size, c, dtype=np.int64) for c, col in enumerate(modal) for m in col]
         parts_C = [m[2] for m in flat] + [d[2] for d in dense]
         sizes = [m[0].size for m in flat] + [d[0].shape[0] for d in dense]
         channels = [m[3] for m in flat] + [d[3] for d in dense]
@@ -124,7 +124,7 @@ class LinearController:
         return DiscreteController(
             ad=cat([m[0] for m in flat]),
             bd=cat([m[1] for m in flat]),
-            col_start=col_start,
+            state_input=np.concatenate(inputs) if inputs else np.zeros(0, dtype=np.int64),
             Ad=np.ascontiguousarray(scipy.linalg.block_diag(*[d[0] for d in dense])) if dense else np.zeros((0, 0)),
             Bd=np.vstack([d[1] for d in dense]) if dense else np.zeros((0, nw)),
             Cc=np.ascontiguousarray(np.hstack(parts_C)) if parts_C else np.zeros((2, 0)),
@@ -153,15 +153,14 @@ class LinearController:
 class DiscreteController:
     """Sampled controller as the simulation kernel takes it.
 
-    States ``[0, nd)`` are modal and single-input: for each measured signal ``c`` the states
-    ``[col_start[c], col_start[c + 1])`` advance by ``z_i <- ad_i z_i + bd_i w_c``. The remaining
-    states advance densely, ``z_d <- Ad z_d + Bd w``. The output is ``du = Cc z + Dc w``;
-    ``state_channel`` names each state's pump (for anti-windup).
+    States ``[0, nd)`` are modal and single-input: ``z_i <- ad_i z_i + bd_i w[state_input[i]]``.
+    The remaining states advance densely, ``z_d <- Ad z_d + Bd w``. The output is
+    ``du = Cc z + Dc w``; ``state_channel`` names each state's pump (for anti-windup).
     """
 
     ad: np.ndarray
     bd: np.ndarray
-    col_start: np.ndarray
+    state_input: np.ndarray
     Ad: np.ndarray
     Bd: np.ndarray
     Cc: np.ndarray
@@ -172,7 +171,8 @@ class DiscreteController:
     def __post_init__(self):
         # The kernel does no bounds checking: make inconsistent shapes fail here instead.
         nd, nq = self.ad.size, self.Ad.shape[0]
-        ok = (self.bd.shape == (nd,) and self.col_start.shape == (5,) and self.col_start[-1] == nd
+        ok = (self.bd.shape == (nd,) and self.state_input.shape == (nd,)
+              and (nd == 0 or 0 <= self.state_input.min() <= self.state_input.max() < 4)
               and self.Ad.shape == (nq, nq) and self.Bd.shape == (nq, 4)
               and self.Cc.shape == (2, nd + nq) and self.Dc.shape == (2, 4)
               and self.state_channel.shape == (nd + nq,))
@@ -186,8 +186,7 @@ class DiscreteController:
     def step(self, z: np.ndarray, w: np.ndarray) -> np.ndarray:
         """One controller update in Python (reference for tests): returns ``z[k+1]``."""
         nd = self.ad.size
-        wm = np.repeat(w, np.diff(self.col_start))
-        return np.concatenate([self.ad * z[:nd] + self.bd * wm, self.Ad @ z[nd:] + self.Bd @ w])
+        return np.concatenate([self.ad * z[:nd] + self.bd * w[self.state_input], self.Ad @ z[nd:] + self.Bd @ w])
 
 
 def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:

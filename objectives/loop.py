@@ -208,7 +208,7 @@ class ClosedLoop:
         dc = ctrl.discretise(scenario.dt)
         sat = scenario.saturation
         status, _ = _kernels.simulate_loop(
-            coef, self.op.h, self.op.h, u_op, dc.ad, dc.bd, dc.col_start, dc.Ad, dc.Bd, dc.Cc, dc.Dc,
+            coef, self.op.h, self.op.h, u_op, dc.ad, dc.bd, dc.state_input, dc.Ad, dc.Bd, dc.Cc, dc.Dc,
             dc.state_channel,
             scenario.dt, n, scenario.disturbance_index, np.asarray(scenario.output_disturbance),
             scenario.input_disturbance_index, np.asarray(scenario.input_disturbance),
