@@ -170,3 +170,14 @@ def test_convergence_epoch_definition():
     best = [10.0, 5.0, 2.0, 1.0000001, 1.0, 1.0]
     assert convergence_epoch(best, 1e-6) == 3  # after epoch 3 it improves by 1e-7 relative only
     assert convergence_epoch(best, 1e-9) == 4
+
+
+def test_wall_time_budget_stops_the_run():
+    import time as _time
+
+    def slow(X):
+        _time.sleep(0.01)
+        return sphere(X)
+
+    res = heurtune.minimize(slow, LOWER, UPPER, "cs", max_time=0.1, seed=0, settings=dict(n=4))
+    assert res.stop_reason == "max_time" and res.wall_time_s < 1.0 and res.n_epochs >= 1
