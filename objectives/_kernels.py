@@ -13,7 +13,7 @@ from numba import njit
 STATUS_OK = 0
 STATUS_DIVERGED = 1
 
-# Levels beyond this (cm, in magnitude) count as a diverged simulation.
+# A simulation whose levels reach this sum of magnitudes (cm) counts as diverged.
 LEVEL_LIMIT = 1.0e6
 
 # Index of each metric in the vectors written by simulate_loop and loop_metrics.
@@ -227,8 +227,8 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
     Returns
     -------
     status : int
-        STATUS_OK, or STATUS_DIVERGED (levels left |h| < LEVEL_LIMIT or became NaN; records
-        after that are NaN and the metrics meaningless).
+        STATUS_OK, or STATUS_DIVERGED (|h1| + ... + |h4| reached LEVEL_LIMIT or became NaN;
+        records after that are NaN and the metrics NaN).
     last : int
         Index of the last finite sample.
     """
@@ -296,14 +296,15 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
         else:
             for i in range(nd):
                 z[i] = ad[i] * z[i] + bd[i] * wv[state_input[i]]
-        for i in range(nq):
-            acc_i = Bd[i, 0] * w0 + Bd[i, 1] * w1 + Bd[i, 2] * w2 + Bd[i, 3] * w3
-            for j in range(nq):
-                acc_i += Ad[i, j] * z[nd + j]
-            z_dense[i] = acc_i
-        for i in range(nq):
-            if not (saturate and frozen[state_channel[nd + i]]):
-                z[nd + i] = z_dense[i]
+        if nq > 0:
+            for i in range(nq):
+                acc_i = Bd[i, 0] * w0 + Bd[i, 1] * w1 + Bd[i, 2] * w2 + Bd[i, 3] * w3
+                for j in range(nq):
+                    acc_i += Ad[i, j] * z[nd + j]
+                z_dense[i] = acc_i
+            for i in range(nq):
+                if not (saturate and frozen[state_channel[nd + i]]):
+                    z[nd + i] = z_dense[i]
         cz1 = 0.0
         cz2 = 0.0
         for i in range(nd + nq):
@@ -327,9 +328,8 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
         h2 += sixth * (a2 + 2.0 * b2 + 2.0 * e2 + g2)
         h3 += sixth * (a3 + 2.0 * b3 + 2.0 * e3 + g3)
         h4 += sixth * (a4 + 2.0 * b4 + 2.0 * e4 + g4)
-        # NaN fails every comparison, so it counts as divergence too.
-        if not (abs(h1) < LEVEL_LIMIT and abs(h2) < LEVEL_LIMIT and abs(h3) < LEVEL_LIMIT
-                and abs(h4) < LEVEL_LIMIT):
+        # One comparison per step; NaN fails it, so it counts as divergence too.
+        if not (abs(h1) + abs(h2) + abs(h3) + abs(h4) < LEVEL_LIMIT):
             for kk in range(k + 1, y_rec.shape[0]):
                 y_rec[kk, 0] = np.nan
                 y_rec[kk, 1] = np.nan
