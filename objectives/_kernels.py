@@ -250,6 +250,7 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
     band2 = band_pct / 100.0 * h_op[1]
     half = 0.5 * dt
     sixth = dt / 6.0
+    diverged_at = -1
     for k in range(n_steps + 1):
         d1 = out_dist[0] if k >= i_out_dist else 0.0
         d2 = out_dist[1] if k >= i_out_dist else 0.0
@@ -330,16 +331,20 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
         h4 += sixth * (a4 + 2.0 * b4 + 2.0 * e4 + g4)
         # One comparison per step; NaN fails it, so it counts as divergence too.
         if not (abs(h1) + abs(h2) + abs(h3) + abs(h4) < LEVEL_LIMIT):
-            for kk in range(k + 1, y_rec.shape[0]):
-                y_rec[kk, 0] = np.nan
-                y_rec[kk, 1] = np.nan
-                u_rec[kk, 0] = np.nan
-                u_rec[kk, 1] = np.nan
-            for kk in range(k + 1, h_rec.shape[0]):
-                for i in range(4):
-                    h_rec[kk, i] = np.nan
-            for i in range(N_METRICS):
-                metrics[i] = np.nan
-            return STATUS_DIVERGED, k
-    _metrics_finish(acc, n_steps, dt, i_out_dist, band1, band2, h_op[0], h_op[1], metrics)
-    return STATUS_OK, n_steps
+            diverged_at = k
+            break
+    if diverged_at < 0:
+        _metrics_finish(acc, n_steps, dt, i_out_dist, band1, band2, h_op[0], h_op[1], metrics)
+        return STATUS_OK, n_steps
+    # Kept out of the time loop so that it stays lean.
+    for kk in range(diverged_at + 1, y_rec.shape[0]):
+        y_rec[kk, 0] = np.nan
+        y_rec[kk, 1] = np.nan
+        u_rec[kk, 0] = np.nan
+        u_rec[kk, 1] = np.nan
+    for kk in range(diverged_at + 1, h_rec.shape[0]):
+        for i in range(4):
+            h_rec[kk, i] = np.nan
+    for i in range(N_METRICS):
+        metrics[i] = np.nan
+    return STATUS_DIVERGED, diverged_at
