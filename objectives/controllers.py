@@ -87,10 +87,10 @@ class LinearController:
     def discretise(self, dt: float) -> "DiscreteController":
         """Exact zero-order-hold discretisation, block by block.
 
-        A block driven by a single measured signal whose eigenvalues are real with a
-        well-conditioned eigenvector matrix (``cond(V) < MODAL_COND_LIMIT``; e.g. an Oustaloup
-        cascade with at most one integrator) is put in modal form: each of its states then
-        advances by ``z <- a z + b w_col``. Other blocks (several inputs, complex modes, Jordan
+        A block driven by a single measured signal that is diagonal already (FOLQI builds its
+        fractional integrators in partial fractions) or whose eigenvalues are real with a
+        well-conditioned eigenvector matrix (``cond(V) < MODAL_COND_LIMIT``) is put in modal
+        form: each of its states then advances by ``z <- a z + b w_col``. Other blocks (several inputs, complex modes, Jordan
         chains such as a double integrator) keep a dense matrix exponential.
         """
         nw = self.B.shape[1]
@@ -101,13 +101,18 @@ class LinearController:
             B = self.B[start:stop]
             C = self.C[:, start:stop]
             cols = np.flatnonzero(np.any(B != 0.0, axis=0))
-            lam, V = np.linalg.eig(A)
-            if len(cols) == 1 and not np.iscomplexobj(lam) and np.linalg.cond(V) < MODAL_COND_LIMIT:
+            diagonal = not np.any(A - np.diag(np.diagonal(A)))
+            if diagonal:
+                lam, V = np.diagonal(A).copy(), None
+            else:
+                lam, V = np.linalg.eig(A)
+            if len(cols) == 1 and (diagonal or (not np.iscomplexobj(lam)
+                                                and np.linalg.cond(V) < MODAL_COND_LIMIT)):
                 x = lam * dt
                 # (e^{lam dt} - 1) / lam, which is dt for lam = 0
                 phi = np.where(x != 0.0, np.expm1(x) / np.where(x == 0.0, 1.0, lam), dt)
-                b = phi * np.linalg.solve(V, B[:, cols[0]])
-                modal[cols[0]].append((np.exp(x), b, C @ V, ch))
+                b_in = B[:, cols[0]] if diagonal else np.linalg.solve(V, B[:, cols[0]])
+                modal[cols[0]].append((np.exp(x), phi * b_in, C if diagonal else C @ V, ch))
             else:
                 n = stop - start
                 M = np.zeros((n + nw, n + nw))
@@ -265,7 +270,15 @@ def _folqi(values: dict, A, B, alphas, order, band, realisation) -> LinearContro
     R = np.diag([values["R11"], values["R22"]])
     K = lqr_gain(A, B, Q, R)
     ki = (values["Ki1"], values["Ki2"])
-    parts = [fractional_integrator(a, order, band, realisation).state_space() for a in alphas]
+    parts = []
+    for a in alphas:
+        fi = fractional_integrator(a, order, band, realisation)
+        modal = fi.modal()
+        if modal is None:
+            parts.append(fi.state_space())
+        else:  # diagonal form: the discretisation needs no eigen-decomposition
+            poles, residues, d = modal
+            parts.append((np.diag(poles), np.ones(poles.size), residues, d))
     nz = sum(p[0].shape[0] for p in parts)
     Ac = np.zeros((nz, nz))
     Bc = np.zeros((nz, N_MEASURED))

@@ -126,7 +126,7 @@ class SimulationResult:
     ``diverged`` flag, the operating point used and, when recorded, the sampled response ``y``
     (n+1, 2) measured levels, ``u`` (n+1, 2) voltages and ``h`` (n+1, 4) true levels."""
 
-    t: np.ndarray
+    t: np.ndarray | None
     y: np.ndarray | None
     u: np.ndarray | None
     h: np.ndarray | None
@@ -167,11 +167,13 @@ class ClosedLoop:
         self.op = operating_point(plant)
         self.A, self.B, self.C = linearise(plant, self.op)
         self._plants = {}
+        self._scenarios = {}
 
     def __getstate__(self):
         # Caches are rebuilt on demand.
         state = self.__dict__.copy()
         state["_plants"] = {}
+        state["_scenarios"] = {}
         return state
 
     # -- design ---------------------------------------------------------------------------
@@ -187,6 +189,14 @@ class ClosedLoop:
         return float(np.max(np.linalg.eigvals(Acl).real))
 
     # -- simulation -----------------------------------------------------------------------
+    def _scenario_arrays(self, scenario: Scenario):
+        """Kernel arrays of a scenario, drawn once (the noise is seeded, hence the same)."""
+        if scenario not in self._scenarios:
+            self._scenarios[scenario] = (np.asarray(scenario.output_disturbance, dtype=np.float64),
+                                         np.asarray(scenario.input_disturbance, dtype=np.float64),
+                                         scenario.noise())
+        return self._scenarios[scenario]
+
     def _perturbed(self, factor: float):
         if factor not in self._plants:
             p = self.plant if factor == 1.0 else self.plant.scaled(factor)
@@ -206,16 +216,17 @@ class ClosedLoop:
         h = np.empty((n + 1 if record_levels else 0, 4))
         metrics = np.empty(_kernels.N_METRICS)
         dc = ctrl.discretise(scenario.dt)
+        out_dist, in_dist, noise = self._scenario_arrays(scenario)
         sat = scenario.saturation
         status, _ = _kernels.simulate_loop(
             coef, self.op.h, self.op.h, u_op, dc.ad, dc.bd, dc.state_input, dc.Ad, dc.Bd, dc.Cc, dc.Dc,
             dc.state_channel,
-            scenario.dt, n, scenario.disturbance_index, np.asarray(scenario.output_disturbance),
-            scenario.input_disturbance_index, np.asarray(scenario.input_disturbance),
-            scenario.noise(), sat is not None, sat[0] if sat else 0.0, sat[1] if sat else 0.0,
+            scenario.dt, n, scenario.disturbance_index, out_dist,
+            scenario.input_disturbance_index, in_dist,
+            noise, sat is not None, sat[0] if sat else 0.0, sat[1] if sat else 0.0,
             float(settling_band), metrics, y, u, h,
         )
-        t = np.arange(n + 1) * scenario.dt
+        t = np.arange(n + 1) * scenario.dt if record or record_levels else None
         return SimulationResult(t, y if record else None, u if record else None,
                                 h if record_levels else None, status != _kernels.STATUS_OK,
                                 self.op.h.copy(), u_op.copy(), metrics)

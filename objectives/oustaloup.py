@@ -95,6 +95,28 @@ class FractionalIntegrator:
             out = out * (s - z) / (s - p)
         return out
 
+    def modal(self):
+        """Partial fractions ``d + sum_k r_k / (s - p_k)``, or None with two integrators.
+
+        The poles (the filter's and a single integrator's 0) are real and distinct, so the
+        residues are ``r_k = gain prod_j (p_k - z_j) / prod_{i != k} (p_k - p_i)``; ``d`` is the
+        direct term (``gain`` for a biproper filter, else 0). A double integrator is a Jordan
+        block with no such form: use :meth:`state_space`.
+
+        Returns
+        -------
+        poles, residues : numpy.ndarray, shape (order,)
+        d : float
+        """
+        if self.n_integrators > 1:
+            return None
+        poles = np.concatenate([self.poles, np.zeros(self.n_integrators)])
+        diff = poles[:, None] - poles[None, :]
+        np.fill_diagonal(diff, 1.0)
+        residues = self.gain * np.prod(poles[:, None] - self.zeros[None, :], axis=1) / np.prod(diff, axis=1)
+        d = float(self.gain) if len(self.zeros) == len(poles) else 0.0
+        return poles, residues, d
+
     def state_space(self):
         """Cascade state-space realisation ``(A, B, C, D)`` of the integrator.
 

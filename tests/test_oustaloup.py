@@ -259,3 +259,20 @@ def test_fractional_integrator_propagates_filter_errors():
         fractional_integrator(0.5, 0, BAND)
     with pytest.raises(ConfigError):
         fractional_integrator(0.5, N, (1e3, 1e-3), "integer_split")
+
+
+@pytest.mark.parametrize("alpha, realisation", [(0.3, "direct"), (0.9814, "direct"), (1.0, "direct"),
+                                                (1.5, "direct"), (0.5, "integer_split")])
+def test_modal_form_reproduces_the_frequency_response(alpha, realisation):
+    # Partial fractions of a rational function with distinct real poles: exact up to round-off.
+    fi = fractional_integrator(alpha, 5, (1e-3, 1e3), realisation)
+    poles, residues, d = fi.modal()
+    w = np.logspace(-4, 4, 200)
+    s = 1j * w
+    H = d + (residues[None, :] / (s[:, None] - poles[None, :])).sum(axis=1)
+    np.testing.assert_allclose(H, fi.freqresp(w), rtol=1e-9)
+
+
+def test_modal_form_is_refused_for_a_double_integrator():
+    assert fractional_integrator(1.5, 5, (1e-3, 1e3), "integer_split").modal() is None
+    assert fractional_integrator(2.0, 5, (1e-3, 1e3), "direct").modal() is None
