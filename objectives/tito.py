@@ -403,7 +403,7 @@ def inverted_decoupler(plant: TITOPlant, *, delay_compensation: bool = False, ca
         pairs = (("-g22/g21", plant.g22, plant.g21), ("-g11/g12", plant.g11, plant.g12))
     delays = tuple(_check_ratio(lbl, num, den, plant.name) for lbl, num, den in pairs)
     if not delay_compensation:
-        for (lbl, num, den), d in zip(pairs, delays):
+        for (lbl, _num, _den), d in zip(pairs, delays):
             if d < 0:
                 raise ConfigError(
                     f"plant '{plant.name}': decoupler element {lbl} is non-causal (net delay {d:g} s "
