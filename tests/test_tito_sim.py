@@ -204,6 +204,22 @@ def _poly(K, tcs):
     return p
 
 
+def _loop_blocks(block, plant, dec_plant, controllers):
+    """Plant elements, case-1 decoupler ratios and PI controllers, each made by ``block``."""
+
+    def ratio(n, d, inp, out):  # -n/d
+        num = np.polymul(_poly(-n.K, n.leads), _poly(1.0, d.lags))
+        den = np.polymul(_poly(d.K, d.leads), _poly(1.0, n.lags))
+        return block(num, den, n.L - d.L, inp, out)
+
+    systems = [block(_poly(e.K, e.leads), _poly(1.0, e.lags), e.L, f"up{j}", f"y{i}{j}")
+               for i in (1, 2) for j in (1, 2) for e in [plant.element(i, j)]]
+    systems += [ratio(dec_plant.g12, dec_plant.g11, "v2", "d12"), ratio(dec_plant.g21, dec_plant.g22, "v1", "d21")]
+    systems += [block([c.Kc * c.Ti, c.Kc], [c.Ti, 0.0], 0.0, f"e{i}", f"v{i}")
+                for i, c in enumerate(controllers, start=1)]
+    return systems
+
+
 def _reference(plant, controllers, t, r, d_in, d_out, pade_order=10):
     """Closed loop with a case-1 inverted decoupler, built with control.interconnect."""
     ct = pytest.importorskip("control")
@@ -214,16 +230,7 @@ def _reference(plant, controllers, t, r, d_in, d_out, pade_order=10):
             g = g * ct.tf(*ct.pade(L, pade_order))
         return ct.ss(g, inputs=inp, outputs=out)
 
-    def ratio(n, d, inp, out):  # -n/d
-        num = np.polymul(_poly(-n.K, n.leads), _poly(1.0, d.lags))
-        den = np.polymul(_poly(d.K, d.leads), _poly(1.0, n.lags))
-        return block(num, den, n.L - d.L, inp, out)
-
-    systems = [block(_poly(e.K, e.leads), _poly(1.0, e.lags), e.L, f"up{j}", f"y{i}{j}")
-               for i in (1, 2) for j in (1, 2) for e in [plant.element(i, j)]]
-    systems += [ratio(plant.g12, plant.g11, "v2", "d12"), ratio(plant.g21, plant.g22, "v1", "d21")]
-    systems += [ct.ss(ct.tf([c.Kc * c.Ti, c.Kc], [c.Ti, 0.0]), inputs=f"e{i}", outputs=f"v{i}")
-                for i, c in enumerate(controllers, start=1)]
+    systems = _loop_blocks(block, plant, plant, controllers)
     systems += [
         ct.summing_junction(["y11", "y12", "do1"], "y1"), ct.summing_junction(["y21", "y22", "do2"], "y2"),
         ct.summing_junction(["r1", "-y1"], "e1"), ct.summing_junction(["r2", "-y2"], "e2"),
@@ -333,16 +340,7 @@ def _reference_discrete(plant, dec_plant, controllers, dt, r, d_in, d_out, noise
             g = g * ct.tf([1.0], [1.0] + [0.0] * n, dt)
         return ct.ss(g, inputs=inp, outputs=out)
 
-    def ratio(n, d, inp, out):  # -n/d
-        num = np.polymul(_poly(-n.K, n.leads), _poly(1.0, d.lags))
-        den = np.polymul(_poly(d.K, d.leads), _poly(1.0, n.lags))
-        return block(num, den, n.L - d.L, inp, out)
-
-    systems = [block(_poly(e.K, e.leads), _poly(1.0, e.lags), e.L, f"up{j}", f"y{i}{j}")
-               for i in (1, 2) for j in (1, 2) for e in [plant.element(i, j)]]
-    systems += [ratio(dec_plant.g12, dec_plant.g11, "v2", "d12"), ratio(dec_plant.g21, dec_plant.g22, "v1", "d21")]
-    systems += [block([c.Kc * c.Ti, c.Kc], [c.Ti, 0.0], 0.0, f"e{i}", f"v{i}")
-                for i, c in enumerate(controllers, start=1)]
+    systems = _loop_blocks(block, plant, dec_plant, controllers)
     sj = ct.summing_junction
     systems += [
         sj(["y11", "y12", "do1"], "y1", dt=dt), sj(["y21", "y22", "do2"], "y2", dt=dt),
