@@ -70,6 +70,54 @@ def qtp_rhs(h, u, c):
     return np.array([d[0], d[1], d[2], d[3]])
 
 
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _rk4_clipped(h1, h2, h3, h4, f1, f2, f3, f4, c, dt):
+    """Classic RK4 step of the QTP with the levels clipped at 0 under the roots."""
+    half = 0.5 * dt
+    sixth = dt / 6.0
+    a1, a2, a3, a4 = _qtp_rhs(h1, h2, h3, h4, f1, f2, f3, f4, c)
+    b1, b2, b3, b4 = _qtp_rhs(h1 + half * a1, h2 + half * a2, h3 + half * a3, h4 + half * a4, f1, f2, f3, f4, c)
+    e1, e2, e3, e4 = _qtp_rhs(h1 + half * b1, h2 + half * b2, h3 + half * b3, h4 + half * b4, f1, f2, f3, f4, c)
+    g1, g2, g3, g4 = _qtp_rhs(h1 + dt * e1, h2 + dt * e2, h3 + dt * e3, h4 + dt * e4, f1, f2, f3, f4, c)
+    return (h1 + sixth * (a1 + 2.0 * b1 + 2.0 * e1 + g1), h2 + sixth * (a2 + 2.0 * b2 + 2.0 * e2 + g2),
+            h3 + sixth * (a3 + 2.0 * b3 + 2.0 * e3 + g3), h4 + sixth * (a4 + 2.0 * b4 + 2.0 * e4 + g4))
+
+
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _rk4_step(h1, h2, h3, h4, f1, f2, f3, f4, c, dt):
+    """The same classic RK4 step as :func:`_rk4_clipped`, arranged for a short critical path.
+
+    The inflows ``f`` are constant over the step, so every stage argument is a base
+    ``h + tau f`` (ready early) plus outflow terms ``tau c sqrt(.)``: two fused multiply-adds
+    separate one square root from the next, instead of a clip, a product, a sum and an update.
+    The clip at 0 moves off that path: when any stage argument is negative (or NaN) the
+    step is redone by :func:`_rk4_clipped`. Both give the same step up to rounding.
+    """
+    half = 0.5 * dt
+    sixth = dt / 6.0
+    p1, p2, p3, p4 = h1 + half * f1, h2 + half * f2, h3 + half * f3, h4 + half * f4
+    q1, q2, q3, q4 = h1 + dt * f1, h2 + dt * f2, h3 + dt * f3, h4 + dt * f4
+    hc0, hc1, hc2, hc3, hc4, hc5 = half * c[0], half * c[1], half * c[2], half * c[3], half * c[4], half * c[5]
+    dc0, dc1, dc2, dc3, dc4, dc5 = dt * c[0], dt * c[1], dt * c[2], dt * c[3], dt * c[4], dt * c[5]
+    # stage 1 at h, stages 2 and 3 at h + dt/2 (slope), stage 4 at h + dt (slope)
+    s1, s2, s3, s4 = math.sqrt(h1), math.sqrt(h2), math.sqrt(h3), math.sqrt(h4)
+    x1, x2, x3, x4 = p1 - hc0 * s1 + hc4 * s3, p2 - hc1 * s2 + hc5 * s4, p3 - hc2 * s3, p4 - hc3 * s4
+    t1, t2, t3, t4 = math.sqrt(x1), math.sqrt(x2), math.sqrt(x3), math.sqrt(x4)
+    y1, y2, y3, y4 = p1 - hc0 * t1 + hc4 * t3, p2 - hc1 * t2 + hc5 * t4, p3 - hc2 * t3, p4 - hc3 * t4
+    v1, v2, v3, v4 = math.sqrt(y1), math.sqrt(y2), math.sqrt(y3), math.sqrt(y4)
+    z1, z2, z3, z4 = q1 - dc0 * v1 + dc4 * v3, q2 - dc1 * v2 + dc5 * v4, q3 - dc2 * v3, q4 - dc3 * v4
+    r1, r2, r3, r4 = math.sqrt(z1), math.sqrt(z2), math.sqrt(z3), math.sqrt(z4)
+    if not (min(min(h1, h2), min(h3, h4)) >= 0.0 and min(min(x1, x2), min(x3, x4)) >= 0.0
+            and min(min(y1, y2), min(y3, y4)) >= 0.0 and min(min(z1, z2), min(z3, z4)) >= 0.0):
+        return _rk4_clipped(h1, h2, h3, h4, f1, f2, f3, f4, c, dt)
+    o3 = s3 + 2.0 * t3 + 2.0 * v3 + r3
+    o4 = s4 + 2.0 * t4 + 2.0 * v4 + r4
+    return (q1 + sixth * (c[4] * o3 - c[0] * (s1 + 2.0 * t1 + 2.0 * v1 + r1)),
+            q2 + sixth * (c[5] * o4 - c[1] * (s2 + 2.0 * t2 + 2.0 * v2 + r2)),
+            q3 - sixth * c[2] * o3,
+            q4 - sixth * c[3] * o4)
+
+
 # Metric accumulator layout (see _metrics_step): per output i, 8 slots from 8 i:
 # max deviation, last sample outside the band, its deviation, the deviation one sample later,
 # the trapezoid sums of |e|, e^2 and k |e| (IAE, ISE, ITAE before their dt factors), previous
@@ -200,7 +248,7 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
     ``u = u_op + Cc z + Dc w`` (optionally clipped to [u_min, u_max]); ``u`` is held over the
     step while classic RK4 integrates the plant, and the controller advances by its exact
     zero-order-hold discretisation. The first ``nd = ad.size`` controller states are modal and
-    single-input (``z_i <- ad_i z_i + bd_i w[state_input[i]]``),
+    single-input (``z_i <- ad_i z_i + bd_i w[state_input[i]]``, sorted by ``state_input``),
     the remaining ones evolve with the dense ``Ad`` and ``Bd``. With saturation on, the states
     of a saturated pump's channel are held (conditional-integration anti-windup). The metrics
     of :func:`loop_metrics` are accumulated in the same pass, so an evaluation needs no
@@ -211,7 +259,7 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
     ----------
     c : (10,) plant coefficients (see plant_coefficients)
     h_init, h_op : (4,) initial and operating levels; u_op : (2,) operating voltages
-    ad, bd : (nd,) modal factors and input gains; state_input : (nd,) int64 in 0..3
+    ad, bd : (nd,) modal factors and input gains; state_input : (nd,) int64 in 0..3, non-decreasing
     Ad : (nq, nq), Bd : (nq, 4) dense part; Cc : (2, nd + nq); Dc : (2, 4)
     state_channel : (nd + nq,) int64, pump each state belongs to
     dt : float; n_steps : int, the horizon is ``n_steps * dt``
@@ -234,6 +282,14 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
     """
     nd = ad.shape[0]
     nq = Ad.shape[0]
+    # Modal states are sorted by measured signal: [0, s1) read w0, [s1, s2) w1, [s2, s3) w2.
+    s1 = 0
+    s2 = 0
+    s3 = 0
+    for i in range(nd):
+        s1 += state_input[i] < 1
+        s2 += state_input[i] < 2
+        s3 += state_input[i] < 3
     z = np.zeros(nd + nq)
     z_dense = np.zeros(nq)
     wv = np.zeros(4)
@@ -248,8 +304,6 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
     rec_h = h_rec.shape[0] > 0
     band1 = band_pct / 100.0 * h_op[0]
     band2 = band_pct / 100.0 * h_op[1]
-    half = 0.5 * dt
-    sixth = dt / 6.0
     diverged_at = -1
     for k in range(n_steps + 1):
         d1 = out_dist[0] if k >= i_out_dist else 0.0
@@ -295,8 +349,16 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
                 if not frozen[state_channel[i]]:
                     z[i] = ad[i] * z[i] + bd[i] * wv[state_input[i]]
         else:
-            for i in range(nd):
-                z[i] = ad[i] * z[i] + bd[i] * wv[state_input[i]]
+            # One loop per measured signal (the states are sorted by it), so that LLVM
+            # vectorises them with the signal as a scalar.
+            for i in range(s1):
+                z[i] = ad[i] * z[i] + bd[i] * w0
+            for i in range(s1, s2):
+                z[i] = ad[i] * z[i] + bd[i] * w1
+            for i in range(s2, s3):
+                z[i] = ad[i] * z[i] + bd[i] * w2
+            for i in range(s3, nd):
+                z[i] = ad[i] * z[i] + bd[i] * w3
         if nq > 0:
             for i in range(nq):
                 acc_i = Bd[i, 0] * w0 + Bd[i, 1] * w1 + Bd[i, 2] * w2 + Bd[i, 3] * w3
@@ -315,20 +377,7 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
         if k >= i_in_dist:
             u1 += in_dist[0]
             u2 += in_dist[1]
-        f1 = c[6] * u1
-        f2 = c[7] * u2
-        f3 = c[8] * u2
-        f4 = c[9] * u1
-        a1, a2, a3, a4 = _qtp_rhs(h1, h2, h3, h4, f1, f2, f3, f4, c)
-        b1, b2, b3, b4 = _qtp_rhs(h1 + half * a1, h2 + half * a2, h3 + half * a3, h4 + half * a4,
-                                  f1, f2, f3, f4, c)
-        e1, e2, e3, e4 = _qtp_rhs(h1 + half * b1, h2 + half * b2, h3 + half * b3, h4 + half * b4,
-                                  f1, f2, f3, f4, c)
-        g1, g2, g3, g4 = _qtp_rhs(h1 + dt * e1, h2 + dt * e2, h3 + dt * e3, h4 + dt * e4, f1, f2, f3, f4, c)
-        h1 += sixth * (a1 + 2.0 * b1 + 2.0 * e1 + g1)
-        h2 += sixth * (a2 + 2.0 * b2 + 2.0 * e2 + g2)
-        h3 += sixth * (a3 + 2.0 * b3 + 2.0 * e3 + g3)
-        h4 += sixth * (a4 + 2.0 * b4 + 2.0 * e4 + g4)
+        h1, h2, h3, h4 = _rk4_step(h1, h2, h3, h4, c[6] * u1, c[7] * u2, c[8] * u2, c[9] * u1, c, dt)
         # One comparison per step; NaN fails it, so it counts as divergence too.
         if not (abs(h1) + abs(h2) + abs(h3) + abs(h4) < LEVEL_LIMIT):
             diverged_at = k

@@ -158,8 +158,8 @@ class LinearController:
 class DiscreteController:
     """Sampled controller as the simulation kernel takes it.
 
-    States ``[0, nd)`` are modal and single-input: ``z_i <- ad_i z_i + bd_i w[state_input[i]]``.
-    The remaining states advance densely, ``z_d <- Ad z_d + Bd w``. The output is
+    States ``[0, nd)`` are modal and single-input: ``z_i <- ad_i z_i + bd_i w[state_input[i]]``,
+    sorted by ``state_input`` (the kernel runs one loop per measured signal). The remaining states advance densely, ``z_d <- Ad z_d + Bd w``. The output is
     ``du = Cc z + Dc w``; ``state_channel`` names each state's pump (for anti-windup).
     """
 
@@ -178,11 +178,12 @@ class DiscreteController:
         nd, nq = self.ad.size, self.Ad.shape[0]
         ok = (self.bd.shape == (nd,) and self.state_input.shape == (nd,)
               and (nd == 0 or 0 <= self.state_input.min() <= self.state_input.max() < 4)
+              and bool(np.all(np.diff(self.state_input) >= 0))
               and self.Ad.shape == (nq, nq) and self.Bd.shape == (nq, 4)
               and self.Cc.shape == (2, nd + nq) and self.Dc.shape == (2, 4)
               and self.state_channel.shape == (nd + nq,))
         if not ok:
-            raise ValueError("inconsistent DiscreteController shapes")
+            raise ValueError("inconsistent DiscreteController shapes (or modal states not sorted by input)")
 
     @property
     def n_states(self) -> int:
