@@ -237,8 +237,19 @@ def loop_metrics(y, u, y_op, u_op, dt, i_dist, band_pct, out):
     _metrics_finish(acc, n, dt, i_dist, band1, band2, y_op[0], y_op[1], out)
 
 
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _modal_sum(z, ad, bd, lo, hi, w):
+    """Advance the modal states ``z[lo:hi]`` driven by the signal ``w``; return their sum."""
+    total = 0.0
+    for i in range(lo, hi):
+        zi = ad[i] * z[i] + bd[i] * w
+        z[i] = zi
+        total += zi
+    return total
+
+
 @njit(cache=True, fastmath=_FAST)
-def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel,
+def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel, segments,
                   dt, n_steps, i_out_dist, out_dist, i_in_dist, in_dist, noise,
                   saturate, u_min, u_max, band_pct, metrics, y_rec, u_rec, h_rec):
     """Fixed-step closed loop: sampled linear controller, RK4 nonlinear plant, metrics.
@@ -248,7 +259,7 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
     ``u = u_op + Cc z + Dc w`` (optionally clipped to [u_min, u_max]); ``u`` is held over the
     step while classic RK4 integrates the plant, and the controller advances by its exact
     zero-order-hold discretisation. The first ``nd = ad.size`` controller states are modal and
-    single-input (``z_i <- ad_i z_i + bd_i w[state_input[i]]``, sorted by ``state_input``),
+    single-input (``z_i <- ad_i z_i + bd_i w[state_input[i]]``, in the order of ``segments``),
     the remaining ones evolve with the dense ``Ad`` and ``Bd``. With saturation on, the states
     of a saturated pump's channel are held (conditional-integration anti-windup). The metrics
     of :func:`loop_metrics` are accumulated in the same pass, so an evaluation needs no
@@ -259,9 +270,12 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
     ----------
     c : (10,) plant coefficients (see plant_coefficients)
     h_init, h_op : (4,) initial and operating levels; u_op : (2,) operating voltages
-    ad, bd : (nd,) modal factors and input gains; state_input : (nd,) int64 in 0..3, non-decreasing
+    ad, bd : (nd,) modal factors and input gains; state_input : (nd,) int64 in 0..3
     Ad : (nq, nq), Bd : (nq, 4) dense part; Cc : (2, nd + nq); Dc : (2, 4)
     state_channel : (nd + nq,) int64, pump each state belongs to
+    segments : (4,) int64, the modal states' order (see ``DiscreteController``): states
+        ``[0, segments[1])`` and ``[segments[1], segments[2])`` read w0 and w1 and add up, with
+        weight 1, into u1 and u2
     dt : float; n_steps : int, the horizon is ``n_steps * dt``
     i_out_dist : int, first sample with the measured-level disturbance ``out_dist`` (2,)
     i_in_dist : int, first sample with the pump-voltage disturbance ``in_dist`` (2,)
@@ -282,14 +296,8 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
     """
     nd = ad.shape[0]
     nq = Ad.shape[0]
-    # Modal states are sorted by measured signal: [0, s1) read w0, [s1, s2) w1, [s2, s3) w2.
-    s1 = 0
-    s2 = 0
-    s3 = 0
-    for i in range(nd):
-        s1 += state_input[i] < 1
-        s2 += state_input[i] < 2
-        s3 += state_input[i] < 3
+    # unit states of pumps 1 and 2: [0, g1) and [g1, nu); other modal: [nu, nd); dense: [nd, nd + nq)
+    g1, nu = segments[1], segments[2]
     z = np.zeros(nd + nq)
     z_dense = np.zeros(nq)
     wv = np.zeros(4)
@@ -348,17 +356,18 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
             for i in range(nd):
                 if not frozen[state_channel[i]]:
                     z[i] = ad[i] * z[i] + bd[i] * wv[state_input[i]]
+            cz1 = 0.0
+            cz2 = 0.0
+            for i in range(nu):
+                cz1 += Cc[0, i] * z[i]
+                cz2 += Cc[1, i] * z[i]
         else:
-            # One loop per measured signal (the states are sorted by it), so that LLVM
-            # vectorises them with the signal as a scalar.
-            for i in range(s1):
-                z[i] = ad[i] * z[i] + bd[i] * w0
-            for i in range(s1, s2):
-                z[i] = ad[i] * z[i] + bd[i] * w1
-            for i in range(s2, s3):
-                z[i] = ad[i] * z[i] + bd[i] * w2
-            for i in range(s3, nd):
-                z[i] = ad[i] * z[i] + bd[i] * w3
+            # The unit states of each pump in one loop with the measured signal a scalar (LLVM
+            # vectorises it) and no output weights; the other modal states gather their input.
+            cz1 = _modal_sum(z, ad, bd, 0, g1, w0)
+            cz2 = _modal_sum(z, ad, bd, g1, nu, w1)
+            for i in range(nu, nd):
+                z[i] = ad[i] * z[i] + bd[i] * wv[state_input[i]]
         if nq > 0:
             for i in range(nq):
                 acc_i = Bd[i, 0] * w0 + Bd[i, 1] * w1 + Bd[i, 2] * w2 + Bd[i, 3] * w3
@@ -368,9 +377,7 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
             for i in range(nq):
                 if not (saturate and frozen[state_channel[nd + i]]):
                     z[nd + i] = z_dense[i]
-        cz1 = 0.0
-        cz2 = 0.0
-        for i in range(nd + nq):
+        for i in range(nu, nd + nq):
             cz1 += Cc[0, i] * z[i]
             cz2 += Cc[1, i] * z[i]
         # Plant: classic RK4 with the pump voltages held over the step.

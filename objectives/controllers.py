@@ -26,6 +26,7 @@ import dataclasses
 
 import numpy as np
 import scipy.linalg
+import scipy.linalg.lapack
 
 from heurtune.errors import ConfigError
 from heurtune.objectives.oustaloup import REALISATIONS, fractional_integrator
@@ -43,6 +44,17 @@ __all__ = [
 
 N_MEASURED = 4
 N_INPUTS = 2
+_UNIT_ROWS = np.eye(2)
+# Largest Riccati residual accepted, relative to the size of its terms.
+RICCATI_RESIDUAL_TOL = 1e-9
+_DGEES = scipy.linalg.lapack.get_lapack_funcs("gees", dtype=np.float64)
+
+
+def _left_half_plane(re, im):
+    return re < 0.0
+
+_PUMP_ROWS = np.array([[False], [True]])  # row r is the unit vector of pump r where unit1 == r
+_SEGMENT_KEYS = np.arange(4)
 # Largest eigenvector condition number for which a block is simulated in modal form.
 MODAL_COND_LIMIT = 1e6
 
@@ -94,25 +106,25 @@ class LinearController:
         chains such as a double integrator) keep a dense matrix exponential.
         """
         nw = self.B.shape[1]
-        modal = [[] for _ in range(nw)]  # per input column: (a, b, C V, channel)
+        lam_parts, b_parts, C_parts, col_parts, ch_parts = [], [], [], [], []
         dense = []
         for (start, stop), ch in zip(self.blocks, self.block_channel):
             A = self.A[start:stop, start:stop]
             B = self.B[start:stop]
             C = self.C[:, start:stop]
-            cols = np.flatnonzero(np.any(B != 0.0, axis=0))
-            diagonal = not np.any(A - np.diag(np.diagonal(A)))
-            if diagonal:
-                lam, V = np.diagonal(A).copy(), None
-            else:
+            cols = np.flatnonzero(B.any(axis=0))
+            lam = A.diagonal()
+            diagonal = np.count_nonzero(A) == np.count_nonzero(lam)
+            V = None
+            if not diagonal and len(cols) == 1:
                 lam, V = np.linalg.eig(A)
             if len(cols) == 1 and (diagonal or (not np.iscomplexobj(lam)
                                                 and np.linalg.cond(V) < MODAL_COND_LIMIT)):
-                x = lam * dt
-                # (e^{lam dt} - 1) / lam, which is dt for lam = 0
-                phi = np.where(x != 0.0, np.expm1(x) / np.where(x == 0.0, 1.0, lam), dt)
-                b_in = B[:, cols[0]] if diagonal else np.linalg.solve(V, B[:, cols[0]])
-                modal[cols[0]].append((np.exp(x), phi * b_in, C if diagonal else C @ V, ch))
+                lam_parts.append(lam)
+                b_parts.append(B[:, cols[0]] if diagonal else np.linalg.solve(V, B[:, cols[0]]))
+                C_parts.append(C if diagonal else C @ V)
+                col_parts.append(np.full(lam.size, cols[0], dtype=np.int64))
+                ch_parts.append(np.full(lam.size, ch, dtype=np.int64))
             else:
                 n = stop - start
                 M = np.zeros((n + nw, n + nw))
@@ -120,23 +132,43 @@ class LinearController:
                 M[:n, n:] = B
                 E = scipy.linalg.expm(M * dt)
                 dense.append((E[:n, :n], E[:n, n:], C, ch))
-        flat = [m for col in modal for m in col]
-        inputs = [np.full(m[0].size, c, dtype=np.int64) for c, col in enumerate(modal) for m in col]
-        parts_C = [m[2] for m in flat] + [d[2] for d in dense]
-        sizes = [m[0].size for m in flat] + [d[0].shape[0] for d in dense]
-        channels = [m[3] for m in flat] + [d[3] for d in dense]
-        cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0)  # noqa: E731
-        return DiscreteController(
-            ad=cat([m[0] for m in flat]),
-            bd=cat([m[1] for m in flat]),
-            state_input=np.concatenate(inputs) if inputs else np.zeros(0, dtype=np.int64),
-            Ad=np.ascontiguousarray(scipy.linalg.block_diag(*[d[0] for d in dense])) if dense else np.zeros((0, 0)),
-            Bd=np.vstack([d[1] for d in dense]) if dense else np.zeros((0, nw)),
-            Cc=np.ascontiguousarray(np.hstack(parts_C)) if parts_C else np.zeros((2, 0)),
-            Dc=np.ascontiguousarray(self.D),
-            state_channel=np.repeat(np.array(channels, dtype=np.int64), sizes),
-            dt=dt,
-        )
+        if lam_parts:
+            lam = np.concatenate(lam_parts)
+            x = lam * dt
+            # (e^{lam dt} - 1) / lam, which is dt for lam = 0
+            zero = x == 0.0
+            phi = np.where(zero, dt, np.expm1(x) / np.where(zero, 1.0, lam))
+            a_all, b_all = np.exp(x), phi * np.concatenate(b_parts)
+            C_all = np.hstack(C_parts)
+            cols, ch_all = np.concatenate(col_parts), np.concatenate(ch_parts)
+            # A modal state read from measured signal r that drives pump r only (r = 0, 1: the
+            # integrators of the errors e1, e2) is rescaled so that its output weight is 1
+            # (z' = c z): the kernel adds those up without products. Order (``segments``):
+            # those of pump 0, those of pump 1, the other modal states, then the dense blocks.
+            c0, c1 = C_all
+            unit0 = (cols == 0) & (c1 == 0.0) & (c0 != 0.0)
+            unit1 = (cols == 1) & (c0 == 0.0) & (c1 != 0.0)
+            b_all = np.where(unit0, b_all * c0, np.where(unit1, b_all * c1, b_all))
+            key = np.where(unit0, 0, np.where(unit1, 1, 2))
+            perm = np.argsort(key, kind="stable")
+            C_all = np.where(unit0 | unit1, (unit1[None, :] == _PUMP_ROWS), C_all)[:, perm]
+            a_all, b_all, cols, ch_all = a_all[perm], b_all[perm], cols[perm], ch_all[perm]
+            segments = np.searchsorted(key[perm], _SEGMENT_KEYS)
+        else:
+            a_all = b_all = np.zeros(0)
+            C_all = np.zeros((N_INPUTS, 0))
+            cols = ch_all = np.zeros(0, dtype=np.int64)
+            segments = np.zeros(N_INPUTS + 2, dtype=np.int64)
+        if dense:
+            Ad = np.ascontiguousarray(scipy.linalg.block_diag(*[d[0] for d in dense]))
+            Bd = np.vstack([d[1] for d in dense])
+            Cc = np.hstack([C_all] + [d[2] for d in dense])
+            ch_all = np.concatenate([ch_all] + [np.full(d[0].shape[0], d[3], dtype=np.int64) for d in dense])
+        else:
+            Ad, Bd, Cc = np.zeros((0, 0)), np.zeros((0, nw)), C_all
+        return DiscreteController(ad=a_all, bd=b_all, state_input=cols, Ad=Ad, Bd=Bd,
+                                  Cc=np.ascontiguousarray(Cc), Dc=np.ascontiguousarray(self.D),
+                                  state_channel=ch_all, segments=segments, dt=dt)
 
     def closed_loop_matrix(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
         """State matrix of the loop with the linearised plant ``dx' = A dx + B du`` (w = dx).
@@ -158,8 +190,11 @@ class LinearController:
 class DiscreteController:
     """Sampled controller as the simulation kernel takes it.
 
-    States ``[0, nd)`` are modal and single-input: ``z_i <- ad_i z_i + bd_i w[state_input[i]]``,
-    sorted by ``state_input`` (the kernel runs one loop per measured signal). The remaining states advance densely, ``z_d <- Ad z_d + Bd w``. The output is
+    States ``[0, nd)`` are modal and single-input: ``z_i <- ad_i z_i + bd_i w[state_input[i]]``.
+    ``segments`` (4,) orders them for the kernel: ``[segments[r], segments[r + 1])`` for pump
+    ``r`` in 0..1 read signal ``r`` and drive pump ``r`` with weight 1 (their ``Cc`` column is
+    the unit vector), then ``[segments[2], segments[3] = nd)`` hold the other modal states.
+    The remaining states advance densely, ``z_d <- Ad z_d + Bd w``. The output is
     ``du = Cc z + Dc w``; ``state_channel`` names each state's pump (for anti-windup).
     """
 
@@ -171,19 +206,29 @@ class DiscreteController:
     Cc: np.ndarray
     Dc: np.ndarray
     state_channel: np.ndarray
+    segments: np.ndarray
     dt: float
 
     def __post_init__(self):
-        # The kernel does no bounds checking: make inconsistent shapes fail here instead.
+        # The kernel does no bounds checking: make inconsistent shapes fail here instead (the
+        # segment contents are checked by check_segments, in the tests).
         nd, nq = self.ad.size, self.Ad.shape[0]
+        seg = self.segments.tolist() if self.segments.shape == (4,) else None
         ok = (self.bd.shape == (nd,) and self.state_input.shape == (nd,)
-              and (nd == 0 or 0 <= self.state_input.min() <= self.state_input.max() < 4)
-              and bool(np.all(np.diff(self.state_input) >= 0))
               and self.Ad.shape == (nq, nq) and self.Bd.shape == (nq, 4)
               and self.Cc.shape == (2, nd + nq) and self.Dc.shape == (2, 4)
-              and self.state_channel.shape == (nd + nq,))
+              and self.state_channel.shape == (nd + nq,)
+              and seg is not None and 0 == seg[0] <= seg[1] <= seg[2] <= seg[3] == nd
+              and (nd == 0 or 0 <= self.state_input.min() <= self.state_input.max() < 4))
         if not ok:
-            raise ValueError("inconsistent DiscreteController shapes (or modal states not sorted by input)")
+            raise ValueError("inconsistent DiscreteController shapes or segments")
+
+    def check_segments(self) -> bool:
+        """Whether the modal states follow ``segments`` (input 0 / pump 0 with unit weight,
+        then input 1 / pump 1 with unit weight, then the rest)."""
+        lo, mid, hi = self.segments[:3]
+        return (bool(np.all(self.state_input[lo:mid] == 0)) and bool(np.all(self.state_input[mid:hi] == 1))
+                and np.array_equal(self.Cc[:, lo:hi], _UNIT_ROWS[:, self.state_input[lo:hi]]))
 
     @property
     def n_states(self) -> int:
@@ -200,9 +245,11 @@ def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.n
 
     ``P`` comes from the ordered real Schur form of the Hamiltonian
     ``H = [[A, -B R^-1 B^T], [-Q, -A^T]]`` (Laub's method): with the stable invariant subspace
-    spanned by ``[U11; U21]``, ``P = U21 U11^-1``. For the 4-state QTP this is about four times
-    faster than ``scipy.linalg.solve_continuous_are`` (whose balancing and QZ steps matter for
-    larger, badly scaled problems); the tests compare both, and python-control's ``lqr``.
+    spanned by ``[U11; U21]``, ``P = U21 U11^-1``. A solution whose Riccati residual exceeds
+    ``RICCATI_RESIDUAL_TOL`` times the size of its terms (an ill-conditioned ``U11``) is
+    rejected. For the 4-state QTP this is several times faster than
+    ``scipy.linalg.solve_continuous_are`` (whose balancing and QZ steps matter for larger, badly
+    scaled problems); the tests compare both, and python-control's ``lqr``.
 
     Raises
     ------
@@ -212,19 +259,29 @@ def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.n
     n = A.shape[0]
     try:
         Rinv_Bt = np.linalg.solve(R, B.T)
-        H = np.block([[A, -B @ Rinv_Bt], [-Q, -A.T]])
-        _, Z, sdim = scipy.linalg.schur(H, output="real", sort="lhp")
+        H = np.empty((2 * n, 2 * n))
+        H[:n, :n] = A
+        H[:n, n:] = -B @ Rinv_Bt
+        H[n:, :n] = -Q
+        H[n:, n:] = -A.T
+        # LAPACK dgees with the stable eigenvalues ordered first (scipy.linalg.schur(sort="lhp")
+        # without its wrapper's overhead).
+        _, sdim, _, _, Z, _, info = _DGEES(_left_half_plane, H, compute_v=1, sort_t=1, overwrite_a=1)
+        if info != 0:
+            raise ControllerDesignError("riccati_failed", f"ordered Schur form failed (LAPACK info {info})")
         if sdim != n:
             raise ControllerDesignError("riccati_failed", f"{sdim} stable Hamiltonian eigenvalues, need {n}")
         U11, U21 = Z[:n, :n], Z[n:, :n]
-        if np.linalg.cond(U11) > 1e12:
-            raise ControllerDesignError("riccati_failed", "ill-conditioned stable subspace")
         P = np.linalg.solve(U11.T, U21.T).T
     except (np.linalg.LinAlgError, ValueError) as exc:
         raise ControllerDesignError("riccati_failed", str(exc)) from None
-    K = Rinv_Bt @ (0.5 * (P + P.T))
-    if not np.all(np.isfinite(K)):
-        raise ControllerDesignError("riccati_failed", "non-finite gain")
+    P = 0.5 * (P + P.T)
+    K = Rinv_Bt @ P
+    # An ill-conditioned stable subspace shows as a poor Riccati residual.
+    residual = A.T @ P + P @ A - P @ B @ K + Q
+    scale = np.abs(Q).max() + np.abs(P).max() * (2.0 * np.abs(A).max() + np.abs(B @ K).max())
+    if not (np.abs(residual).max() <= RICCATI_RESIDUAL_TOL * scale):
+        raise ControllerDesignError("riccati_failed", "Riccati residual too large (ill-conditioned problem)")
     return K
 
 

@@ -220,7 +220,7 @@ class ClosedLoop:
         sat = scenario.saturation
         status, _ = _kernels.simulate_loop(
             coef, self.op.h, self.op.h, u_op, dc.ad, dc.bd, dc.state_input, dc.Ad, dc.Bd, dc.Cc, dc.Dc,
-            dc.state_channel,
+            dc.state_channel, dc.segments,
             scenario.dt, n, scenario.disturbance_index, out_dist,
             scenario.input_disturbance_index, in_dist,
             noise, sat is not None, sat[0] if sat else 0.0, sat[1] if sat else 0.0,

@@ -105,6 +105,10 @@ def test_discretisation_matches_matrix_exponential_of_the_whole_controller(alpha
         z_ref = Ad_ref @ z_ref + Bd_ref @ w[k]
         z = dc.step(z, w[k])
     assert dc.n_states == n and dc.state_channel.shape == (n,)
+    assert dc.check_segments()
+    # The integrators of e1 and e2 are the kernel's unit-weight segments (all of them when
+    # the realisation is fully modal).
+    assert dc.segments[2] > 0
 
 
 def test_decision_names_and_bounds():
