@@ -118,93 +118,133 @@ def _rk4_step(h1, h2, h3, h4, f1, f2, f3, f4, c, dt):
             q4 - sixth * c[3] * o4)
 
 
-# Metric accumulator layout (see _metrics_step): per output i, 8 slots from 8 i:
-# max deviation, last sample outside the band, its deviation, the deviation one sample later,
-# the trapezoid sums of |e|, e^2 and k |e| (IAE, ISE, ITAE before their dt factors), previous
-# deviation; per input j, 4 slots from 16 + 4 j: sums of u^2 and (u - u_op)^2, TV, previous u.
-ACC_SIZE = 24
+# Metrics are folded block by block: the simulation loop only stores the deviations
+# a = |y - y_op| and voltages u of up to METRIC_BLOCK samples, and a separate tight (vectorised)
+# loop folds them into a small state. Per output (OUT_STATE slots): plain sums of a, a^2 and
+# k a, from which the trapezoid integrals follow at the end; the maximum after t_d; the last
+# sample outside the band after t_d, its deviation and that of the sample after it (with a flag
+# when that sample falls in the next block); the deviations at samples 0, i_dist - 1, i_dist
+# and the latest. Per input (IN_STATE slots): sums of u^2 and (u - u_op)^2, the total variation
+# and the latest voltage.
+METRIC_BLOCK = 256
+OUT_STATE = 12
+IN_STATE = 4
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")
-def _metrics_init(acc):
-    for i in range(ACC_SIZE):
-        acc[i] = 0.0
-    acc[1] = -1.0
-    acc[9] = -1.0
+def _output_state_init(st):
+    for i in range(OUT_STATE):
+        st[i] = 0.0
+    st[4] = -1.0  # no sample outside the band yet
+
+
+@njit(cache=True, fastmath=_FAST)
+def _fold_output(a, k0, cnt, i_dist, band, st):
+    """Fold deviations ``a[:cnt]`` of samples ``k0 .. k0 + cnt - 1`` into the state ``st``."""
+    s = 0.0
+    s2 = 0.0
+    sk = 0.0
+    for j in range(cnt):
+        x = a[j]
+        s += x
+        s2 += x * x
+        sk += (k0 + j) * x
+    st[0] += s
+    st[1] += s2
+    st[2] += sk
+    if cnt == 0:
+        return
+    if st[7] > 0.0:  # the sample after the last exit is this block's first
+        st[6] = a[0]
+        st[7] = 0.0
+    jd = min(max(i_dist - k0, 0), cnt)
+    mx = st[3]
+    for j in range(jd, cnt):
+        mx = max(mx, a[j])
+    st[3] = mx
+    for j in range(cnt - 1, jd - 1, -1):
+        if a[j] > band:
+            st[4] = k0 + j
+            st[5] = a[j]
+            if j + 1 < cnt:
+                st[6] = a[j + 1]
+            else:
+                st[7] = 1.0
+            break
+    if k0 == 0:
+        st[8] = a[0]
+    if k0 <= i_dist - 1 < k0 + cnt:
+        st[9] = a[i_dist - 1 - k0]
+    if k0 <= i_dist < k0 + cnt:
+        st[10] = a[i_dist - k0]
+    st[11] = a[cnt - 1]
+
+
+@njit(cache=True, fastmath=_FAST)
+def _fold_input(u, k0, cnt, u_op, st):
+    """Fold voltages ``u[:cnt]`` of samples ``k0 ..`` into the state ``st``."""
+    if cnt == 0:
+        return
+    s2 = 0.0
+    sd2 = 0.0
+    tv = abs(u[0] - st[3]) if k0 > 0 else 0.0
+    for j in range(cnt):
+        x = u[j]
+        d = x - u_op
+        s2 += x * x
+        sd2 += d * d
+    for j in range(1, cnt):
+        tv += abs(u[j] - u[j - 1])
+    st[0] += s2
+    st[1] += sd2
+    st[2] += tv
+    st[3] = u[cnt - 1]
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")
-def _metrics_step(acc, k, n, dt, i_dist, band1, band2, a1, a2, u1, u2, u_op1, u_op2):
-    """Fold sample k (deviations a = |y - y_op| of both outputs, voltages u) into ``acc``.
-
-    Sums are kept without their dt factors (applied in _metrics_finish), and the
-    data-dependent updates are selects rather than branches.
-    """
-    after = k >= i_dist
-    for i in range(2):
-        b = 8 * i
-        a = a1 if i == 0 else a2
-        band = band1 if i == 0 else band2
-        acc[b] = max(acc[b], a if after else 0.0)
-        out = after and a > band
-        just_back = (not out) and acc[b + 1] == k - 1
-        acc[b + 3] = a if just_back else acc[b + 3]
-        acc[b + 1] = k if out else acc[b + 1]
-        acc[b + 2] = a if out else acc[b + 2]
-        if k > 0:
-            p = acc[b + 7]
-            # The step disturbance jumps at t_d: the interval before it holds the old value p.
-            q = p if k == i_dist else a
-            acc[b + 4] += q + p
-            acc[b + 5] += q * q + p * p
-            acc[b + 6] += k * q + (k - 1) * p
-        acc[b + 7] = a
-    for j in range(2):
-        b = 16 + 4 * j
-        u = u1 if j == 0 else u2
-        if k < n:
-            du = u - (u_op1 if j == 0 else u_op2)
-            acc[b] += u * u
-            acc[b + 1] += du * du
-        if k > 0:
-            acc[b + 2] += abs(u - acc[b + 3])
-        acc[b + 3] = u
+def _finish_output(n, dt, i_dist, band, y0, st, out, i):
+    """Write Mp, ts, ess, IAE, ISE, ITAE of output ``i`` (0 or 1) from its state into ``out``."""
+    s, s2, sk, mx, last, a_out, a_back = st[0], st[1], st[2], st[3], st[4], st[5], st[6]
+    a_first, a_pre, a_at, a_last = st[8], st[9], st[10], st[11]
+    if last < 0.0:
+        ts = 0.0
+    elif last >= n:
+        ts = (n - i_dist) * dt
+    else:
+        frac = (a_out - band) / (a_out - a_back) if a_out > a_back else 1.0
+        ts = (last - i_dist + frac) * dt
+    # Trapezoid sums over k = 1..n of (a_k + a_{k-1}) and the like; on the step ending at
+    # i_dist the measured level jumps, and the left value a_{i_dist-1} holds over it.
+    iae = 2.0 * s - a_first - a_last
+    ise = 2.0 * s2 - a_first * a_first - a_last * a_last
+    itae = 2.0 * sk - n * a_last
+    if 1 <= i_dist <= n:
+        iae += a_pre - a_at
+        ise += a_pre * a_pre - a_at * a_at
+        itae += i_dist * (a_pre - a_at)
+    out[i] = mx / y0 * 100.0
+    out[2 + i] = ts
+    out[4 + i] = a_last / y0 * 100.0
+    out[6 + i] = 0.5 * dt * iae
+    out[8 + i] = 0.5 * dt * ise
+    out[10 + i] = 0.5 * dt * dt * itae
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")
-def _metrics_finish(acc, n, dt, i_dist, band1, band2, y_op1, y_op2, out):
-    for i in range(2):
-        b = 8 * i
-        y0 = y_op1 if i == 0 else y_op2
-        band = band1 if i == 0 else band2
-        last = acc[b + 1]
-        if last < 0:
-            ts = 0.0
-        elif last >= n:
-            ts = (n - i_dist) * dt
-        else:
-            a0 = acc[b + 2]
-            a1 = acc[b + 3]
-            frac = (a0 - band) / (a0 - a1) if a0 > a1 else 1.0
-            ts = (last - i_dist + frac) * dt
-        out[i] = acc[b] / y0 * 100.0
-        out[2 + i] = ts
-        out[4 + i] = acc[b + 7] / y0 * 100.0
-        out[6 + i] = 0.5 * dt * acc[b + 4]
-        out[8 + i] = 0.5 * dt * acc[b + 5]
-        out[10 + i] = 0.5 * dt * dt * acc[b + 6]
-    for j in range(2):
-        b = 16 + 4 * j
-        out[12 + j] = dt * acc[b]
-        out[14 + j] = dt * acc[b + 1]
-        out[16 + j] = acc[b + 2]
+def _finish_input(dt, u_op, st, out, j):
+    """Write J, Jdev and TV of input ``j`` (the sums run over k < n: drop sample n)."""
+    u_last = st[3]
+    du = u_last - u_op
+    out[12 + j] = dt * (st[0] - u_last * u_last)
+    out[14 + j] = dt * (st[1] - du * du)
+    out[16 + j] = st[2]
 
 
 @njit(cache=True, fastmath=_FAST)
 def loop_metrics(y, u, y_op, u_op, dt, i_dist, band_pct, out):
     """Performance metrics of a sampled closed-loop response.
 
-    The same accumulator that :func:`simulate_loop` runs inside its time loop.
+    The same block folds that :func:`simulate_loop` runs on its buffered samples.
 
     Parameters
     ----------
@@ -227,14 +267,15 @@ def loop_metrics(y, u, y_op, u_op, dt, i_dist, band_pct, out):
         TV_j   sum of |u_j[k+1] - u_j[k]|
     """
     n = y.shape[0] - 1
-    acc = np.empty(ACC_SIZE)
-    _metrics_init(acc)
-    band1 = band_pct / 100.0 * y_op[0]
-    band2 = band_pct / 100.0 * y_op[1]
-    for k in range(n + 1):
-        _metrics_step(acc, k, n, dt, i_dist, band1, band2, abs(y[k, 0] - y_op[0]), abs(y[k, 1] - y_op[1]),
-                      u[k, 0], u[k, 1], u_op[0], u_op[1])
-    _metrics_finish(acc, n, dt, i_dist, band1, band2, y_op[0], y_op[1], out)
+    so = np.empty((2, OUT_STATE))
+    si = np.zeros((2, IN_STATE))
+    for i in range(2):
+        _output_state_init(so[i])
+        band = band_pct / 100.0 * y_op[i]
+        _fold_output(np.abs(y[:, i] - y_op[i]), 0, n + 1, i_dist, band, so[i])
+        _fold_input(np.ascontiguousarray(u[:, i]), 0, n + 1, u_op[i], si[i])
+        _finish_output(n, dt, i_dist, band, y_op[i], so[i], out, i)
+        _finish_input(dt, u_op[i], si[i], out, i)
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")
@@ -262,8 +303,8 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
     single-input (``z_i <- ad_i z_i + bd_i w[state_input[i]]``, in the order of ``segments``),
     the remaining ones evolve with the dense ``Ad`` and ``Bd``. With saturation on, the states
     of a saturated pump's channel are held (conditional-integration anti-windup). The metrics
-    of :func:`loop_metrics` are accumulated in the same pass, so an evaluation needs no
-    trajectory in memory. The plant state lives in scalars: the RK4 chain of square roots is
+    of :func:`loop_metrics` are folded in the same pass from a small buffer of samples, so an
+    evaluation needs no trajectory in memory. The plant state lives in scalars: the RK4 chain of square roots is
     the loop's critical path, and everything else overlaps with it.
 
     Parameters
@@ -303,8 +344,14 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
     wv = np.zeros(4)
     cz1 = 0.0  # Cc z of the current sample (z starts at zero)
     cz2 = 0.0
-    acc = np.empty(ACC_SIZE)
-    _metrics_init(acc)
+    # metric buffers and states (see _fold_output / _fold_input)
+    buf = np.empty((4, METRIC_BLOCK))
+    so = np.empty((2, OUT_STATE))
+    si = np.zeros((2, IN_STATE))
+    _output_state_init(so[0])
+    _output_state_init(so[1])
+    nb = 0
+    k0 = 0
     frozen = np.zeros(2, dtype=np.bool_)
     h1, h2, h3, h4 = h_init[0], h_init[1], h_init[2], h_init[3]
     has_noise = noise.shape[0] > 0
@@ -342,7 +389,18 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
             h_rec[k, 1] = h2
             h_rec[k, 2] = h3
             h_rec[k, 3] = h4
-        _metrics_step(acc, k, n_steps, dt, i_out_dist, band1, band2, abs(w0), abs(w1), u1, u2, u_op[0], u_op[1])
+        buf[0, nb] = abs(w0)
+        buf[1, nb] = abs(w1)
+        buf[2, nb] = u1
+        buf[3, nb] = u2
+        nb += 1
+        if nb == METRIC_BLOCK or k == n_steps:
+            _fold_output(buf[0], k0, nb, i_out_dist, band1, so[0])
+            _fold_output(buf[1], k0, nb, i_out_dist, band2, so[1])
+            _fold_input(buf[2], k0, nb, u_op[0], si[0])
+            _fold_input(buf[3], k0, nb, u_op[1], si[1])
+            k0 += nb
+            nb = 0
         if k == n_steps:
             break
         # Controller: modal single-input states (in place), then the dense part, then the
@@ -390,7 +448,10 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
             diverged_at = k
             break
     if diverged_at < 0:
-        _metrics_finish(acc, n_steps, dt, i_out_dist, band1, band2, h_op[0], h_op[1], metrics)
+        _finish_output(n_steps, dt, i_out_dist, band1, h_op[0], so[0], metrics, 0)
+        _finish_output(n_steps, dt, i_out_dist, band2, h_op[1], so[1], metrics, 1)
+        _finish_input(dt, u_op[0], si[0], metrics, 0)
+        _finish_input(dt, u_op[1], si[1], metrics, 1)
         return STATUS_OK, n_steps
     # Kept out of the time loop so that it stays lean.
     for kk in range(diverged_at + 1, y_rec.shape[0]):

@@ -183,7 +183,13 @@ class LinearController:
 
             red = control.ss(Ac, Bc, Cc, Dc).minreal()
             Ac, Bc, Cc = np.asarray(red.A), np.asarray(red.B), np.asarray(red.C)
-        return np.block([[A + B @ Dc, B @ Cc], [Bc, Ac]])
+        n, nc = A.shape[0], Ac.shape[0]
+        M = np.empty((n + nc, n + nc))
+        M[:n, :n] = A + B @ Dc
+        M[:n, n:] = B @ Cc
+        M[n:, :n] = Bc
+        M[n:, n:] = Ac
+        return M
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

@@ -10,11 +10,14 @@ import math
 
 import numpy as np
 import pandas as pd
+import scipy.linalg.lapack
 
 from heurtune.errors import ConfigError
 from heurtune.objectives import _kernels
 from heurtune.objectives.controllers import LinearController, build_controller
 from heurtune.objectives.qtp import QTPParams, linearise, operating_point
+
+_DGEEV = scipy.linalg.lapack.get_lapack_funcs("geev", dtype=np.float64)
 
 __all__ = ["Scenario", "ClosedLoop", "SimulationResult", "METRIC_NAMES"]
 
@@ -184,9 +187,13 @@ class ClosedLoop:
     def stability_margin(self, ctrl: LinearController) -> float:
         """Largest real part of the linearised closed-loop eigenvalues (negative = stable)."""
         Acl = ctrl.closed_loop_matrix(self.A, self.B)
-        if not np.all(np.isfinite(Acl)):
+        if not np.isfinite(Acl).all():
             return math.inf
-        return float(np.max(np.linalg.eigvals(Acl).real))
+        # LAPACK dgeev without eigenvectors (numpy's eigvals adds checks and copies)
+        wr, _, _, _, info = _DGEEV(Acl, compute_vl=0, compute_vr=0, overwrite_a=1)
+        if info != 0:
+            return math.inf
+        return float(wr.max())
 
     # -- simulation -----------------------------------------------------------------------
     def _scenario_arrays(self, scenario: Scenario):

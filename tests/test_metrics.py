@@ -87,3 +87,62 @@ def test_effort_and_total_variation():
     assert m["Jdev1"] == 0.0
     assert m["Jdev2"] == pytest.approx(0.25 * (T - TD), rel=1e-12)
     assert m["TV1"] == 0.0 and m["TV2"] == pytest.approx(0.5)
+
+
+def reference_metrics(y, u, y0, u0, dt, i_d, band_pct):
+    """The metric definitions written out with numpy, sample by sample where it matters."""
+    n = y.shape[0] - 1
+    out = {}
+    for i in range(2):
+        a = np.abs(y[:, i] - y0[i])
+        band = band_pct / 100.0 * y0[i]
+        out[f"Mp{i + 1}"] = a[i_d:].max() / y0[i] * 100 if i_d <= n else 0.0
+        outside = np.flatnonzero(a[i_d:] > band) + i_d
+        if outside.size == 0:
+            ts = 0.0
+        elif outside[-1] >= n:
+            ts = (n - i_d) * dt
+        else:
+            last = outside[-1]
+            a0, a1 = a[last], a[last + 1]
+            ts = (last - i_d + ((a0 - band) / (a0 - a1) if a0 > a1 else 1.0)) * dt
+        out[f"ts{i + 1}"] = ts
+        out[f"ess{i + 1}"] = a[n] / y0[i] * 100
+        left = a[:-1].copy()
+        right = a[1:].copy()
+        if 1 <= i_d <= n:
+            right[i_d - 1] = left[i_d - 1]  # the jump at t_d: the left value holds
+        k = np.arange(1, n + 1)
+        out[f"IAE{i + 1}"] = 0.5 * dt * np.sum(left + right)
+        out[f"ISE{i + 1}"] = 0.5 * dt * np.sum(left ** 2 + right ** 2)
+        out[f"ITAE{i + 1}"] = 0.5 * dt * dt * np.sum((k - 1) * left + k * right)
+    for j in range(2):
+        out[f"J{j + 1}"] = dt * np.sum(u[:-1, j] ** 2)
+        out[f"Jdev{j + 1}"] = dt * np.sum((u[:-1, j] - u0[j]) ** 2)
+        out[f"TV{j + 1}"] = np.sum(np.abs(np.diff(u[:, j])))
+    return out
+
+
+@pytest.mark.parametrize("n, i_d, last_exit", [
+    (1000, 256, 255), (1000, 256, 256), (1000, 255, 511), (1000, 0, 999), (1000, 1000, 1000),
+    (1000, 300, 767), (513, 100, 511), (513, 100, 512), (40, 5, 20),
+])
+def test_block_folds_match_the_definitions(n, i_d, last_exit):
+    """loop_metrics folds samples in blocks of METRIC_BLOCK; exits and t_d on block edges.
+
+    Random signals that leave the band last at ``last_exit`` (or never, when it precedes t_d).
+    The folds reassociate the sums: agreement to 1e-11 relative.
+    """
+    rng = np.random.default_rng(n + i_d + last_exit)
+    y0, u0 = np.array([16.0, 12.0]), np.array([2.5, 3.0])
+    band = 3.0
+    y = y0 + rng.uniform(-0.2, 0.2, (n + 1, 2)) * band / 100 * y0  # inside the band
+    y[last_exit, :] = y0 * (1 + rng.uniform(1.5, 3.0, 2) * band / 100)
+    y[: last_exit // 2, 1] += 0.1 * y0[1]  # a second output with an earlier excursion
+    u = u0 + rng.normal(0, 0.3, (n + 1, 2))
+    out = np.empty(N_METRICS)
+    loop_metrics(y, u, y0, u0, 0.01, i_d, band, out)
+    got = dict(zip(METRIC_NAMES, out))
+    ref = reference_metrics(y, u, y0, u0, 0.01, i_d, band)
+    for name in METRIC_NAMES:
+        assert got[name] == pytest.approx(ref[name], rel=1e-11, abs=1e-12), name

@@ -118,3 +118,21 @@ def test_unstable_candidates_get_graded_violations(problem):
     ev = problem.evaluate(np.vstack([vector(problem, mild), vector(problem, wild)]))
     assert list(ev.reason) == ["unstable", "unstable"]
     assert FAILED_VIOLATION < ev.g[0, 0] < ev.g[1, 0]
+
+
+@pytest.mark.parametrize("extra", [
+    dict(),
+    dict(noise_sd=0.05, noise_seed=3, input_disturbance=(0.3, -0.2), input_disturbance_time=120.0),
+    dict(saturation=(0.0, 3.6), horizon=200.0, disturbance_time=51.2),  # t_d on a block edge (5120 = 20 x 256)
+])
+def test_in_loop_metrics_equal_those_of_the_recorded_trajectory(problem, extra):
+    """The kernel folds its metrics from a buffer as it runs; loop_metrics recomputes them from
+    the recorded y and u. Same samples, sums grouped alike: equal to 1e-12 relative."""
+    from heurtune.objectives.loop import Scenario
+
+    sc = Scenario(**extra)
+    loop = problem.loop
+    ctrl = loop.controller(THESIS_MIN)
+    lean = loop.run(ctrl, sc, record=False)
+    full = loop.run(ctrl, sc)
+    np.testing.assert_allclose(lean.metrics, loop.metrics(full, sc, 3.0), rtol=1e-12, atol=1e-12)
