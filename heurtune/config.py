@@ -14,7 +14,7 @@ from pathlib import Path
 
 from heurtune.errors import ConfigError
 
-__all__ = ["experiments_dir", "list_experiments", "find_experiment", "load_config", "SCHEMA"]
+__all__ = ["experiments_dir", "list_experiments", "find_experiment", "load_config", "SCHEMA", "TITO_SCHEMA"]
 
 # Schema: key -> type spec. A dict is a table with fixed keys; ("map", spec) is a table with
 # free keys whose values follow spec; ("list", spec) a list. Leaf specs are python types or a
@@ -28,7 +28,7 @@ SCHEMA = {
     "runs": int,
     "seed": int,
     "plant": {
-        "model": ("qtp",),
+        "model": ("qtp", "tito", "two_tank_nonlinear"),
         "cases": ("list", str),
         "custom": ("map", {
             "A": ("list", NUMBER), "a": ("list", NUMBER), "k": ("list", NUMBER),
@@ -65,6 +65,49 @@ SCHEMA = {
         "constraint_handling": ("deb", "penalty"), "penalty": NUMBER, "bound_handling": ("clip", "reflect"),
     }),
 }
+
+
+# Keys shared by every plant model.
+_COMMON = {key: SCHEMA[key] for key in ("description", "extends", "runs", "seed", "plugins", "optimisers")}
+STEPS = ("list", ("list", PAIR))  # per loop, [[time, value], ...]
+
+# Two-input two-output coupled tanks with dead time (heurtune.tito_problem).
+TITO_SCHEMA = dict(_COMMON, **{
+    "plant": {
+        "model": ("tito", "two_tank_nonlinear"),
+        "cases": ("list", str),
+        # TITO: {g11 = {K, lags, leads, L}, ...}; two_tank_nonlinear: TwoTankParams fields.
+        # Validated by the plant constructors, which name the key.
+        "custom": ("map", ("map", None)),
+    },
+    "decoupler": {"type": ("inverted", "none"), "case": int, "delay_compensation": bool},
+    "controller": {
+        "type": ("choices", ("pi", "pid")),
+        "N": NUMBER,
+        "baselines": ("list", ("gpm",)),
+        "gpm": {"Am": NUMBER, "phim": NUMBER},
+    },
+    "scenario": {
+        "horizon": NUMBER, "dt": NUMBER,
+        "setpoints": STEPS,
+        "input_disturbance": {"time": NUMBER, "size": PAIR},
+        "output_disturbance": {"time": NUMBER, "size": PAIR},
+        "noise_power": NUMBER, "noise_seed": int,
+        "variation": ("map", NUMBER),
+        "vary": ("list", ("K", "lags", "leads", "L")),
+    },
+    "problem": {
+        "objective": ("iae", "ise", "itae", "bandwidth"),
+        "tuning_scenario": str,
+        "settling_band": NUMBER,
+        "windows": ("map", PAIR),
+        "constraints": {"Am": NUMBER, "phim": NUMBER, "Mt": NUMBER, "Ms": NUMBER},
+        "bounds": ("map", PAIR),
+    },
+    "robustness": {"uncertainty": NUMBER, "variation": NUMBER, "pade_order": int, "w": PAIR},
+})
+
+SCHEMAS = {"qtp": SCHEMA, "tito": TITO_SCHEMA, "two_tank_nonlinear": TITO_SCHEMA}
 
 
 def experiments_dir() -> Path:
@@ -193,8 +236,10 @@ def load_config(name: str, _seen: tuple = ()) -> dict:
         raw = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{src}: not valid TOML: {exc}") from None
-    _check(raw, SCHEMA, "", src)
+    if not isinstance(raw.get("extends", ""), str):
+        raise ConfigError(f"{src}: extends: expected a string, got {raw['extends']!r}")
     parent = raw.pop("extends", None)
+    base = None
     if parent is not None:
         chain = _seen + (path.resolve(),)
         if find_experiment(parent).resolve() in chain:
@@ -202,6 +247,16 @@ def load_config(name: str, _seen: tuple = ()) -> dict:
         base = load_config(parent, chain)
         base.pop("name", None)
         base.pop("source", None)
+    # The plant model (this file's, else the parent's) selects the schema.
+    plant = raw.get("plant", {})
+    model = plant.get("model") if isinstance(plant, dict) else None
+    if model is None and base is not None:
+        model = base.get("plant", {}).get("model")
+    model = model or "qtp"
+    if model not in SCHEMAS:
+        raise ConfigError(f"{src}: plant.model: got {model!r}; allowed: {', '.join(SCHEMAS)}")
+    _check(raw, SCHEMAS[model], "", src)
+    if base is not None:
         raw = _merge(base, raw)
     raw["name"] = path.stem
     raw["source"] = str(path)

@@ -13,7 +13,12 @@ or on which runs were already done. Each finished run is written at once, atomic
 ``DIR/parts/``; re-running the same command skips finished runs (``--fresh`` starts over), so an
 interrupt loses at most the runs in flight. At the end the parts are gathered into
 ``runs.parquet`` and ``history.parquet``, with ``meta.json`` (resolved config, seeds, package
-versions, git commit), ``margins.parquet`` and figures.
+versions, git commit), ``margins.parquet`` and figures. TITO experiments also write
+``design.parquet`` (decoupled loops' FOPDT fits, GPM design and its exact margins),
+``robustness.parquet`` (spectral-radius and Kharitonov verdicts of each best design),
+``performance.parquet`` / ``performance.md`` (IAE, ISE, ITAE per loop, papers' table layout)
+and spectral-radius plots. Analytic designs named in ``controller.baselines`` (e.g. ``gpm``) are
+written as runs of their own (one each, algorithm = the baseline's name).
 
 With more pending runs than workers, whole runs go to the workers; otherwise the runs go one
 after the other, each evaluating its batches on all workers.
@@ -41,7 +46,7 @@ from heurtune.engine import SearchSpace, run as run_optimiser
 from heurtune.errors import ConfigError
 from heurtune.evaluator import BACKENDS, Evaluator
 from heurtune.io import atomic_path, write_parquet
-from heurtune.problem import Experiment
+from heurtune.problem import make_experiment
 
 __all__ = ["RunSpec", "plan", "execute", "problem_id", "run_experiment", "main"]
 
@@ -63,6 +68,7 @@ class RunSpec:
     settings: dict
     budget: dict
     root_seed: int
+    baseline: bool = False
 
     @property
     def spawn_key(self) -> tuple:
@@ -78,25 +84,30 @@ class RunSpec:
         return f"{safe}__{self.optimiser_index}-{self.algorithm}__{self.run:04d}"
 
 
-def problem_id(exp: Experiment, case: str) -> str:
+def problem_id(exp, case: str) -> str:
     """A short hash of everything that defines a case's tuning problem (for comparisons)."""
     prob = exp.problem(case)
-    p = prob.loop.plant
-    payload = dict(
-        plant=dict(A=p.A, a=p.a, k=p.k, gamma=p.gamma, levels=p.levels, g=p.g),
-        controller=prob.loop.kind, options={k: list(v) if isinstance(v, tuple) else v
-                                            for k, v in prob.loop.options.items()},
-        scenario=dataclasses.asdict(prob.scenario(prob.tuning_scenario)),
-        objective=prob.objective, constraints=prob.constraints, band=prob.settling_band,
-        bounds=dict(zip(prob.names, zip(prob.lower.tolist(), prob.upper.tolist()))),
-    )
+    if hasattr(prob, "identity"):
+        payload = prob.identity()
+    else:
+        p = prob.loop.plant
+        payload = dict(
+            plant=dict(A=p.A, a=p.a, k=p.k, gamma=p.gamma, levels=p.levels, g=p.g),
+            controller=prob.loop.kind, options={k: list(v) if isinstance(v, tuple) else v
+                                                for k, v in prob.loop.options.items()},
+            scenario=dataclasses.asdict(prob.scenario(prob.tuning_scenario)),
+            objective=prob.objective, constraints=prob.constraints, band=prob.settling_band,
+            bounds=dict(zip(prob.names, zip(prob.lower.tolist(), prob.upper.tolist()))),
+        )
     text = json.dumps(payload, sort_keys=True, default=list)
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
-def plan(exp: Experiment, *, runs=None, max_epochs=None, seed=None, smoke=False) -> list:
-    """All runs of an experiment, in a fixed order (case, optimiser, run)."""
-    if not exp.optimisers:
+def plan(exp, *, runs=None, max_epochs=None, seed=None, smoke=False) -> list:
+    """All runs of an experiment, in a fixed order (case, optimiser, run), then one run per
+    case and analytic baseline (``controller.baselines`` of TITO experiments)."""
+    baselines = tuple(getattr(exp, "baselines", ()))
+    if not exp.optimisers and not baselines:
         raise ConfigError(f"{exp.name}: no [[optimisers]] to run")
     n_runs = runs if runs is not None else exp.config.get("runs", 10)
     root = seed if seed is not None else exp.config.get("seed", 0)
@@ -121,6 +132,8 @@ def plan(exp: Experiment, *, runs=None, max_epochs=None, seed=None, smoke=False)
                         settings[key] = min(settings[key], small)
             for r in range(n_runs):
                 specs.append(RunSpec(case, ci, name, oi, r, settings, budget, root))
+        for bi, name in enumerate(baselines):
+            specs.append(RunSpec(case, ci, name, len(exp.optimisers) + bi, 0, {}, {}, root, baseline=True))
     return specs
 
 
@@ -131,7 +144,7 @@ _PROBLEMS = {}
 def _problem(config: dict, case: str):
     key = (config["name"], json.dumps(config, sort_keys=True, default=str), case)
     if key not in _PROBLEMS:
-        _PROBLEMS[key] = Experiment(config).problem(case)
+        _PROBLEMS[key] = make_experiment(config).problem(case)
     return _PROBLEMS[key]
 
 
@@ -143,6 +156,8 @@ def execute(config: dict, spec: RunSpec, evaluator: Evaluator | None = None):
     for plugin in config.get("plugins", []):
         registry.load_plugin(plugin)
     prob = _problem(config, spec.case)
+    if spec.baseline:
+        return _execute_baseline(prob, spec)
     t0 = time.perf_counter()
     seed = np.random.SeedSequence(spec.root_seed, spawn_key=spec.spawn_key)
     space = SearchSpace(prob.lower, prob.upper, spec.budget.get("bound_handling", "clip"))
@@ -161,12 +176,35 @@ def execute(config: dict, spec: RunSpec, evaluator: Evaluator | None = None):
                wall_time_s=time.perf_counter() - t0, stop_reason=res.stop_reason,
                settings=json.dumps(spec.settings, sort_keys=True))
     row.update(zip(prob.names, map(float, res.x)))
-    report = prob.report(res.x)
-    for scenario, values in report.iterrows():
-        for key, value in values.items():
-            row[f"{key}@{scenario}"] = value
+    _add_report(row, prob, res.x)
     hist = res.history.assign(case=spec.case, algorithm=spec.algorithm, optimiser_index=spec.optimiser_index,
                               run=spec.run)
+    return row, hist
+
+
+def _add_report(row: dict, prob, x):
+    for scenario, values in prob.report(x).iterrows():
+        for key, value in values.items():
+            row[f"{key}@{scenario}"] = value
+
+
+def _execute_baseline(prob, spec: RunSpec):
+    """An analytic design (e.g. GPM) as a run: one evaluation, no search."""
+    t0 = time.perf_counter()
+    x = prob.baseline(spec.algorithm)
+    ev = prob.evaluate(x[None, :])
+    viol = float(np.maximum(ev.g[0], 0.0).sum())
+    row = dict(case=spec.case, algorithm=spec.algorithm, optimiser_index=spec.optimiser_index,
+               run=spec.run, seed=spec.root_seed, seed_key=spec.seed_key, best_f=float(ev.f[0]),
+               feasible=bool(ev.feasible[0]), violation=viol, n_evals=1, n_epochs=0, convergence_epoch=0,
+               wall_time_s=time.perf_counter() - t0, stop_reason="analytic design",
+               settings=json.dumps({}, sort_keys=True))
+    row.update(zip(prob.names, map(float, x)))
+    _add_report(row, prob, x)
+    hist = pd.DataFrame(dict(epoch=[0], n_evals=[1], best_f=[float(ev.f[0])], best_violation=[viol],
+                             mean_f=[float(ev.f[0])], sd_f=[0.0], feasible_fraction=[float(ev.feasible[0])],
+                             wall_time_s=[time.perf_counter() - t0])).assign(
+        case=spec.case, algorithm=spec.algorithm, optimiser_index=spec.optimiser_index, run=spec.run)
     return row, hist
 
 
@@ -247,7 +285,7 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     if plugins:
         config["plugins"] = list(config.get("plugins", [])) + [str(Path(p).resolve()) if p.endswith(".py") else p
                                                               for p in plugins]
-    exp = Experiment(config)
+    exp = make_experiment(config)
     out_dir = Path(out) if out else Path("results") / exp.name
     parts = out_dir / "parts"
     specs = plan(exp, runs=runs, max_epochs=max_epochs, seed=seed, smoke=smoke)
@@ -278,6 +316,13 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
 
 
 def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler):
+    for spec in [s for s in pending if s.baseline]:  # analytic designs: one evaluation each
+        row, hist = execute(config, spec)
+        _persist(parts, spec, row, hist)
+        bar.update(row)
+    pending = [s for s in pending if not s.baseline]
+    if not pending:
+        return
     whole_runs = backend == "dask" or (jobs > 1 and len(pending) >= jobs)
     if not whole_runs:
         # Few runs: one after the other, each spreading its batches over the workers.
@@ -353,13 +398,21 @@ def _gather(exp, specs, parts, out_dir, ids, config, plan_key, *, figures):
         for _, r in best.iterrows():
             prob = exp.problem(r["case"])
             x = np.array([r[n] for n in prob.names])
-            if prob.loop.kind in ("folqi", "iolqi"):
+            if hasattr(prob, "margins"):  # TITO: exact margins of each decoupled loop
+                m = prob.margins(x)
+            elif prob.loop.kind in ("folqi", "iolqi"):
                 m = loop_margins(prob, x)
-                tables.append(m.assign(experiment=exp.name, case=r["case"], algorithm=r["algorithm"], run=r["run"]))
+            else:
+                continue
+            tables.append(m.assign(experiment=exp.name, case=r["case"], algorithm=r["algorithm"], run=r["run"]))
         if tables:
             margins = pd.concat(tables, ignore_index=True)
             lead = ["experiment", "case", "algorithm", "run"]
             write_parquet(margins[lead + [c for c in margins.columns if c not in lead]], out_dir / "margins.parquet")
+    if hasattr(exp, "windows"):  # TITO experiments
+        from heurtune import tito_report
+
+        tito_report.write_outputs(exp, runs, best, out_dir, figures=figures)
     if figures:
         _figures(exp, runs, history, best, out_dir)
     print_summary(runs, exp)
@@ -385,9 +438,15 @@ def _figures(exp, runs, history, best, out_dir):
             prob = exp.problem(case)
             r = b.iloc[0]
             x = np.array([r[n] for n in prob.names])
-            figures.response_figure(prob, x, out_dir / f"responses_{_slug(case)}.png",
-                                    scenarios=tuple(prob.scenarios),
-                                    title=f"{exp.name} / {case}: best of {r['algorithm']} (run {r['run']})")
+            title = f"{exp.name} / {case}: best of {r['algorithm']} (run {r['run']})"
+            if hasattr(prob, "chain"):  # TITO
+                from heurtune import tito_report
+
+                tito_report.response_figure(prob, x, out_dir / f"responses_{_slug(case)}.png",
+                                            scenarios=tuple(prob.scenarios), title=title)
+            else:
+                figures.response_figure(prob, x, out_dir / f"responses_{_slug(case)}.png",
+                                        scenarios=tuple(prob.scenarios), title=title)
     figures.boxplot_figure(runs, out_dir / "boxplot_best_f.png")
 
 

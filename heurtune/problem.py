@@ -22,7 +22,7 @@ from heurtune.objectives.controllers import (
 from heurtune.objectives.loop import METRIC_NAMES, ClosedLoop, Scenario
 from heurtune.objectives.qtp import QTPParams, preset
 
-__all__ = ["Experiment", "Problem", "Evaluation", "load_experiment",
+__all__ = ["Experiment", "Problem", "Evaluation", "load_experiment", "make_experiment",
            "FAILED_OBJECTIVE", "FAILED_VIOLATION"]
 
 # A candidate that cannot be simulated gets these (finite) values.
@@ -406,4 +406,14 @@ def load_experiment(name: str) -> Experiment:
     ConfigError
         With a one-line message naming the file, the key and the allowed values.
     """
-    return Experiment(load_config(name))
+    return make_experiment(load_config(name))
+
+
+def make_experiment(config: dict):
+    """The experiment object of a loaded config: :class:`Experiment` for the QTP,
+    :class:`heurtune.tito_problem.TITOExperiment` for TITO plants (``plant.model``)."""
+    if config.get("plant", {}).get("model", "qtp") in ("tito", "two_tank_nonlinear"):
+        from heurtune.tito_problem import TITOExperiment
+
+        return TITOExperiment(config)
+    return Experiment(config)

@@ -29,6 +29,7 @@ __all__ = [
     "Margins",
     "PIController",
     "PIDController",
+    "ParallelPID",
     "TFElement",
     "TITOPlant",
     "exact_margins",
@@ -538,6 +539,35 @@ class PIDController:
 
     def parallel(self) -> tuple:
         return (self.Kc * (self.Ti + self.Td) / self.Ti, self.Kc / self.Ti, self.Kc * self.Td)
+
+
+@dataclasses.dataclass(frozen=True)
+class ParallelPID:
+    """``C(s) = (Kp + Ki/s + Kd s) / (1 + Tf s)``: the controller a tuning run searches over.
+
+    The parallel gains are the decision variables (any signs and ratios, also complex series
+    zeros); the filter acts on the whole controller as in :class:`PIDController`. With
+    ``Kd = 0`` and ``Tf = 0`` it is the PI ``Kp + Ki/s``. Build it with
+    :func:`heurtune.objectives.tito_design.parallel_controller`, which sets ``Tf = Td / N``.
+    """
+
+    Kp: float
+    Ki: float
+    Kd: float = 0.0
+    Tf: float = 0.0
+
+    def freqresp(self, w) -> np.ndarray:
+        """Exact frequency response ``C(jw)``."""
+        s = 1j * _as_w(w)
+        return (self.Kp + self.Ki / s + self.Kd * s) / (1.0 + self.Tf * s)
+
+    def parallel(self) -> tuple:
+        """``(Kp, Ki, Kd)``."""
+        return (self.Kp, self.Ki, self.Kd)
+
+    def rational(self) -> tuple:
+        """``(num, den)`` coefficients, highest power first: ``(Kd s^2 + Kp s + Ki) / (Tf s^2 + s)``."""
+        return [self.Kd, self.Kp, self.Ki], [self.Tf, 1.0, 0.0]
 
 
 def _gpm_core(fopdt: FOPDT, Am: float, phim_deg: float):

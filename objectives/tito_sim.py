@@ -43,9 +43,9 @@ import scipy.signal
 from heurtune.errors import ConfigError
 
 from . import _tito_kernels as _k
-from .tito import Decoupler, PIController, PIDController, TFElement, TITOPlant
+from .tito import Decoupler, ParallelPID, PIController, PIDController, TFElement, TITOPlant
 
-__all__ = ["TITOScenario", "discretise_rational", "loop_metrics", "simulate_tito", "vary_plant"]
+__all__ = ["TITOScenario", "TITOSimulator", "discretise_rational", "loop_metrics", "simulate_tito", "vary_plant"]
 
 DELAY_TOL = 1e-9
 _VARY_KEYS = ("K", "lags", "leads", "L")
@@ -234,7 +234,14 @@ def _controller_tf(c, i: int):
         num = Kc * np.polymul([Ti, 1.0], [Td, 1.0])
         den = np.polymul([Ti, 0.0], [Tf, 1.0])
         return num, den
-    raise ConfigError(f"controller {i}: must be a PIController or PIDController, got {type(c).__name__}")
+    if isinstance(c, ParallelPID):
+        vals = (float(c.Kp), float(c.Ki), float(c.Kd), float(c.Tf))
+        if not all(math.isfinite(v) for v in vals) or vals[3] < 0:
+            raise ConfigError(f"controller {i}: parallel PID needs finite gains and Tf >= 0, got {c!r}")
+        if vals[2] != 0.0 and vals[3] == 0.0:
+            raise ConfigError(f"controller {i}: parallel PID with Kd != 0 needs a filter Tf > 0")
+        return c.rational()
+    raise ConfigError(f"controller {i}: must be a PIController, PIDController or ParallelPID, got {type(c).__name__}")
 
 
 def _decoupler_entries(dec: Decoupler | None):
@@ -272,6 +279,125 @@ def _step_signal(t: np.ndarray, steps, initial: float = 0.0) -> np.ndarray:
     return out
 
 
+class TITOSimulator:
+    """The closed loop of one plant, decoupler and scenario, run for many controller pairs.
+
+    The plant and decoupler blocks and the scenario's signals are realised once; each
+    :meth:`run` only discretises the two controllers. :func:`simulate_tito` is the one-off form.
+
+    Parameters
+    ----------
+    plant : TITOPlant
+        Nominal plant (``scenario.variation`` is applied to it).
+    decoupler : Decoupler or None
+        ``None`` means ``D = I`` (plain decentralised control).
+    scenario : TITOScenario, default ``TITOScenario()``
+    """
+
+    def __init__(self, plant: TITOPlant, decoupler: Decoupler | None = None, scenario: TITOScenario | None = None):
+        sc = TITOScenario() if scenario is None else scenario
+        if not isinstance(sc, TITOScenario):
+            raise ConfigError(f"scenario: must be a TITOScenario, got {type(sc).__name__}")
+        if not isinstance(plant, TITOPlant):
+            raise ConfigError(f"plant: must be a TITOPlant, got {type(plant).__name__}")
+        self.scenario = sc
+        dt = sc.dt
+        self.plant = vary_plant(plant, sc.variation, sc.vary) if sc.variation else plant
+        plant_blocks, dec_blocks = [], []
+        rounding = 0.0
+        for i in (1, 2):
+            for j in (1, 2):
+                e = self.plant.element(i, j)
+                Ad, Bd, C, D = discretise_rational(_poly(e.K, e.leads), _poly(1.0, e.lags), dt)
+                nd, err = _delay_samples(f"plant g{i}{j}", e.L, dt)
+                if nd == 0 and D != 0.0:
+                    raise ConfigError(f"plant g{i}{j}: biproper element without dead time closes an algebraic "
+                                      f"loop; give it L >= dt or a strictly proper rational part")
+                rounding = max(rounding, err)
+                plant_blocks.append((Ad, Bd, C, D, nd))
+        for q, (num, den, L) in enumerate(_decoupler_entries(decoupler)):
+            Ad, Bd, C, D = discretise_rational(num, den, dt)
+            nd, err = _delay_samples(f"decoupler D{q // 2 + 1}{q % 2 + 1}", L, dt)
+            rounding = max(rounding, err)
+            dec_blocks.append((Ad, Bd, C, D, nd))
+        self.delay_rounding = rounding
+        # Controllers have at most two states (a PID with its filter).
+        self._m = max(2, max(b[0].shape[0] for b in plant_blocks + dec_blocks))
+        nb, m = _k.N_BLOCKS, self._m
+        self._A = np.zeros((nb, m, m))
+        self._B = np.zeros((nb, m))
+        self._C = np.zeros((nb, m))
+        self._D = np.zeros(nb)
+        self._ns = np.zeros(nb, dtype=np.int64)
+        self._nd = np.zeros(nb, dtype=np.int64)
+        for b, block in zip(list(range(_k.PLANT0, _k.PLANT0 + 4)) + list(range(_k.DEC0, _k.DEC0 + 4)),
+                            plant_blocks + dec_blocks):
+            self._set_block(b, *block)
+        t = sc.time()
+        self.t = t
+        self.r = np.ascontiguousarray(np.column_stack([_step_signal(t, sc.setpoints[0]),
+                                                       _step_signal(t, sc.setpoints[1])]))
+        ti, mi = sc.input_disturbance
+        to, mo = sc.output_disturbance
+        on_i = (t >= ti - 1e-9).astype(np.float64)
+        on_o = (t >= to - 1e-9).astype(np.float64)
+        self.d_in = np.column_stack([on_i * mi[0], on_i * mi[1]])
+        self.d_out = np.column_stack([on_o * mo[0], on_o * mo[1]])
+        rng = np.random.default_rng(sc.noise_seed)
+        self.noise = np.ascontiguousarray(rng.standard_normal((t.size, 2)) * np.sqrt(np.array(sc.noise_power) / dt))
+
+    def _set_block(self, b, Ad, Bd, C, D, nd):
+        k = Ad.shape[0]
+        self._A[b] = 0.0
+        self._B[b] = 0.0
+        self._C[b] = 0.0
+        self._A[b, :k, :k] = Ad
+        self._B[b, :k] = Bd
+        self._C[b, :k] = C
+        self._D[b] = D
+        self._ns[b] = k
+        self._nd[b] = nd
+
+    def arrays(self, controllers):
+        """Run the loop for ``controllers`` (a pair of PIController / PIDController).
+
+        Returns
+        -------
+        status : str
+            ``"ok"`` or ``"diverged"``.
+        y, ym, u, v : numpy.ndarray, shape (n + 1, 2)
+            See :func:`simulate_tito`.
+        """
+        if isinstance(controllers, (str, bytes)) or not hasattr(controllers, "__len__") or len(controllers) != 2:
+            raise ConfigError("controllers: must be a pair (c1, c2) of PIController / PIDController")
+        for i, c in enumerate(controllers):
+            Ad, Bd, C, D = discretise_rational(*_controller_tf(c, i + 1), self.scenario.dt)
+            self._set_block(_k.CTRL0 + i, Ad, Bd, C, D, 0)
+        n1 = self.t.size
+        x = np.zeros((_k.N_BLOCKS, self._m))
+        buf = np.zeros((_k.N_BLOCKS, int(self._nd.max()) + 1))
+        xt = np.zeros(self._m)
+        y = np.empty((n1, 2))
+        ym = np.empty((n1, 2))
+        u = np.empty((n1, 2))
+        v = np.empty((n1, 2))
+        status = _k.simulate_tito(self._A, self._B, self._C, self._D, self._ns, self._nd, self.r, self.d_in,
+                                  self.d_out, self.noise, x, buf, xt, y, ym, u, v)
+        return ("ok" if status == _k.STATUS_OK else "diverged"), y, ym, u, v
+
+    def run(self, controllers) -> pd.DataFrame:
+        """The record of :func:`simulate_tito` for ``controllers``."""
+        status, y, ym, u, v = self.arrays(controllers)
+        r, t = self.r, self.t
+        df = pd.DataFrame({"t": t, "r1": r[:, 0], "r2": r[:, 1], "y1": y[:, 0], "y2": y[:, 1],
+                           "ym1": ym[:, 0], "ym2": ym[:, 1], "u1": u[:, 0], "u2": u[:, 1],
+                           "v1": v[:, 0], "v2": v[:, 1]})
+        df.attrs["status"] = status
+        df.attrs["delay_rounding"] = self.delay_rounding
+        df.attrs["plant"] = self.plant
+        return df
+
+
 def simulate_tito(plant: TITOPlant, controllers, decoupler: Decoupler | None = None,
                   scenario: TITOScenario | None = None) -> pd.DataFrame:
     """Simulate the closed loop; see the module docstring for the structure and discretisation.
@@ -293,82 +419,9 @@ def simulate_tito(plant: TITOPlant, controllers, decoupler: Decoupler | None = N
     disturbance; ``v``: controller outputs). ``attrs``: ``status`` ("ok" / "diverged"),
     ``delay_rounding`` (largest ``|round(L/dt) dt - L|`` in s), ``plant`` (the simulated plant).
     """
-    sc = TITOScenario() if scenario is None else scenario
-    if not isinstance(sc, TITOScenario):
-        raise ConfigError(f"scenario: must be a TITOScenario, got {type(sc).__name__}")
-    if not isinstance(plant, TITOPlant):
-        raise ConfigError(f"plant: must be a TITOPlant, got {type(plant).__name__}")
     if isinstance(controllers, (str, bytes)) or not hasattr(controllers, "__len__") or len(controllers) != 2:
         raise ConfigError("controllers: must be a pair (c1, c2) of PIController / PIDController")
-    dt = sc.dt
-    sim_plant = vary_plant(plant, sc.variation, sc.vary) if sc.variation else plant
-
-    blocks = []  # (Ad, Bd, C, D, nd)
-    rounding = 0.0
-    for i in (1, 2):
-        for j in (1, 2):
-            e = sim_plant.element(i, j)
-            Ad, Bd, C, D = discretise_rational(_poly(e.K, e.leads), _poly(1.0, e.lags), dt)
-            nd, err = _delay_samples(f"plant g{i}{j}", e.L, dt)
-            if nd == 0 and D != 0.0:
-                raise ConfigError(f"plant g{i}{j}: biproper element without dead time closes an algebraic "
-                                  f"loop; give it L >= dt or a strictly proper rational part")
-            rounding = max(rounding, err)
-            blocks.append((Ad, Bd, C, D, nd))
-    for i, c in enumerate(controllers, start=1):
-        Ad, Bd, C, D = discretise_rational(*_controller_tf(c, i), dt)
-        blocks.append((Ad, Bd, C, D, 0))
-    for q, (num, den, L) in enumerate(_decoupler_entries(decoupler)):
-        Ad, Bd, C, D = discretise_rational(num, den, dt)
-        nd, err = _delay_samples(f"decoupler D{q // 2 + 1}{q % 2 + 1}", L, dt)
-        rounding = max(rounding, err)
-        blocks.append((Ad, Bd, C, D, nd))
-
-    nb = _k.N_BLOCKS
-    m = max(1, max(b[0].shape[0] for b in blocks))
-    A = np.zeros((nb, m, m))
-    B = np.zeros((nb, m))
-    C = np.zeros((nb, m))
-    D = np.zeros(nb)
-    ns = np.zeros(nb, dtype=np.int64)
-    nd = np.zeros(nb, dtype=np.int64)
-    for b, (Ad, Bd, Cb, Db, d) in enumerate(blocks):
-        k = Ad.shape[0]
-        A[b, :k, :k] = Ad
-        B[b, :k] = Bd
-        C[b, :k] = Cb
-        D[b] = Db
-        ns[b] = k
-        nd[b] = d
-
-    t = sc.time()
-    n1 = t.size
-    r = np.column_stack([_step_signal(t, sc.setpoints[0]), _step_signal(t, sc.setpoints[1])])
-    ti, mi = sc.input_disturbance
-    to, mo = sc.output_disturbance
-    on_i = (t >= ti - 1e-9).astype(np.float64)
-    on_o = (t >= to - 1e-9).astype(np.float64)
-    d_in = np.column_stack([on_i * mi[0], on_i * mi[1]])
-    d_out = np.column_stack([on_o * mo[0], on_o * mo[1]])
-    rng = np.random.default_rng(sc.noise_seed)
-    noise = rng.standard_normal((n1, 2)) * np.sqrt(np.array(sc.noise_power) / dt)
-
-    x = np.zeros((nb, m))
-    buf = np.zeros((nb, int(nd.max()) + 1))
-    xt = np.zeros(m)
-    y = np.empty((n1, 2))
-    ym = np.empty((n1, 2))
-    u = np.empty((n1, 2))
-    v = np.empty((n1, 2))
-    status = _k.simulate_tito(A, B, C, D, ns, nd, np.ascontiguousarray(r), d_in, d_out,
-                              np.ascontiguousarray(noise), x, buf, xt, y, ym, u, v)
-    df = pd.DataFrame({"t": t, "r1": r[:, 0], "r2": r[:, 1], "y1": y[:, 0], "y2": y[:, 1],
-                       "ym1": ym[:, 0], "ym2": ym[:, 1], "u1": u[:, 0], "u2": u[:, 1],
-                       "v1": v[:, 0], "v2": v[:, 1]})
-    df.attrs["status"] = "ok" if status == _k.STATUS_OK else "diverged"
-    df.attrs["delay_rounding"] = rounding
-    df.attrs["plant"] = sim_plant
-    return df
+    return TITOSimulator(plant, decoupler, scenario).run(controllers)
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,0 +1,740 @@
+"""Tuning problems of decentralised PI/PID control of TITO coupled tanks (papers 000-002).
+
+An experiment config with ``[plant] model = "tito"`` (or ``"two_tank_nonlinear"``) is a
+:class:`TITOExperiment`; its cases are plants, each giving a :class:`TITOProblem` with the same
+interface as the QTP :class:`heurtune.problem.Problem` (names, bounds, ``evaluate``, ``report``,
+``simulate``), so the registry, evaluators and experiment runner work unchanged.
+
+The design chain of a case::
+
+    plant G  ->  decoupler D (inverted, paper 002 cases 1/2, or none)
+             ->  loop elements q_ii of G D (z_ii with a decoupler, g_ii without)
+             ->  FOPDT fits of q_ii (w = 0 and the phase crossover)  ->  GPM PI baseline
+             ->  controllers C = diag(c1, c2), c_i = (Kp + Ki/s + Kd s) / (1 + Tf s)
+
+Decision vector: ``Kp1, Ki1[, Kd1], Kp2, Ki2[, Kd2]`` (parallel gains; ``Tf = Td / N``).
+
+Objectives (``[problem] objective``):
+
+``iae``, ``ise``, ``itae``
+    The sum over both loops of that integral of ``e_i = r_i - y_i`` over the whole tuning
+    scenario (set-point steps, input and output disturbances), from the jitted simulation
+    (the "GA PI" / "PSO PI" baselines of the papers). Optional constraints on the loop margins.
+``bandwidth``
+    ``-(w_b1 + w_b2)``: maximise the closed-loop bandwidths subject to gain margin >= ``Am``,
+    phase margin >= ``phim`` (degrees) and ``max |T| <= Mt`` on every loop (the "optimal"
+    PI/PID of papers 000 and 002), computed exactly in frequency (delays as ``e^(-j w L)``).
+
+Every candidate's closed loop is checked for stability first (Nyquist on each decoupled loop,
+the generalised Nyquist criterion on ``det(I + G D C)`` when there is no decoupler); an
+unstable candidate is infeasible with a finite violation, never an exception.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+
+import numpy as np
+import pandas as pd
+
+from heurtune.errors import ConfigError
+from heurtune.objectives import tito, tito_design, two_tank
+from heurtune.objectives.robustness import (
+    interval_characteristic_polynomial, kharitonov_test, pade, spectral_radius_test,
+)
+from heurtune.objectives.tito_sim import TITOScenario, TITOSimulator
+from heurtune.problem import FAILED_OBJECTIVE, FAILED_VIOLATION, Evaluation
+
+__all__ = ["TITOExperiment", "TITOProblem", "TITO_MODELS"]
+
+TITO_MODELS = ("tito", "two_tank_nonlinear")
+OBJECTIVES = ("iae", "ise", "itae", "bandwidth")
+CONSTRAINT_KEYS = ("Am", "phim", "Mt", "Ms")  # lower bounds: Am, phim; upper bounds: Mt, Ms
+DEFAULT_BANDWIDTH_CONSTRAINTS = {"Am": 3.0, "phim": 60.0, "Mt": 1.3}
+DEFAULT_VARIATION = {"nominal": 0.0, "-20%": -0.2, "+20%": 0.2}
+DEFAULT_GPM = {"Am": 3.0, "phim": 60.0}
+DEFAULT_ROBUSTNESS = {"uncertainty": 0.2, "variation": 0.2, "pade_order": 2}
+LOOP_METRICS = ("IAE", "ISE", "ITAE", "ts", "max_u", "rms_e", "tv_u", "Am", "phim", "w_b", "Mt", "Ms")
+_TIME_METRICS = LOOP_METRICS[:7]
+_FREQ_METRICS = LOOP_METRICS[7:]
+
+
+def _gain_names(kind: str) -> tuple:
+    per = ("Kp", "Ki") if kind == "pi" else ("Kp", "Ki", "Kd")
+    return tuple(f"{g}{i}" for i in (1, 2) for g in per)
+
+
+def _default_bounds(kind: str, gpm_x: np.ndarray | None, signs) -> dict:
+    """Bounds when the config gives none: loop ``i``'s gains share the sign of its element's
+    static gain ``q_ii(0)`` (``signs``), up to 5 times the GPM design's magnitude (Kd: 20 times
+    its Kp), or up to 10 without a GPM design."""
+    per = ("Kp", "Ki") if kind == "pi" else ("Kp", "Ki", "Kd")
+    out = {}
+    for i, sign in zip((1, 2), signs):
+        for j, g in enumerate(per):
+            if gpm_x is not None:
+                ref = abs(gpm_x[(i - 1) * 2 + min(j, 1)]) * (20.0 if g == "Kd" else 5.0)
+                if g == "Kd":
+                    ref = abs(gpm_x[(i - 1) * 2]) * 20.0
+            else:
+                ref = 10.0
+            out[f"{g}{i}"] = (0.0, ref) if sign >= 0 else (-ref, 0.0)
+    return out
+
+
+@dataclasses.dataclass(frozen=True)
+class DesignChain:
+    """What the design chain gives for one plant (all exact where it can be)."""
+
+    plant: tito.TITOPlant
+    decoupler: tito.Decoupler | None
+    fopdt: tuple  # per loop: FOPDT or None (no phase crossover / fit impossible)
+    fopdt_error: tuple  # per loop: "" or why the fit failed
+    gpm: tuple  # per loop: PIController or None
+    gpm_margins: tuple  # per loop: tito.Margins on the exact loop, or None
+
+    def element(self, i: int):
+        """Frequency response callable of loop element ``q_ii`` (1-based)."""
+        if self.decoupler is None:
+            return self.plant.element(i, i).freqresp
+        return self.decoupler.z11 if i == 1 else self.decoupler.z22
+
+
+def _fopdt_fit(chain_element, label: str):
+    try:
+        return tito.fit_fopdt(chain_element), ""
+    except ConfigError as exc:
+        return None, f"{label}: {exc}"
+
+
+class TITOProblem:
+    """Tuning problem of one TITO case; see the module docstring.
+
+    Attributes
+    ----------
+    names, lower, upper, constraint_names, scenarios, tuning_scenario, objective
+        As for :class:`heurtune.problem.Problem`.
+    chain : DesignChain
+        Decoupler, FOPDT fits and GPM baseline of the case.
+    """
+
+    def __init__(self, case: str, kind: str, chain: DesignChain, bounds: dict, *, objective: str,
+                 constraints: dict, scenarios: dict, tuning_scenario: str, N: float, windows: dict,
+                 settling_band: float, nonlinear: two_tank.TwoTankParams | None, robustness: dict):
+        self.case = case
+        self.kind = kind
+        self.chain = chain
+        self.names = _gain_names(kind)
+        self.lower = np.array([bounds[n][0] for n in self.names], dtype=np.float64)
+        self.upper = np.array([bounds[n][1] for n in self.names], dtype=np.float64)
+        self.objective = objective
+        self.constraints = dict(constraints)
+        self.scenarios = dict(scenarios)
+        self.tuning_scenario = tuning_scenario
+        self.N = float(N)
+        self.windows = dict(windows)
+        self.settling_band = float(settling_band)
+        self.nonlinear = nonlinear
+        self.robustness_options = dict(robustness)
+        self.constraint_names = tuple(f"{k}{i}" for k in self.constraints for i in (1, 2))
+        self.metric_names = tuple(f"{m}{i}" for m in LOOP_METRICS for i in (1, 2)) + tuple(
+            f"{m}_{w}{i}" for w in self.windows for m in ("IAE", "ISE", "ITAE") for i in (1, 2))
+        self._midx = {n: k for k, n in enumerate(self.metric_names)}
+        self._grids = [self._design_grid(i) for i in (1, 2)]
+        self._simulators = {}
+
+    def _design_grid(self, i: int, n_max: int = 48000):
+        """Frequency grid of loop ``i``: from well below the slowest plant time scale up to where
+        the element times the largest controller gain in the box falls below 1/8; refined
+        (doubling the points) until the Nyquist count of probe controllers (the box's corners
+        and the GPM design) is resolved."""
+        per = 2 if self.kind == "pi" else 3
+        el = self.chain.element(i)
+        lo, hi = self.lower[(i - 1) * per:i * per], self.upper[(i - 1) * per:i * per]
+        kp_hi = max(abs(hi[0]), abs(lo[0]), 1e-6)
+        c_max = kp_hi * (1.0 + (self.N if self.kind == "pid" else 0.0))
+        w_min = 1e-3 / max(1.0, _slowest(self.chain.plant))
+        probes = [hi, lo, 0.5 * (lo + hi)]
+        gpm = self.chain.gpm[i - 1]
+        if gpm is not None:
+            probes.append(np.array(gpm.parallel()[:per]))
+        probes = np.array(probes)
+        Kd = probes[:, 2] if per == 3 else np.zeros(len(probes))
+        n = 3000
+        w_max = None
+        try:
+            tito_design.design_grid(el, w_min, None, 100, mag_floor=1.0 / (8.0 * c_max))
+        except ConfigError:
+            # A loop element that does not roll off (a lead, a biproper ratio): stop well
+            # above the Nyquist frequency of the sampled controllers.
+            w_max = 20.0 * math.pi / self.scenario(self.tuning_scenario).dt
+        while True:
+            w = tito_design.design_grid(el, w_min, w_max, n, mag_floor=1.0 / (8.0 * c_max))
+            Pw = np.asarray(el(w), dtype=np.complex128)
+            Cw = tito_design.pid_freqresp(probes[:, 0], probes[:, 1], Kd, self.N, w)
+            m = tito_design.loop_metrics_batch(Pw, w, Cw, Ki=probes[:, 1])
+            if np.all(m.resolved) or 2 * n > n_max:
+                return w, Pw
+            n *= 2
+
+    # -- interface shared with heurtune.problem.Problem --------------------------------------
+    @property
+    def dim(self) -> int:
+        return len(self.names)
+
+    def __repr__(self):
+        return (f"TITOProblem(case={self.case!r}, controller={self.kind!r}, dim={self.dim}, "
+                f"objective={self.objective!r}, constraints={self.constraints})")
+
+    def values(self, x) -> dict:
+        """Map a decision vector (or a dict) to ``{name: value}``, checking names and length."""
+        if isinstance(x, dict):
+            unknown = [k for k in x if k not in self.names]
+            if unknown:
+                raise ConfigError(f"unknown variable {unknown[0]!r}; allowed: {', '.join(self.names)}")
+            missing = [k for k in self.names if k not in x]
+            if missing:
+                raise ConfigError(f"missing variable(s) {', '.join(missing)}; required: {', '.join(self.names)}")
+            return {k: float(x[k]) for k in self.names}
+        x = np.asarray(x, dtype=np.float64).ravel()
+        if x.shape != (self.dim,):
+            raise ConfigError(f"decision vector must have {self.dim} values ({', '.join(self.names)}), got {x.size}")
+        return dict(zip(self.names, x.tolist()))
+
+    def parse(self, text: str) -> np.ndarray:
+        """Parse ``"Kp1=..,Ki1=..,..."`` into a vector (unknown, missing, out-of-bounds: ConfigError)."""
+        values = {}
+        for item in filter(None, (s.strip() for s in text.split(","))):
+            key, sep, val = item.partition("=")
+            if not sep:
+                raise ConfigError(f"expected NAME=VALUE, got {item!r}")
+            try:
+                values[key.strip()] = float(val)
+            except ValueError:
+                raise ConfigError(f"{key.strip()}: {val.strip()!r} is not a number") from None
+        vals = self.values(values)
+        for i, name in enumerate(self.names):
+            if not (self.lower[i] <= vals[name] <= self.upper[i]):
+                raise ConfigError(f"{name}={vals[name]:g} is outside its bounds [{self.lower[i]:g}, {self.upper[i]:g}]")
+        return np.array([vals[n] for n in self.names])
+
+    def scenario(self, scenario) -> TITOScenario:
+        """A TITOScenario from its name in ``self.scenarios`` (or a TITOScenario, returned as is)."""
+        if isinstance(scenario, TITOScenario):
+            return scenario
+        try:
+            return self.scenarios[scenario]
+        except KeyError:
+            raise ConfigError(f"unknown scenario {scenario!r}; allowed: {', '.join(self.scenarios)}") from None
+
+    def controllers(self, x) -> tuple:
+        """The pair of :class:`~heurtune.objectives.tito.ParallelPID` of a decision vector."""
+        x = np.asarray([self.values(x)[n] for n in self.names]) if isinstance(x, dict) else np.asarray(x, float)
+        per = 2 if self.kind == "pi" else 3
+        out = []
+        for i in range(2):
+            g = x[i * per:(i + 1) * per]
+            out.append(tito_design.parallel_controller(g[0], g[1], g[2] if per == 3 else 0.0, self.N))
+        return tuple(out)
+
+    # -- evaluation -------------------------------------------------------------------------
+    def _frequency(self, X: np.ndarray):
+        """Per loop (f, g, stable, LoopMetrics) of the bandwidth design for the batch ``X``."""
+        per = 2 if self.kind == "pi" else 3
+        c = self.constraints
+        out = []
+        for i, (w, Pw) in enumerate(self._grids):
+            Xi = X[:, i * per:(i + 1) * per]
+            out.append(tito_design.bandwidth_design_eval(
+                Pw, w, Xi, self.kind, self.N, c.get("Am", 1.0 + 1e-9), c.get("phim", 1e-9), c.get("Mt", 1e9),
+                return_metrics=True))
+        return out
+
+    def _simulator(self, sc: TITOScenario):
+        if sc not in self._simulators:
+            if self.nonlinear is None:
+                self._simulators[sc] = TITOSimulator(self.chain.plant, self.chain.decoupler, sc)
+            else:
+                self._simulators[sc] = None  # simulate_two_tank per call
+        return self._simulators[sc]
+
+    def _run(self, controllers, sc: TITOScenario):
+        """``(status, t, r, y, u)`` of one simulation."""
+        sim = self._simulator(sc)
+        if sim is not None:
+            status, y, _, u, _ = sim.arrays(controllers)
+            return status, sim.t, sim.r, y, u
+        df = two_tank.simulate_two_tank(self.nonlinear, controllers, self.chain.decoupler, sc)
+        return (df.attrs["status"], df["t"].to_numpy(), df[["r1", "r2"]].to_numpy(),
+                df[["y1", "y2"]].to_numpy(), df[["u1", "u2"]].to_numpy())
+
+    def _time_metrics(self, t, r, y, u, row: np.ndarray):
+        e = r - y
+        band = self.settling_band / 100.0
+        dt = t[1] - t[0] if t.size > 1 else 1.0
+        for i in range(2):
+            ei = e[:, i]
+            ae = np.abs(ei)
+            scale = float(np.max(np.abs(r[:, i])))
+            out = np.flatnonzero(ae > band * (scale if scale > 0 else 1.0))
+            ts = 0.0 if out.size == 0 else (math.inf if out[-1] == t.size - 1 else float(t[out[-1] + 1]))
+            vals = dict(IAE=_trapz(ae, dt), ISE=_trapz(ei * ei, dt), ITAE=_trapz(t * ae, dt), ts=ts,
+                        max_u=float(np.max(np.abs(u[:, i]))), rms_e=float(np.sqrt(np.mean(ei * ei))),
+                        tv_u=float(np.sum(np.abs(np.diff(u[:, i])))))
+            for key, v in vals.items():
+                row[self._midx[f"{key}{i + 1}"]] = v
+            for wname, (t0, t1) in self.windows.items():
+                sel = (t >= t0 - 1e-9) & (t <= t1 + 1e-9)
+                tw, ew = t[sel], ei[sel]
+                if tw.size >= 2:
+                    aw = np.abs(ew)
+                    row[self._midx[f"IAE_{wname}{i + 1}"]] = _trapz(aw, dt)
+                    row[self._midx[f"ISE_{wname}{i + 1}"]] = _trapz(ew * ew, dt)
+                    row[self._midx[f"ITAE_{wname}{i + 1}"]] = _trapz((tw - tw[0]) * aw, dt)
+
+    def evaluate(self, X, scenario=None, *, with_time: bool | None = None) -> Evaluation:
+        """Evaluate a batch of candidates (never raises for a bad candidate).
+
+        Parameters
+        ----------
+        X : array_like, shape (n, d) or (d,)
+        scenario : str or TITOScenario, optional
+            Defaults to the tuning scenario (time-domain objectives and metrics).
+        with_time : bool, optional
+            Simulate also for the ``bandwidth`` objective (default: only when the objective
+            needs it).
+
+        Returns
+        -------
+        heurtune.problem.Evaluation
+            ``reason``: "" when evaluated, else ``invalid_parameter``, ``unstable``,
+            ``diverged`` or ``non_finite``.
+        """
+        X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+        if X.ndim != 2 or X.shape[1] != self.dim:
+            raise ConfigError(f"X must have shape (n, {self.dim}), got {X.shape}")
+        sc = self.scenario(self.tuning_scenario if scenario is None else scenario)
+        n = X.shape[0]
+        m = len(self.constraint_names)
+        metrics = np.full((n, len(self.metric_names)), np.nan)
+        f = np.full(n, FAILED_OBJECTIVE)
+        g = np.full((n, m), FAILED_VIOLATION)
+        reason = np.full(n, "", dtype=object)
+        finite = np.isfinite(X).all(axis=1)
+        reason[~finite] = "invalid_parameter"
+        freq = self._frequency(np.where(finite[:, None], X, 0.0))
+        stable = finite.copy()
+        for i, (_, _, st, lm) in enumerate(freq):
+            stable &= st
+            for key, arr in (("Am", lm.gain_margin), ("phim", lm.phase_margin_deg), ("w_b", lm.w_b),
+                             ("Mt", lm.Mt), ("Ms", lm.Ms)):
+                metrics[:, self._midx[f"{key}{i + 1}"]] = arr
+        if self.chain.decoupler is None:
+            # the loops interact: generalised Nyquist on det(I + G C) for the loop-stable ones
+            w = self._grids[0][0]
+            for k in np.flatnonzero(stable):
+                try:
+                    stable[k] = tito_design.tito_closed_loop_stable(self.chain.plant, None, self.controllers(X[k]), w)
+                except ConfigError:
+                    stable[k] = False
+        reason[finite & ~stable] = "unstable"
+        time_needed = self.objective != "bandwidth" if with_time is None else with_time or self.objective != "bandwidth"
+        for k in range(n):
+            if reason[k]:
+                continue
+            if time_needed:
+                try:
+                    status, t, r, y, u = self._run(self.controllers(X[k]), sc)
+                except ConfigError:
+                    reason[k] = "invalid_parameter"
+                    continue
+                if status != "ok":
+                    reason[k] = "diverged"
+                    continue
+                self._time_metrics(t, r, y, u, metrics[k])
+            if self.objective == "bandwidth":
+                f[k] = freq[0][0][k] + freq[1][0][k]
+            else:
+                key = self.objective.upper()
+                f[k] = metrics[k, self._midx[f"{key}1"]] + metrics[k, self._midx[f"{key}2"]]
+            g[k] = self._constraint_values(metrics[k])
+            if not (np.isfinite(f[k]) and np.all(np.isfinite(g[k]))):
+                reason[k] = "non_finite"
+                f[k], g[k] = FAILED_OBJECTIVE, FAILED_VIOLATION
+        # Unstable candidates: graded by how far their margins are from the specification
+        # (the design evaluator's violations), so that the search finds its way back.
+        for k in np.flatnonzero(reason == "unstable"):
+            excess = max(float(np.max(freq[0][1][k])), float(np.max(freq[1][1][k]))) - tito_design.UNSTABLE_VIOLATION
+            g[k] = FAILED_VIOLATION * (1.0 + min(max(excess, 0.0), 1e3) / 1e3)
+        bad = reason != ""
+        metrics[bad & (reason != "unstable")] = np.nan
+        feasible = ~bad & np.all(g <= 0.0, axis=1)
+        return Evaluation(f, g, feasible, metrics, self.metric_names, self.constraint_names, reason)
+
+    def _constraint_values(self, row: np.ndarray) -> np.ndarray:
+        out = []
+        for key, lim in self.constraints.items():
+            for i in (1, 2):
+                v = row[self._midx[f"{key}{i}"]]
+                if key in ("Am", "phim"):  # lower bounds
+                    out.append(1.0 - v / lim if np.isfinite(v) else -1.0)
+                else:  # upper bounds
+                    out.append(v / lim - 1.0)
+        return np.clip(np.array(out, dtype=np.float64), -1e6, 1e6)
+
+    def __call__(self, X):
+        """``(f, g)`` of a batch, the form :func:`heurtune.minimize` and the evaluators take."""
+        ev = self.evaluate(X)
+        return ev.f, ev.g
+
+    def warm_up(self):
+        """Compile (or load) the jitted TITO kernel on a tiny scenario."""
+        sc = TITOScenario(horizon=2 * 0.1, dt=0.1)
+        TITOSimulator(tito.preset("wood_berry"), None, sc).arrays(
+            (tito.ParallelPID(0.1, 0.01), tito.ParallelPID(-0.05, -0.005)))
+
+    def simulate(self, x, scenario="nominal") -> pd.DataFrame:
+        """Trajectories of one candidate: columns t, r1, r2, y1, y2, u1, u2."""
+        sc = self.scenario(scenario)
+        status, t, r, y, u = self._run(self.controllers(np.array([self.values(x)[n] for n in self.names])), sc)
+        df = pd.DataFrame({"t": t, "r1": r[:, 0], "r2": r[:, 1], "y1": y[:, 0], "y2": y[:, 1],
+                           "u1": u[:, 0], "u2": u[:, 1]})
+        df.attrs["status"] = status
+        return df
+
+    def report(self, x, scenarios=None) -> pd.DataFrame:
+        """Metrics of one candidate per scenario (rows) with its objective and feasibility."""
+        x = np.array([self.values(x)[n] for n in self.names])
+        rows = []
+        for name in (scenarios or list(self.scenarios)):
+            ev = self.evaluate(x[None, :], name, with_time=True)
+            row = {"scenario": name, "f": ev.f[0], "feasible": bool(ev.feasible[0]), "reason": ev.reason[0]}
+            row.update(zip(self.metric_names, ev.metrics[0]))
+            rows.append(row)
+        return pd.DataFrame(rows).set_index("scenario")
+
+    # -- what the runner writes besides the runs ----------------------------------------------
+    def baseline(self, name: str) -> np.ndarray:
+        """Decision vector of an analytic design (``"gpm"``: GPM PI on the FOPDT fits, Kd = 0)."""
+        if name != "gpm":
+            raise ConfigError(f"unknown baseline {name!r}; allowed: gpm")
+        if any(c is None for c in self.chain.gpm):
+            why = "; ".join(e for e in self.chain.fopdt_error if e) or "no FOPDT fit"
+            raise ConfigError(f"case {self.case!r}: no GPM design ({why})")
+        per = 2 if self.kind == "pi" else 3
+        x = np.zeros(self.dim)
+        for i, c in enumerate(self.chain.gpm):
+            kp, ki, _ = c.parallel()
+            x[i * per], x[i * per + 1] = kp, ki
+        return x
+
+    def identity(self) -> dict:
+        """Everything that defines the tuning problem (hashed into the runner's problem_id)."""
+        p = self.chain.plant
+        return dict(
+            plant={k: dataclasses.asdict(getattr(p, k)) for k in ("g11", "g12", "g21", "g22")},
+            nonlinear=dataclasses.asdict(self.nonlinear) if self.nonlinear is not None else None,
+            decoupler=None if self.chain.decoupler is None else dict(
+                case=self.chain.decoupler.case, delays=list(self.chain.decoupler.column_delays)),
+            controller=self.kind, N=self.N, objective=self.objective, constraints=self.constraints,
+            scenario=dataclasses.asdict(self.scenario(self.tuning_scenario)), windows=self.windows,
+            bounds=dict(zip(self.names, zip(self.lower.tolist(), self.upper.tolist()))),
+        )
+
+    def design_table(self) -> pd.DataFrame:
+        """Per loop: the FOPDT fit, the GPM design and its exact margins next to the specified."""
+        rows = []
+        for i in (1, 2):
+            fo, gp, mg = self.chain.fopdt[i - 1], self.chain.gpm[i - 1], self.chain.gpm_margins[i - 1]
+            rows.append(dict(
+                loop=i, fopdt_K=fo.K if fo else np.nan, fopdt_T=fo.T if fo else np.nan,
+                fopdt_L=fo.L if fo else np.nan, fit_error=self.chain.fopdt_error[i - 1],
+                gpm_Kc=gp.Kc if gp else np.nan, gpm_Ti=gp.Ti if gp else np.nan,
+                Am_spec=self._gpm_spec["Am"], phim_spec=self._gpm_spec["phim"],
+                Am_exact=mg.gain_margin if mg else np.nan, phim_exact=mg.phase_margin_deg if mg else np.nan,
+            ))
+        return pd.DataFrame(rows)
+
+    def margins(self, x) -> pd.DataFrame:
+        """Exact loop margins of a design, one row per loop (brentq-refined)."""
+        rows = []
+        for i, c in enumerate(self.controllers(np.asarray(x, float)), start=1):
+            m = tito.exact_margins(self.chain.element(i), c.freqresp)
+            rows.append(dict(loop=i, gain_margin=m.gain_margin, phase_margin_deg=m.phase_margin_deg,
+                             w_pc=m.w_pc, w_gc=m.w_gc))
+        return pd.DataFrame(rows)
+
+    def robustness(self, x) -> tuple[dict, object]:
+        """Spectral-radius and Kharitonov verdicts of a design.
+
+        Returns
+        -------
+        summary : dict
+            ``rho_input_peak``, ``rho_output_peak`` (uncertainty weight ``robustness.uncertainty``),
+            their verdicts, and per loop the Kharitonov verdict of the loop's characteristic
+            polynomial over the box ``K, T, L`` of its FOPDT fit varied by +-``robustness.variation``
+            (delay by a Pade approximant of ``robustness.pade_order``), with the Hurwitz determinants.
+        spectral : SpectralRadiusResult
+            For the plot.
+        """
+        opts = {**DEFAULT_ROBUSTNESS, **self.robustness_options}
+        ctrls = self.controllers(np.asarray(x, float))
+        lo, hi = opts.get("w", (1e-5 / max(1.0, _slowest(self.chain.plant)) * 10, 10.0))
+        w = np.geomspace(lo, hi, 2000)
+        Gw = self.chain.plant.freqresp(w)
+        Cw = np.zeros((w.size, 2, 2), dtype=np.complex128)
+        Cw[:, 0, 0] = ctrls[0].freqresp(w)
+        Cw[:, 1, 1] = ctrls[1].freqresp(w)
+        Kw = Cw if self.chain.decoupler is None else self.chain.decoupler.freqresp(w) @ Cw
+        sr = spectral_radius_test(Gw, Kw, w, opts["uncertainty"])
+        out = dict(uncertainty=opts["uncertainty"], rho_input_peak=sr.rho_input_peak,
+                   rho_input_peak_w=sr.rho_input_peak_w, rho_output_peak=sr.rho_output_peak,
+                   rho_output_peak_w=sr.rho_output_peak_w, spectral_radius_pass=bool(sr.robustly_stable))
+        var, order = opts["variation"], int(opts["pade_order"])
+        for i, (fo, c) in enumerate(zip(self.chain.fopdt, ctrls), start=1):
+            if fo is None:
+                out[f"kharitonov_pass{i}"] = None
+                continue
+            num_c, den_c = (np.trim_zeros(np.asarray(p, float), "f") for p in c.rational())
+
+            def poly(p, num_c=num_c, den_c=den_c):
+                pn, pd_ = pade(p["L"], order)
+                plant_num = p["K"] * np.asarray(pn)
+                plant_den = np.polymul([p["T"], 1.0], pd_)
+                return np.polyadd(np.polymul(den_c, plant_den), np.polymul(num_c, plant_num))
+
+            box = {k: (v * (1 - var), v * (1 + var)) for k, v in (("K", fo.K), ("T", fo.T), ("L", fo.L))}
+            try:
+                lower, upper = interval_characteristic_polynomial(poly, box)
+                kt = kharitonov_test(lower, upper)
+                out[f"kharitonov_pass{i}"] = bool(kt.robustly_stable)
+                out[f"hurwitz_min_det{i}"] = float(min(np.min(d) for d in kt.determinants))
+            except ConfigError as exc:
+                out[f"kharitonov_pass{i}"] = None
+                out[f"kharitonov_error{i}"] = str(exc)
+        out.update(variation=var, pade_order=order)
+        return out, sr
+
+
+def _trapz(v: np.ndarray, dt: float) -> float:
+    return float(dt * (np.sum(v) - 0.5 * (v[0] + v[-1]))) if v.size > 1 else 0.0
+
+
+def _slowest(plant: tito.TITOPlant) -> float:
+    """Largest time constant or dead time of the plant (s)."""
+    vals = [1.0]
+    for i in (1, 2):
+        for j in (1, 2):
+            e = plant.element(i, j)
+            vals += [abs(t) for t in e.lags] + [abs(t) for t in e.leads] + [e.L]
+    return max(vals)
+
+
+class TITOExperiment:
+    """A named TITO experiment config (``[plant] model = "tito"`` or ``"two_tank_nonlinear"``).
+
+    Use :func:`heurtune.problem.load_experiment`, which picks this class from the config.
+    """
+
+    def __init__(self, config: dict):
+        self.config = config
+        self.name = config["name"]
+        plant = config.get("plant", {})
+        self.model = plant.get("model", "tito")
+        cases = tuple(plant.get("cases", []))
+        if not cases:
+            raise ConfigError(f"{self.name}: plant.cases must name at least one plant "
+                              f"(presets: {', '.join(tito.PRESETS)}, or plant.custom.<name>)")
+        self._custom = plant.get("custom", {})
+        ctrl = config.get("controller", {})
+        kinds = ctrl.get("type", "pi")
+        self.controllers = tuple(kinds) if isinstance(kinds, list) else (kinds,)
+        self.controller = self.controllers[0]
+        self._variants = {}
+        for kind in self.controllers:
+            for pc in cases:
+                self._variants[pc if len(self.controllers) == 1 else f"{pc}-{kind}"] = (pc, kind)
+        self.cases = tuple(self._variants)
+        self.N = float(ctrl.get("N", 100.0))
+        if not self.N > 0:
+            raise ConfigError(f"{self.name}: controller.N must be > 0, got {self.N}")
+        self.baselines = tuple(ctrl.get("baselines", []))
+        self.gpm = {**DEFAULT_GPM, **ctrl.get("gpm", {})}
+        dec = config.get("decoupler", {})
+        self.decoupler_type = dec.get("type", "inverted")
+        self.decoupler_case = dec.get("case", 1)
+        if self.decoupler_case not in (1, 2):
+            raise ConfigError(f"{self.name}: decoupler.case must be 1 or 2, got {self.decoupler_case}")
+        self.delay_compensation = dec.get("delay_compensation", False)
+        self.scenarios = self._scenarios(config.get("scenario", {}))
+        prob = config.get("problem", {})
+        self.objective = prob.get("objective", "iae")
+        default_c = DEFAULT_BANDWIDTH_CONSTRAINTS if self.objective == "bandwidth" else {}
+        self.constraints = dict(prob.get("constraints", default_c))
+        for key, lim in self.constraints.items():
+            if not lim > 0:
+                raise ConfigError(f"{self.name}: problem.constraints.{key} must be positive, got {lim}")
+        if self.objective == "bandwidth":
+            for key in ("Am", "phim", "Mt"):
+                self.constraints.setdefault(key, DEFAULT_BANDWIDTH_CONSTRAINTS[key])
+        if not self.constraints:
+            # A tuning problem needs one constraint: the sensitivity peak, loose by default.
+            self.constraints = {"Ms": 5.0}
+        self.tuning_scenario = prob.get("tuning_scenario", "nominal")
+        if self.tuning_scenario not in self.scenarios:
+            raise ConfigError(f"{self.name}: problem.tuning_scenario {self.tuning_scenario!r}; "
+                              f"allowed: {', '.join(self.scenarios)}")
+        self.settling_band = float(prob.get("settling_band", 2.0))
+        nominal = self.scenarios["nominal"]
+        t_in = nominal.input_disturbance[0]
+        default_windows = ({"servo": (0.0, t_in), "regulatory": (t_in, nominal.horizon)}
+                           if 0 < t_in < nominal.horizon else {})
+        self.windows = {k: tuple(v) for k, v in prob.get("windows", default_windows).items()}
+        self.bounds_config = prob.get("bounds", {})
+        self.robustness = dict(config.get("robustness", {}))
+        from heurtune import registry
+
+        for spec in config.get("plugins", []):
+            registry.load_plugin(spec)
+        self.optimisers = []
+        for i, opt in enumerate(config.get("optimisers", [])):
+            where = f"{self.name}: optimisers[{i}]"
+            try:
+                settings = registry.make_settings(opt["name"], opt.get("settings", {}))
+            except ConfigError as exc:
+                raise ConfigError(f"{where}: {exc}") from None
+            self.optimisers.append(dict(opt, settings=settings))
+        if not self.optimisers and not self.baselines:
+            raise ConfigError(f"{self.name}: give [[optimisers]] or controller.baselines (e.g. [\"gpm\"])")
+        self._chains = {}
+        for case in cases:
+            self._chain(case)  # validate plants and decouplers early
+
+    def __repr__(self):
+        return f"TITOExperiment({self.name!r}, cases={self.cases}, controllers={self.controllers})"
+
+    def _scenarios(self, sc: dict) -> dict:
+        kw = {}
+        for key in ("horizon", "dt", "noise_power", "noise_seed"):
+            if key in sc:
+                kw[key] = sc[key]
+        if "setpoints" in sc:
+            if len(sc["setpoints"]) != 2:
+                raise ConfigError(f"{self.name}: scenario.setpoints must hold two lists (one per loop)")
+            kw["setpoints"] = tuple(tuple(tuple(p) for p in loop) for loop in sc["setpoints"])
+        for key in ("input_disturbance", "output_disturbance"):
+            if key in sc:
+                d = sc[key]
+                kw[key] = (d.get("time", 0.0), tuple(d.get("size", (0.0, 0.0))))
+        if "vary" in sc:
+            kw["vary"] = tuple(sc["vary"])
+        variation = dict(sc.get("variation", DEFAULT_VARIATION))
+        if "nominal" not in variation:
+            variation = {"nominal": 0.0, **variation}
+        try:
+            return {k: TITOScenario(**kw, variation=float(v)) for k, v in variation.items()}
+        except ConfigError as exc:
+            raise ConfigError(f"{self.name}: {exc}") from None
+
+    def controller_of(self, case: str) -> str:
+        """The controller type (``pi`` / ``pid``) of a case."""
+        return self._variant(case)[1]
+
+    def _variant(self, case: str):
+        try:
+            return self._variants[case]
+        except KeyError:
+            raise ConfigError(f"unknown case {case!r} for {self.name}; allowed: {', '.join(self.cases)}") from None
+
+    def _plant(self, case: str):
+        """``(TITOPlant, TwoTankParams or None)`` of a plant case."""
+        where = f"{self.name}: plant.custom.{case}"
+        if self.model == "two_tank_nonlinear":
+            cfg = self._custom.get(case)
+            if cfg is None:
+                if case not in ("rig", "default"):
+                    raise ConfigError(f"{self.name}: plant.cases: {case!r} is not defined; use 'rig' (the "
+                                      f"calibrated default) or define plant.custom.{case}")
+                params = two_tank.TwoTankParams()
+            else:
+                try:
+                    params = two_tank.from_config(dict(cfg, name=cfg.get("name", case)))
+                except ConfigError as exc:
+                    raise ConfigError(f"{where}: {exc}") from None
+            return two_tank.linear_tito_plant(params, name=case), params
+        if case in self._custom:
+            try:
+                return tito.TITOPlant.from_config(dict(self._custom[case], name=case)), None
+            except ConfigError as exc:
+                raise ConfigError(f"{where}: {exc}") from None
+        try:
+            return tito.preset(case), None
+        except ConfigError as exc:
+            raise ConfigError(f"{self.name}: plant.cases: {exc} (or define plant.custom.{case})") from None
+
+    def _chain(self, case: str) -> tuple:
+        if case in self._chains:
+            return self._chains[case]
+        plant, params = self._plant(case)
+        dec = None
+        if self.decoupler_type == "inverted":
+            try:
+                dec = tito.inverted_decoupler(plant, delay_compensation=self.delay_compensation,
+                                              case=self.decoupler_case)
+            except ConfigError as exc:
+                raise ConfigError(f"{self.name}: decoupler for {case!r}: {exc}") from None
+        els = [plant.element(1, 1).freqresp, plant.element(2, 2).freqresp] if dec is None else [dec.z11, dec.z22]
+        fits = [_fopdt_fit(el, f"loop {i}") for i, el in enumerate(els, start=1)]
+        gpm, gpm_m = [], []
+        for i, (fo, _) in enumerate(fits):
+            if fo is None:
+                gpm.append(None)
+                gpm_m.append(None)
+                continue
+            try:
+                Kc, Ti = tito.gpm_pi(fo, self.gpm["Am"], self.gpm["phim"])
+                c = tito.PIController(Kc, Ti)
+                gpm.append(c)
+                gpm_m.append(tito.exact_margins(els[i], c.freqresp))
+            except ConfigError as exc:
+                fits[i] = (fo, f"loop {i + 1}: GPM: {exc}")
+                gpm.append(None)
+                gpm_m.append(None)
+        chain = DesignChain(plant, dec, tuple(f[0] for f in fits), tuple(f[1] for f in fits), tuple(gpm), tuple(gpm_m))
+        self._chains[case] = (chain, params)
+        return self._chains[case]
+
+    def problem(self, case: str) -> TITOProblem:
+        """The tuning problem of one case."""
+        plant_case, kind = self._variant(case)
+        chain, params = self._chain(plant_case)
+        gpm_x = None
+        if all(c is not None for c in chain.gpm):
+            gpm_x = np.array([v for c in chain.gpm for v in c.parallel()[:2]])
+        signs = [float(np.real(chain.element(i)(np.array([1e-9]))[0])) for i in (1, 2)]
+        bounds = _default_bounds(kind, gpm_x, signs)
+        known = set(_gain_names("pid"))
+        for key, pair in self.bounds_config.items():
+            if key not in known:
+                raise ConfigError(f"{self.name}: problem.bounds: unknown variable {key!r}; "
+                                  f"allowed: {', '.join(_gain_names(kind))}")
+            lo, hi = pair
+            if not lo <= hi:
+                raise ConfigError(f"{self.name}: problem.bounds.{key}: lower {lo} > upper {hi}")
+            if key in bounds:
+                bounds[key] = (float(lo), float(hi))
+        prob = TITOProblem(case, kind, chain, bounds, objective=self.objective, constraints=self.constraints,
+                           scenarios=self.scenarios, tuning_scenario=self.tuning_scenario, N=self.N,
+                           windows=self.windows, settling_band=self.settling_band, nonlinear=params,
+                           robustness=self.robustness)
+        prob._gpm_spec = dict(self.gpm)
+        return prob
+
+
+def problem_hash(prob) -> str:
+    """A short hash of a problem's identity."""
+    text = json.dumps(prob.identity(), sort_keys=True, default=list)
+    return hashlib.sha256(text.encode()).hexdigest()[:12]
