@@ -7,7 +7,9 @@ Usage::
         [--scenario nominal --scenario +30%] [--out traj.parquet] [--plot resp.png]
 
 Prints one row per scenario: overshoot Mp (%), settling time ts (s) and steady-state error
-ess (%) per output, effort J per input and in total, and feasibility. Mistakes in the command
+ess (%) per output, effort J per input and in total, and feasibility. For a TITO experiment
+(e.g. ``ga_pi_ccts --case ccts --x "Kp1=..,Ki1=..,Kp2=..,Ki2=.."``): the objective, IAE, ISE,
+ITAE and settling time per loop, the loop margins and sensitivity peaks. Mistakes in the command
 (unknown experiment, case, scenario or variable, a missing variable, a value out of bounds) give
 a one-line error and exit code 2.
 """
@@ -24,6 +26,9 @@ from heurtune.objectives.controllers import ControllerDesignError
 from heurtune.problem import load_experiment
 
 TABLE_COLUMNS = ["Mp1", "Mp2", "ts1", "ts2", "ess1", "ess2", "J1", "J2", "J", "feasible", "reason"]
+# TITO experiments (heurtune.tito_problem): per loop integrals, settling time and margins.
+TITO_COLUMNS = ["f", "IAE1", "IAE2", "ISE1", "ISE2", "ITAE1", "ITAE2", "ts1", "ts2", "Am1", "Am2",
+                "phim1", "phim2", "Ms1", "Ms2", "feasible", "reason"]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -33,7 +38,7 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--x", required=True, help='decision variables as "NAME=VALUE,NAME=VALUE,..."')
     ap.add_argument("--scenario", action="append", default=None,
                     help="scenario to evaluate (repeatable; default: all of the experiment's)")
-    ap.add_argument("--out", help="write trajectories (scenario, t, h1..h4, y1, y2, u1, u2) to this parquet file")
+    ap.add_argument("--out", help="write trajectories (scenario, t, h1..h4 or r1, r2, y1, y2, u1, u2) to this parquet file")
     ap.add_argument("--plot", help="draw levels and pump voltages to this PNG file")
     return ap
 
@@ -49,28 +54,35 @@ def run(argv=None) -> int:
         for name in scenarios:
             prob.scenario(name)
         table = prob.report(x, scenarios)
+        tito = hasattr(prob, "chain")
         trajectories = None
         if args.out or args.plot:
             trajectories = pd.concat(
                 [prob.simulate(x, name).assign(scenario=name) for name in scenarios], ignore_index=True
             )
-            trajectories = trajectories[["scenario", "t", "h1", "h2", "h3", "h4", "y1", "y2", "u1", "u2"]]
+            cols = ["t", "r1", "r2", "y1", "y2", "u1", "u2"] if tito else ["t", "h1", "h2", "h3", "h4", "y1", "y2", "u1", "u2"]
+            trajectories = trajectories[["scenario"] + cols]
     except (ConfigError, ControllerDesignError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    print(f"{exp.name} / case {args.case} / {prob.loop.kind}")
-    with pd.option_context("display.width", 200, "display.max_columns", 20,
+    print(f"{exp.name} / case {args.case} / {prob.kind if tito else prob.loop.kind}")
+    with pd.option_context("display.width", 250, "display.max_columns", 24,
                            "display.float_format", "{:.4f}".format):
-        print(table[TABLE_COLUMNS].to_string())
+        print(table[TITO_COLUMNS if tito else TABLE_COLUMNS].to_string())
     if args.out:
         from heurtune.io import write_parquet
 
         write_parquet(trajectories, args.out)
         print(f"trajectories written to {args.out}")
     if args.plot:
-        from heurtune.plots import plot_responses
+        if tito:
+            from heurtune.tito_report import response_figure
 
-        plot_responses(trajectories, args.plot, title=f"{exp.name} / {args.case}")
+            response_figure(prob, x, args.plot, scenarios=scenarios, title=f"{exp.name} / {args.case}")
+        else:
+            from heurtune.plots import plot_responses
+
+            plot_responses(trajectories, args.plot, title=f"{exp.name} / {args.case}")
         print(f"figure written to {args.plot}")
     return 0
 

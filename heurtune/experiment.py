@@ -454,7 +454,7 @@ def _slug(text: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in text)
 
 
-def print_summary(runs: pd.DataFrame, exp: Experiment, stream=sys.stdout):
+def print_summary(runs: pd.DataFrame, exp, stream=sys.stdout):
     """Per case and optimiser: best, mean, SD, median, worst objective, feasible runs, mean
     convergence epoch, wall time and the best gains."""
     rows = []
