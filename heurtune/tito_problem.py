@@ -497,6 +497,7 @@ class TITOProblem:
         for i, (fo, c) in enumerate(zip(self.chain.fopdt, ctrls), start=1):
             if fo is None:
                 out[f"kharitonov_pass{i}"] = None
+                out[f"kharitonov_error{i}"] = "no FOPDT fit of this loop"
                 continue
             num_c, den_c = (np.trim_zeros(np.asarray(p, float), "f") for p in c.rational())
 
@@ -506,7 +507,7 @@ class TITOProblem:
                 plant_den = np.polymul([p["T"], 1.0], pd_)
                 return np.polyadd(np.polymul(den_c, plant_den), np.polymul(num_c, plant_num))
 
-            box = {k: (v * (1 - var), v * (1 + var)) for k, v in (("K", fo.K), ("T", fo.T), ("L", fo.L))}
+            box = {k: tuple(sorted((v * (1 - var), v * (1 + var)))) for k, v in (("K", fo.K), ("T", fo.T), ("L", fo.L))}
             try:
                 lower, upper = interval_characteristic_polynomial(poly, box)
                 kt = kharitonov_test(lower, upper)

@@ -259,3 +259,13 @@ def test_shipped_tito_experiments_load(name):
         prob = exp.problem(case)
         assert prob.lower.shape == prob.upper.shape == (prob.dim,)
         assert np.all(prob.lower <= prob.upper)
+
+
+def test_robustness_with_negative_gains_and_a_loop_without_fit():
+    """QTS: both decoupled loops have negative static gains; loop 1 has no FOPDT fit."""
+    prob = heurtune.load_experiment("optimal_pid_qts").problem("qts")
+    x = np.array([-0.33, -0.0077, -1.0, -0.4, -0.0075, -1.0])
+    summary, _ = prob.robustness(x)
+    assert summary["kharitonov_pass1"] is None and "no FOPDT fit" in summary["kharitonov_error1"]
+    assert isinstance(summary["kharitonov_pass2"], bool)
+    assert summary["spectral_radius_pass"]
