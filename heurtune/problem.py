@@ -22,7 +22,7 @@ from heurtune.objectives.controllers import (
 from heurtune.objectives.loop import METRIC_NAMES, ClosedLoop, Scenario
 from heurtune.objectives.qtp import QTPParams, preset
 
-__all__ = ["Experiment", "Problem", "Evaluation", "load_experiment", "make_experiment",
+__all__ = ["DecisionVectors", "Experiment", "Problem", "Evaluation", "load_experiment", "make_experiment",
            "FAILED_OBJECTIVE", "FAILED_VIOLATION"]
 
 # A candidate that cannot be simulated gets these (finite) values.
@@ -80,7 +80,53 @@ class Evaluation:
         return df
 
 
-class Problem:
+class DecisionVectors:
+    """Named decision vectors within bounds: what every tuning problem shares.
+
+    Subclasses set ``names`` (tuple of str), ``lower`` and ``upper`` ((d,) arrays).
+    """
+
+    @property
+    def dim(self) -> int:
+        return len(self.names)
+
+    def values(self, x) -> dict:
+        """Map a decision vector (or a dict) to ``{name: value}``, checking names and length."""
+        if isinstance(x, dict):
+            unknown = [k for k in x if k not in self.names]
+            if unknown:
+                raise ConfigError(f"unknown variable {unknown[0]!r}; allowed: {', '.join(self.names)}")
+            missing = [k for k in self.names if k not in x]
+            if missing:
+                raise ConfigError(f"missing variable(s) {', '.join(missing)}; required: {', '.join(self.names)}")
+            return {k: float(x[k]) for k in self.names}
+        x = np.asarray(x, dtype=np.float64).ravel()
+        if x.shape != (self.dim,):
+            raise ConfigError(f"decision vector must have {self.dim} values ({', '.join(self.names)}), got {x.size}")
+        return dict(zip(self.names, x.tolist()))
+
+    def parse(self, text: str) -> np.ndarray:
+        """Parse ``"NAME=VALUE,..."`` (e.g. ``"Q11=0.44,Q22=0.30,..."``) into a vector, rejecting unknown, missing and
+        out-of-bounds names with a one-line ConfigError."""
+        values = {}
+        for item in filter(None, (s.strip() for s in text.split(","))):
+            key, sep, val = item.partition("=")
+            key = key.strip()
+            if not sep:
+                raise ConfigError(f"expected NAME=VALUE, got {item!r}")
+            try:
+                values[key] = float(val)
+            except ValueError:
+                raise ConfigError(f"{key}: {val.strip()!r} is not a number") from None
+        vals = self.values(values)
+        for i, name in enumerate(self.names):
+            v = vals[name]
+            if not (self.lower[i] <= v <= self.upper[i]):
+                raise ConfigError(f"{name}={v:g} is outside its bounds [{self.lower[i]:g}, {self.upper[i]:g}]")
+        return np.array([vals[n] for n in self.names])
+
+
+class Problem(DecisionVectors):
     """Constrained tuning problem of one plant case.
 
     Minimise the objective (default: effort ``J = J1 + J2``, the integral of the squared
@@ -123,49 +169,9 @@ class Problem:
         self.constraint_names = tuple(names_g)
         self._constraint_limit = np.array(self._constraint_limit)
 
-    @property
-    def dim(self) -> int:
-        return len(self.names)
-
     def __repr__(self):
         return (f"Problem(case={self.case!r}, controller={self.loop.kind!r}, dim={self.dim}, "
                 f"objective={self.objective!r}, constraints={self.constraints})")
-
-    # -- decision vectors -------------------------------------------------------------
-    def values(self, x) -> dict:
-        """Map a decision vector (or a dict) to ``{name: value}``, checking names and length."""
-        if isinstance(x, dict):
-            unknown = [k for k in x if k not in self.names]
-            if unknown:
-                raise ConfigError(f"unknown variable {unknown[0]!r}; allowed: {', '.join(self.names)}")
-            missing = [k for k in self.names if k not in x]
-            if missing:
-                raise ConfigError(f"missing variable(s) {', '.join(missing)}; required: {', '.join(self.names)}")
-            return {k: float(x[k]) for k in self.names}
-        x = np.asarray(x, dtype=np.float64).ravel()
-        if x.shape != (self.dim,):
-            raise ConfigError(f"decision vector must have {self.dim} values ({', '.join(self.names)}), got {x.size}")
-        return dict(zip(self.names, x.tolist()))
-
-    def parse(self, text: str) -> np.ndarray:
-        """Parse ``"Q11=0.44,Q22=0.30,..."`` into a vector, rejecting unknown, missing and
-        out-of-bounds names with a one-line ConfigError."""
-        values = {}
-        for item in filter(None, (s.strip() for s in text.split(","))):
-            key, sep, val = item.partition("=")
-            key = key.strip()
-            if not sep:
-                raise ConfigError(f"expected NAME=VALUE, got {item!r}")
-            try:
-                values[key] = float(val)
-            except ValueError:
-                raise ConfigError(f"{key}: {val.strip()!r} is not a number") from None
-        vals = self.values(values)
-        for i, name in enumerate(self.names):
-            v = vals[name]
-            if not (self.lower[i] <= v <= self.upper[i]):
-                raise ConfigError(f"{name}={v:g} is outside its bounds [{self.lower[i]:g}, {self.upper[i]:g}]")
-        return np.array([vals[n] for n in self.names])
 
     def scenario(self, scenario) -> Scenario:
         """A Scenario from its name in ``self.scenarios`` (or a Scenario, returned as is)."""

@@ -46,7 +46,7 @@ from heurtune.objectives.robustness import (
     interval_characteristic_polynomial, kharitonov_test, pade, spectral_radius_test,
 )
 from heurtune.objectives.tito_sim import TITOScenario, TITOSimulator
-from heurtune.problem import FAILED_OBJECTIVE, FAILED_VIOLATION, Evaluation
+from heurtune.problem import FAILED_OBJECTIVE, FAILED_VIOLATION, DecisionVectors, Evaluation
 
 __all__ = ["TITOExperiment", "TITOProblem", "TITO_MODELS"]
 
@@ -110,7 +110,7 @@ def _fopdt_fit(chain_element, label: str):
         return None, f"{label}: {exc}"
 
 
-class TITOProblem:
+class TITOProblem(DecisionVectors):
     """Tuning problem of one TITO case; see the module docstring.
 
     Attributes
@@ -181,45 +181,9 @@ class TITOProblem:
             n *= 2
 
     # -- interface shared with heurtune.problem.Problem --------------------------------------
-    @property
-    def dim(self) -> int:
-        return len(self.names)
-
     def __repr__(self):
         return (f"TITOProblem(case={self.case!r}, controller={self.kind!r}, dim={self.dim}, "
                 f"objective={self.objective!r}, constraints={self.constraints})")
-
-    def values(self, x) -> dict:
-        """Map a decision vector (or a dict) to ``{name: value}``, checking names and length."""
-        if isinstance(x, dict):
-            unknown = [k for k in x if k not in self.names]
-            if unknown:
-                raise ConfigError(f"unknown variable {unknown[0]!r}; allowed: {', '.join(self.names)}")
-            missing = [k for k in self.names if k not in x]
-            if missing:
-                raise ConfigError(f"missing variable(s) {', '.join(missing)}; required: {', '.join(self.names)}")
-            return {k: float(x[k]) for k in self.names}
-        x = np.asarray(x, dtype=np.float64).ravel()
-        if x.shape != (self.dim,):
-            raise ConfigError(f"decision vector must have {self.dim} values ({', '.join(self.names)}), got {x.size}")
-        return dict(zip(self.names, x.tolist()))
-
-    def parse(self, text: str) -> np.ndarray:
-        """Parse ``"Kp1=..,Ki1=..,..."`` into a vector (unknown, missing, out-of-bounds: ConfigError)."""
-        values = {}
-        for item in filter(None, (s.strip() for s in text.split(","))):
-            key, sep, val = item.partition("=")
-            if not sep:
-                raise ConfigError(f"expected NAME=VALUE, got {item!r}")
-            try:
-                values[key.strip()] = float(val)
-            except ValueError:
-                raise ConfigError(f"{key.strip()}: {val.strip()!r} is not a number") from None
-        vals = self.values(values)
-        for i, name in enumerate(self.names):
-            if not (self.lower[i] <= vals[name] <= self.upper[i]):
-                raise ConfigError(f"{name}={vals[name]:g} is outside its bounds [{self.lower[i]:g}, {self.upper[i]:g}]")
-        return np.array([vals[n] for n in self.names])
 
     def scenario(self, scenario) -> TITOScenario:
         """A TITOScenario from its name in ``self.scenarios`` (or a TITOScenario, returned as is)."""

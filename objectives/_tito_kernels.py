@@ -27,7 +27,7 @@ SIGNAL_LIMIT = 1.0e12
 
 
 @njit(cache=True, inline="always")
-def _block_out(b, w, A, B, C, D, ns, x):
+def _block_out(b, w, C, D, ns, x):
     """Output ``C x + D w`` of block ``b`` for its (already delayed) input ``w``."""
     s = D[b] * w
     for p in range(ns[b]):
@@ -79,7 +79,7 @@ def simulate_tito(A, B, C, D, ns, nd, r, d_in, d_out, noise, x, buf, xt,
         yp1 = 0.0
         for b in range(PLANT0, PLANT0 + 4):
             w = buf[b, (k + 1) % (nd[b] + 1)]
-            o = _block_out(b, w, A, B, C, D, ns, x)
+            o = _block_out(b, w, C, D, ns, x)
             if b < PLANT0 + 2:
                 yp0 += o
             else:
@@ -97,7 +97,7 @@ def simulate_tito(A, B, C, D, ns, nd, r, d_in, d_out, noise, x, buf, xt,
             b = CTRL0 + i
             L = nd[b] + 1
             buf[b, k % L] = e0 if i == 0 else e1
-            o = _block_out(b, buf[b, (k + 1) % L], A, B, C, D, ns, x)
+            o = _block_out(b, buf[b, (k + 1) % L], C, D, ns, x)
             if i == 0:
                 v0 = o
             else:
@@ -109,7 +109,7 @@ def simulate_tito(A, B, C, D, ns, nd, r, d_in, d_out, noise, x, buf, xt,
             b = DEC0 + q
             L = nd[b] + 1
             buf[b, k % L] = v0 if q % 2 == 0 else v1
-            o = _block_out(b, buf[b, (k + 1) % L], A, B, C, D, ns, x)
+            o = _block_out(b, buf[b, (k + 1) % L], C, D, ns, x)
             if q < 2:
                 u0 += o
             else:

@@ -23,6 +23,8 @@ import math
 import numpy as np
 from numba import njit
 
+from heurtune.objectives._tito_kernels import _block_out, _block_update  # shared block realisation
+
 N_BLOCKS = 6
 CTRL0 = 0
 DEC0 = 2
@@ -72,28 +74,6 @@ def _rk4(h1, h2, f1, f2, c1, c2, c12, dt):
     sixth = dt / 6.0
     return (h1 + sixth * (a1 + 2.0 * b1 + 2.0 * e1 + g1),
             h2 + sixth * (a2 + 2.0 * b2 + 2.0 * e2 + g2))
-
-
-@njit(cache=True, inline="always")
-def _block_out(b, w, C, D, ns, x):
-    """Output ``C x + D w`` of block ``b`` for its (already delayed) input ``w``."""
-    s = D[b] * w
-    for p in range(ns[b]):
-        s += C[b, p] * x[b, p]
-    return s
-
-
-@njit(cache=True, inline="always")
-def _block_update(b, w, A, B, ns, x, xt):
-    """``x <- A x + B w`` for block ``b`` (``xt`` is scratch of length >= ns[b])."""
-    m = ns[b]
-    for p in range(m):
-        s = B[b, p] * w
-        for q in range(m):
-            s += A[b, p, q] * x[b, q]
-        xt[p] = s
-    for p in range(m):
-        x[b, p] = xt[p]
 
 
 @njit(cache=True)
