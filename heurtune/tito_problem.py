@@ -25,9 +25,10 @@ Objectives (``[problem] objective``):
     phase margin >= ``phim`` (degrees) and ``max |T| <= Mt`` on every loop (the "optimal"
     PI/PID of papers 000 and 002), computed exactly in frequency (delays as ``e^(-j w L)``).
 
-Every candidate's closed loop is checked for stability first (Nyquist on each decoupled loop,
-the generalised Nyquist criterion on ``det(I + G D C)`` when there is no decoupler); an
-unstable candidate is infeasible with a finite violation, never an exception.
+Every candidate's closed loop is checked for stability first (Nyquist on each decoupled loop;
+the generalised Nyquist criterion on ``det(I + G D C)`` when there is no decoupler, or when the
+scenario varies the plant behind the nominal decoupler); an unstable candidate is infeasible
+with a finite violation, never an exception.
 """
 
 from __future__ import annotations
@@ -296,12 +297,16 @@ class TITOProblem(DecisionVectors):
             for key, arr in (("Am", lm.gain_margin), ("phim", lm.phase_margin_deg), ("w_b", lm.w_b),
                              ("Mt", lm.Mt), ("Ms", lm.Ms)):
                 metrics[:, self._midx[f"{key}{i + 1}"]] = arr
-        if self.chain.decoupler is None:
-            # the loops interact: generalised Nyquist on det(I + G C) for the loop-stable ones
+        varied = sc.variation != 0.0 and self.nonlinear is None
+        if self.chain.decoupler is None or varied:
+            # The loops interact (no decoupler, or a varied plant behind the nominal decoupler):
+            # generalised Nyquist on det(I + G D C) of the simulated plant for the loop-stable ones.
+            plant = self._simulator(sc).plant if varied else self.chain.plant
             w = self._grids[0][0]
             for k in np.flatnonzero(stable):
                 try:
-                    stable[k] = tito_design.tito_closed_loop_stable(self.chain.plant, None, self.controllers(X[k]), w)
+                    stable[k] = tito_design.tito_closed_loop_stable(plant, self.chain.decoupler,
+                                                                    self.controllers(X[k]), w)
                 except ConfigError:
                     stable[k] = False
         reason[finite & ~stable] = "unstable"
