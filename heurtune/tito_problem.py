@@ -451,7 +451,7 @@ class TITOProblem(DecisionVectors):
         """
         opts = {**DEFAULT_ROBUSTNESS, **self.robustness_options}
         ctrls = self.controllers(np.asarray(x, float))
-        lo, hi = opts.get("w", (1e-5 / max(1.0, _slowest(self.chain.plant)) * 10, 10.0))
+        lo, hi = opts.get("w", (1e-2 / max(1.0, _slowest(self.chain.plant)), 10.0))
         w = np.geomspace(lo, hi, 2000)
         Gw = self.chain.plant.freqresp(w)
         Cw = np.zeros((w.size, 2, 2), dtype=np.complex128)
