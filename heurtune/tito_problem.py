@@ -142,7 +142,7 @@ class TITOProblem(DecisionVectors):
         self.robustness_options = dict(robustness)
         self.constraint_names = tuple(f"{k}{i}" for k in self.constraints for i in (1, 2))
         self.metric_names = tuple(f"{m}{i}" for m in LOOP_METRICS for i in (1, 2)) + tuple(
-            f"{m}_{w}{i}" for w in self.windows for m in ("IAE", "ISE", "ITAE") for i in (1, 2))
+            f"{m}_{w}{i}" for w in self.windows for m in ("IAE", "ISE", "ITAE", "ts") for i in (1, 2))
         self._midx = {n: k for k, n in enumerate(self.metric_names)}
         self._grids = [self._design_grid(i) for i in (1, 2)]
         self._simulators = {}
@@ -244,9 +244,8 @@ class TITOProblem(DecisionVectors):
             ei = e[:, i]
             ae = np.abs(ei)
             scale = float(np.max(np.abs(r[:, i])))
-            out = np.flatnonzero(ae > band * (scale if scale > 0 else 1.0))
-            ts = 0.0 if out.size == 0 else (math.inf if out[-1] == t.size - 1 else float(t[out[-1] + 1]))
-            vals = dict(IAE=_trapz(ae, dt), ISE=_trapz(ei * ei, dt), ITAE=_trapz(t * ae, dt), ts=ts,
+            band_i = band * (scale if scale > 0 else 1.0)
+            vals = dict(IAE=_trapz(ae, dt), ISE=_trapz(ei * ei, dt), ITAE=_trapz(t * ae, dt), ts=_settling(t, ae, band_i),
                         max_u=float(np.max(np.abs(u[:, i]))), rms_e=float(np.sqrt(np.mean(ei * ei))),
                         tv_u=float(np.sum(np.abs(np.diff(u[:, i])))))
             for key, v in vals.items():
@@ -259,6 +258,7 @@ class TITOProblem(DecisionVectors):
                     row[self._midx[f"IAE_{wname}{i + 1}"]] = _trapz(aw, dt)
                     row[self._midx[f"ISE_{wname}{i + 1}"]] = _trapz(ew * ew, dt)
                     row[self._midx[f"ITAE_{wname}{i + 1}"]] = _trapz((tw - tw[0]) * aw, dt)
+                    row[self._midx[f"ts_{wname}{i + 1}"]] = _settling(tw, aw, band_i)
 
     def evaluate(self, X, scenario=None, *, with_time: bool | None = None) -> Evaluation:
         """Evaluate a batch of candidates (never raises for a bad candidate).
@@ -487,6 +487,15 @@ class TITOProblem(DecisionVectors):
                 out[f"kharitonov_error{i}"] = str(exc)
         out.update(variation=var, pade_order=order)
         return out, sr
+
+
+def _settling(t: np.ndarray, ae: np.ndarray, band: float) -> float:
+    """Time from ``t[0]`` to the first sample after the last one with ``|e| > band`` (0 if none;
+    ``inf`` if the last sample is outside), as :func:`heurtune.objectives.tito_sim.loop_metrics`."""
+    out = np.flatnonzero(ae > band)
+    if out.size == 0:
+        return 0.0
+    return math.inf if out[-1] == t.size - 1 else float(t[out[-1] + 1] - t[0])
 
 
 def _trapz(v: np.ndarray, dt: float) -> float:

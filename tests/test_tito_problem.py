@@ -78,6 +78,7 @@ def test_time_objective_equals_the_simulators_record(ccts):
         assert m[f"ISE{i}"] == pytest.approx(ref.loc[i, "ISE_all"], rel=1e-10)
         assert m[f"IAE_servo{i}"] == pytest.approx(ref.loc[i, "IAE_servo"], rel=1e-10)
         assert m[f"ITAE_servo{i}"] == pytest.approx(ref.loc[i, "ITAE_servo"], rel=1e-10)
+        assert m[f"ts_servo{i}"] == ref.loc[i, "ts_servo"] and m[f"ts{i}"] == ref.loc[i, "ts_all"]
 
 
 def test_bandwidth_objective_against_a_dense_grid(tmp_path):
