@@ -124,7 +124,8 @@ class TITOProblem(DecisionVectors):
 
     def __init__(self, case: str, kind: str, chain: DesignChain, bounds: dict, *, objective: str,
                  constraints: dict, scenarios: dict, tuning_scenario: str, N: float, windows: dict,
-                 settling_band: float, nonlinear: two_tank.TwoTankParams | None, robustness: dict):
+                 settling_band: float, nonlinear: two_tank.TwoTankParams | None, robustness: dict,
+                 gpm_spec: dict | None = None):
         self.case = case
         self.kind = kind
         self.chain = chain
@@ -140,6 +141,7 @@ class TITOProblem(DecisionVectors):
         self.settling_band = float(settling_band)
         self.nonlinear = nonlinear
         self.robustness_options = dict(robustness)
+        self.gpm_spec = dict(DEFAULT_GPM if gpm_spec is None else gpm_spec)
         self.constraint_names = tuple(f"{k}{i}" for k in self.constraints for i in (1, 2))
         self.metric_names = tuple(f"{m}{i}" for m in LOOP_METRICS for i in (1, 2)) + tuple(
             f"{m}_{w}{i}" for w in self.windows for m in ("IAE", "ISE", "ITAE", "ts") for i in (1, 2))
@@ -422,7 +424,7 @@ class TITOProblem(DecisionVectors):
                 loop=i, fopdt_K=fo.K if fo else np.nan, fopdt_T=fo.T if fo else np.nan,
                 fopdt_L=fo.L if fo else np.nan, fit_error=self.chain.fopdt_error[i - 1],
                 gpm_Kc=gp.Kc if gp else np.nan, gpm_Ti=gp.Ti if gp else np.nan,
-                Am_spec=self._gpm_spec["Am"], phim_spec=self._gpm_spec["phim"],
+                Am_spec=self.gpm_spec["Am"], phim_spec=self.gpm_spec["phim"],
                 Am_exact=mg.gain_margin if mg else np.nan, phim_exact=mg.phase_margin_deg if mg else np.nan,
             ))
         return pd.DataFrame(rows)
@@ -708,8 +710,7 @@ class TITOExperiment:
         prob = TITOProblem(case, kind, chain, bounds, objective=self.objective, constraints=self.constraints,
                            scenarios=self.scenarios, tuning_scenario=self.tuning_scenario, N=self.N,
                            windows=self.windows, settling_band=self.settling_band, nonlinear=params,
-                           robustness=self.robustness)
-        prob._gpm_spec = dict(self.gpm)
+                           robustness=self.robustness, gpm_spec=self.gpm)
         return prob
 
 
