@@ -111,6 +111,62 @@ def _fopdt_fit(chain_element, label: str):
         return None, f"{label}: {exc}"
 
 
+def _element_terms(chain: DesignChain, i: int) -> list:
+    """Loop element ``q_ii`` as a sum of terms ``prod(num elements) / prod(den elements)`` (each
+    times a pure delay, which does not change magnitudes)."""
+    p, dec = chain.plant, chain.decoupler
+    if dec is None:
+        return [((p.element(i, i),), ())]
+    j = 3 - i
+    if dec.case == 1:  # z_ii = g_ii - g_ij g_ji / g_jj
+        return [((p.element(i, i),), ()), ((p.element(i, j), p.element(j, i)), (p.element(j, j),))]
+    # case 2: h_ii = g_ij - g_ii g_jj / g_ji
+    return [((p.element(i, j),), ()), ((p.element(i, i), p.element(j, j)), (p.element(j, i),))]
+
+
+def _magnitude_tail(terms: list, w: np.ndarray) -> np.ndarray:
+    """``B[k] >= sup over w' >= w[k] of |q(j w')|`` for ``q`` a sum of ``terms`` (triangle inequality).
+
+    In each term the zero factors ``|1 + j w Tz|`` are paired with pole factors ``|1 + j w Tp|``
+    (largest with largest); a pair's ratio is monotone in ``w``, so its supremum beyond ``w[k]``
+    is the larger of its value there and ``Tz / Tp``; an unpaired pole factor decreases. A term
+    with more zeros than poles gets no bound (``inf``).
+    """
+    total = np.zeros(w.size)
+    for num, den in terms:
+        gain = abs(np.prod([e.K for e in num]) / np.prod([e.K for e in den])) if den else abs(np.prod([e.K for e in num]))
+        zeros = sorted([abs(t) for e in num for t in e.leads] + [abs(t) for e in den for t in e.lags], reverse=True)
+        poles = sorted([abs(t) for e in num for t in e.lags] + [abs(t) for e in den for t in e.leads], reverse=True)
+        zeros = [t for t in zeros if t > 0]
+        poles = [t for t in poles if t > 0]
+        if len(zeros) > len(poles):
+            return np.full(w.size, np.inf)
+        bound = np.full(w.size, gain)
+        for k, tp in enumerate(poles):
+            den_f = np.sqrt(1.0 + (w * tp) ** 2)
+            if k < len(zeros):
+                tz = zeros[k]
+                bound *= np.maximum(np.sqrt(1.0 + (w * tz) ** 2) / den_f, tz / tp)
+            else:
+                bound /= den_f
+        total += bound
+    return total
+
+
+def _controller_tail(X: np.ndarray, kind: str, N: float, w: np.ndarray) -> np.ndarray:
+    """``B[r, k] >= sup over w' >= w[k] of |C_r(j w')|`` for ``C = (Kp + Ki/s + Kd s)/(1 + Tf s)``:
+    ``|Kp| + |Ki|/w[k] + |Kd|/Tf`` (``inf`` for ``Kd != 0`` without a filter)."""
+    Kp, Ki = np.abs(X[:, 0]), np.abs(X[:, 1])
+    if kind == "pid":
+        Kd = X[:, 2]
+        Tf = tito_design.pid_filter_time(X[:, 0], X[:, 1], Kd, N)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d = np.where(Kd == 0, 0.0, np.where(Tf > 0, np.abs(Kd) / Tf, np.inf))
+    else:
+        d = np.zeros(X.shape[0])
+    return (Kp + d)[:, None] + Ki[:, None] / w[None, :]
+
+
 class TITOProblem(DecisionVectors):
     """Tuning problem of one TITO case; see the module docstring.
 
@@ -146,7 +202,7 @@ class TITOProblem(DecisionVectors):
         self.metric_names = tuple(f"{m}{i}" for m in LOOP_METRICS for i in (1, 2)) + tuple(
             f"{m}_{w}{i}" for w in self.windows for m in ("IAE", "ISE", "ITAE", "ts") for i in (1, 2))
         self._midx = {n: k for k, n in enumerate(self.metric_names)}
-        self._grids = [self._design_grid(i) for i in (1, 2)]
+        self._grids = [self._design_grid(i) for i in (1, 2)]  # (w, q(jw), bound of |q| beyond w)
         self._simulators = {}
 
     def _design_grid(self, i: int, n_max: int = 48000):
@@ -174,13 +230,20 @@ class TITOProblem(DecisionVectors):
             # A loop element that does not roll off (a lead, a biproper ratio): stop well
             # above the Nyquist frequency of the sampled controllers.
             w_max = 20.0 * math.pi / self.scenario(self.tuning_scenario).dt
+        terms = _element_terms(self.chain, i)
         while True:
             w = tito_design.design_grid(el, w_min, w_max, n, mag_floor=1.0 / (8.0 * c_max))
             Pw = np.asarray(el(w), dtype=np.complex128)
+            Pt = _magnitude_tail(terms, w)
             Cw = tito_design.pid_freqresp(probes[:, 0], probes[:, 1], Kd, self.N, w)
-            m = tito_design.loop_metrics_batch(Pw, w, Cw, Ki=probes[:, 1])
-            if np.all(m.resolved) or 2 * n > n_max:
-                return w, Pw
+            tail = Pt[None, :] * _controller_tail(probes, self.kind, self.N, w)
+            m = tito_design.loop_metrics_batch(Pw, w, Cw, Ki=probes[:, 1], tail=tail)
+            # A probe whose |L| neither rolls off below 1/8 nor is bounded below TAIL_LEVEL at
+            # the grid's end cannot be resolved by more points.
+            end = np.abs(Pw[-1] * Cw[:, -1])
+            hopeless = (tail[:, -1] >= tito_design.TAIL_LEVEL) & ~(end < tito_design.RESOLVE_LEVEL)
+            if np.all(m.resolved | hopeless) or 2 * n > n_max:
+                return w, Pw, Pt
             n *= 2
 
     # -- interface shared with heurtune.problem.Problem --------------------------------------
@@ -213,11 +276,13 @@ class TITOProblem(DecisionVectors):
         per = 2 if self.kind == "pi" else 3
         c = self.constraints
         out = []
-        for i, (w, Pw) in enumerate(self._grids):
+        for i, (w, Pw, Pt) in enumerate(self._grids):
             Xi = X[:, i * per:(i + 1) * per]
+            with np.errstate(all="ignore"):
+                tail = Pt[None, :] * _controller_tail(Xi, self.kind, self.N, w)
             out.append(tito_design.bandwidth_design_eval(
                 Pw, w, Xi, self.kind, self.N, c.get("Am", 1.0 + 1e-9), c.get("phim", 1e-9), c.get("Mt", 1e9),
-                return_metrics=True))
+                return_metrics=True, tail=np.nan_to_num(tail, nan=np.inf)))
         return out
 
     def _simulator(self, sc: TITOScenario):

@@ -47,6 +47,7 @@ from .tito import Decoupler, ParallelPID, PIController, PIDController, TITOPlant
 __all__ = [
     "BANDWIDTH_LEVEL",
     "RESOLVE_LEVEL",
+    "TAIL_LEVEL",
     "UNSTABLE_VIOLATION",
     "LoopMetrics",
     "NyquistVerdict",
@@ -63,6 +64,8 @@ __all__ = [
     "tito_closed_loop_stable",
 ]
 
+TAIL_LEVEL = 0.9
+"""Bound of ``|L|`` beyond a sample below which the Nyquist count needs no resolution there."""
 BANDWIDTH_LEVEL = 1.0 / math.sqrt(2.0)
 """``|T(j w_b)|`` at the closed-loop bandwidth (-3 dB of the unit static gain)."""
 
@@ -458,17 +461,27 @@ def _branch_crossings(F: np.ndarray) -> np.ndarray:
     return np.bincount(r[hit], weights=sign[hit], minlength=F.shape[0])
 
 
-def _unresolved(L: np.ndarray, absL: np.ndarray, dphase: np.ndarray, F: np.ndarray, absF: np.ndarray) -> np.ndarray:
-    """Rows whose samples do not decide the winding number of ``F = 1 + L`` (see :func:`nyquist_stable`)."""
+def _unresolved(L: np.ndarray, absL: np.ndarray, dphase: np.ndarray, F: np.ndarray, absF: np.ndarray,
+                safe: np.ndarray | None = None) -> np.ndarray:
+    """Rows whose samples do not decide the winding number of ``F = 1 + L`` (see :func:`nyquist_stable`).
+
+    ``safe`` (same shape as ``L``) marks samples from which on ``|L| < TAIL_LEVEL`` is known to
+    hold for all higher frequencies: steps starting there need no resolution, and a grid ending there
+    needs no roll-off below 1/8.
+    """
     mx = np.maximum(absL[:, :-1], absL[:, 1:])
     bad = (np.abs(dphase) > MAX_ANGLE_STEP) & (mx >= RESOLVE_LEVEL)
-    out = bad.any(axis=1) | ~(absL[:, -1] < RESOLVE_LEVEL) | ~np.isfinite(absL.sum(axis=1))
+    end_ok = absL[:, -1] < RESOLVE_LEVEL
+    if safe is not None:
+        bad &= ~safe[:, :-1]
+        end_ok |= safe[:, -1]
+    out = bad.any(axis=1) | ~end_ok | ~np.isfinite(absL.sum(axis=1))
     dF = np.diff(F, axis=1)
     return out | _ambiguous(F, absF, dF, np.abs(dF))
 
 
 def _nyquist_core(L: np.ndarray, absL: np.ndarray, dphase: np.ndarray, F: np.ndarray, absF: np.ndarray,
-                  ki_dir: np.ndarray):
+                  ki_dir: np.ndarray, safe: np.ndarray | None = None):
     """Winding count of ``1 + L`` for a batch; ``ki_dir`` is ``sign(Ki P(0))`` (0: no integrator)."""
     argF0, argF1 = np.angle(F[:, 0]), np.angle(F[:, -1])
     integ = ki_dir != 0
@@ -482,13 +495,13 @@ def _nyquist_core(L: np.ndarray, absL: np.ndarray, dphase: np.ndarray, F: np.nda
     wind = -(2.0 * delta_plus - np.where(integ, math.pi, 0.0)) / _TWO_PI
     n_rhp = np.rint(wind)
     n_rhp = np.where(np.isfinite(n_rhp), n_rhp, 0.0)
-    resolved = ~_unresolved(L, absL, dphase, F, absF) & (np.abs(wind - n_rhp) < 0.25)
+    resolved = ~_unresolved(L, absL, dphase, F, absF, safe) & (np.abs(wind - n_rhp) < 0.25)
     marginal = (absF <= 1e-12 * (1.0 + absL)).any(axis=1)
     stable = resolved & (n_rhp == 0) & ~marginal
     return stable, n_rhp.astype(np.int64), resolved
 
 
-def nyquist_stable(Pw, Cw, w, *, Ki=None) -> np.ndarray:
+def nyquist_stable(Pw, Cw, w, *, Ki=None, tail=None) -> np.ndarray:
     """Closed-loop stability of ``L = P C`` for a batch of controllers by the Nyquist criterion.
 
     The winding number of ``1 + L(s)`` about the origin is taken along the Nyquist D-contour:
@@ -516,7 +529,13 @@ def nyquist_stable(Pw, Cw, w, *, Ki=None) -> np.ndarray:
       -1 the loop passes.
     * ``w[-1] -> inf`` and the closing arc: ``|L(j w[-1])| < 1/8`` is required and ``|L|`` assumed
       to stay below 1/2 beyond the grid (strictly proper element, grid extended past roll-off),
-      so ``arg(1 + L)`` returns to 0 within ``(-pi/6, pi/6)``.
+      so ``arg(1 + L)`` returns to 0 within ``(-pi/6, pi/6)``. A loop that does not roll off (a
+      biproper element) can instead give ``tail``, a bound of ``|L|`` beyond each sample: where
+      ``tail < TAIL_LEVEL = 0.9``, ``1 + L`` stays in the disc of radius 0.9 about 1 for every
+      higher frequency (and, the delays being of modulus <= 1 in the right half-plane, on the
+      closing arc), so the principal increments there are exact however fast the delay turns
+      ``L``, and the rest of the contour changes ``arg(1 + L)`` by exactly
+      ``-2 arg(1 + L(j w[-1]))``, which is what the count takes: the grid may end there.
 
     A candidate failing (a), (b) or the end condition is *unresolved* and reported unstable
     (conservative for design); (b) makes loops within a relative ``~(step)^2`` of a stability
@@ -535,12 +554,15 @@ def nyquist_stable(Pw, Cw, w, *, Ki=None) -> np.ndarray:
     Ki : array_like, shape (n,), optional
         Integral gains (only their sign and whether they are 0 are used). Default: read from the
         lowest frequency as ``Re(j w[0] C(j w[0]))``, exact up to ``O(w[0]^2)`` for PI/PID.
+    tail : array_like, shape (n, m), optional
+        ``tail[r, k] >= sup over w >= w[k] of |L_r(jw)|`` (non-increasing in ``k``), e.g. from the
+        element's and the controller's high-frequency magnitude bounds.
 
     Returns
     -------
     numpy.ndarray of bool, shape (n,)
     """
-    return loop_metrics_batch(Pw, w, Cw, Ki=Ki).stable
+    return loop_metrics_batch(Pw, w, Cw, Ki=Ki, tail=tail).stable
 
 
 class _Triple:
@@ -609,7 +631,7 @@ def _first(cond: np.ndarray):
     return cond.any(axis=1), np.argmax(cond, axis=1)
 
 
-def loop_metrics_batch(Pw, w, Cw, *, Ki=None) -> LoopMetrics:
+def loop_metrics_batch(Pw, w, Cw, *, Ki=None, tail=None) -> LoopMetrics:
     """Margins, crossovers, bandwidth, peaks and Nyquist stability of ``L = P C`` for a batch.
 
     Definitions (``L = P C``, ``T = L/(1 + L)``, ``S = 1/(1 + L)``, ``u = ln w``):
@@ -648,6 +670,8 @@ def loop_metrics_batch(Pw, w, Cw, *, Ki=None) -> LoopMetrics:
         Controller responses of ``n`` candidates (e.g. :func:`pid_freqresp`).
     Ki : array_like, shape (n,), optional
         Integral gains for the Nyquist count (see :func:`nyquist_stable`).
+    tail : array_like, shape (n, m), optional
+        Bounds of ``|L|`` beyond each sample for the Nyquist count (see :func:`nyquist_stable`).
 
     Returns
     -------
@@ -714,7 +738,13 @@ def loop_metrics_batch(Pw, w, Cw, *, Ki=None) -> LoopMetrics:
         tri = _triple(u, k)
         Ms = np.exp(tri.peak(-np.log(tri.gather(absF)), k))
 
-        stable, n_rhp, resolved = _nyquist_core(L, absL, dphase, F, absF, ki_dir)
+        safe = None
+        if tail is not None:
+            tail = np.asarray(tail, dtype=np.float64)
+            if tail.shape != L.shape:
+                raise ConfigError(f"tail must have shape {L.shape}, got {tail.shape}")
+            safe = tail < TAIL_LEVEL
+        stable, n_rhp, resolved = _nyquist_core(L, absL, dphase, F, absF, ki_dir, safe)
     return LoopMetrics(gain_margin=gm, phase_margin_deg=pm, w_gc=w_gc, w_pc=w_pc, w_b=w_b, Mt=Mt, Ms=Ms,
                        stable=stable, n_rhp=n_rhp, resolved=resolved)
 
@@ -859,7 +889,7 @@ def tito_closed_loop_stable(plant: TITOPlant, decoupler: Decoupler | None, contr
 # --------------------------------------------------------------------------------------------
 
 
-def bandwidth_design_eval(Pw, w, X, kind, N, Am_min, phim_min_deg, Mt_max, *, return_metrics=False):
+def bandwidth_design_eval(Pw, w, X, kind, N, Am_min, phim_min_deg, Mt_max, *, return_metrics=False, tail=None):
     """Objective and constraints of the bandwidth-optimal PI/PID design of one loop, for a batch.
 
     For each candidate row of ``X`` the controller :func:`pid_freqresp` is closed around the
@@ -901,6 +931,9 @@ def bandwidth_design_eval(Pw, w, X, kind, N, Am_min, phim_min_deg, Mt_max, *, re
     stable : numpy.ndarray of bool, shape (n,)
     metrics : LoopMetrics
         Only with ``return_metrics=True``: the loop metrics the verdicts come from.
+
+    ``tail`` (shape ``(n, m)``) is passed to :func:`loop_metrics_batch` (bounds of ``|L|`` beyond
+    each sample, for loops that do not roll off).
     """
     if kind not in ("pi", "pid"):
         raise ConfigError(f"bandwidth_design_eval: kind must be 'pi' or 'pid', got {kind!r}")
@@ -918,7 +951,7 @@ def bandwidth_design_eval(Pw, w, X, kind, N, Am_min, phim_min_deg, Mt_max, *, re
     Xs = np.where(finite[:, None], X, 0.0)
     Kd = Xs[:, 2] if d == 3 else np.zeros(X.shape[0])
     Cw = pid_freqresp(Xs[:, 0], Xs[:, 1], Kd, N if d == 3 else 1.0, w)
-    m = loop_metrics_batch(Pw, w, Cw, Ki=Xs[:, 1])
+    m = loop_metrics_batch(Pw, w, Cw, Ki=Xs[:, 1], tail=tail)
     with np.errstate(all="ignore"):
         g = np.stack([1.0 - m.gain_margin / spec["Am_min"],
                       1.0 - m.phase_margin_deg / spec["phim_min_deg"],

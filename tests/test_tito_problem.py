@@ -284,3 +284,47 @@ def test_varied_plant_is_checked_behind_the_nominal_decoupler(ccts):
     e = np.abs(df["r1"] - df["y1"]).to_numpy()
     t = df["t"].to_numpy()
     assert e[(t > 300) & (t < 450)].max() > 2 * e[(t > 100) & (t < 250)].max()
+
+
+@pytest.mark.parametrize("factor, stable", [(0.5, True), (1.0, True), (2.0, True), (3.6, False), (5.0, False)])
+def test_biproper_loop_verdicts_agree_with_pade_poles(factor, stable):
+    """example_custom_tito's g22 is a lead-lag, so its decoupled z22 does not roll off (|z22| ->
+    0.15): the Nyquist count ends on a bound of |L| beyond the grid. Loop 2's gains are scaled
+    across its boundary (GPM gain margin 3.2), loop 1 stays at its GPM design; poles of
+    1 + z22 C2 with Pade(8) delays in python-control decide."""
+    prob = heurtune.load_experiment("example_custom_tito").problem("my_rig")
+    x = prob.baseline("gpm") * np.array([1.0, 1.0, factor, factor])
+    p = prob.chain.plant
+
+    def rat(e):
+        num = np.array([e.K])
+        for t in e.leads:
+            num = np.polymul(num, [t, 1.0])
+        den = np.array([1.0])
+        for t in e.lags:
+            den = np.polymul(den, [t, 1.0])
+        return control.tf(num, den)
+
+    def delay(L):
+        num, den = control.pade(L, 8)
+        return control.tf(num, den)
+
+    z22 = rat(p.g22) * delay(p.g22.L) - rat(p.g12) * rat(p.g21) / rat(p.g11) * delay(p.g12.L + p.g21.L - p.g11.L)
+    c2 = prob.controllers(x)[1]
+    poles = control.feedback(z22 * control.tf([c2.Kp, c2.Ki], [1.0, 0.0]), 1).poles()
+    assert (np.max(poles.real) < 0) == stable
+    assert (prob.evaluate(x).reason[0] == "") == stable
+
+
+@pytest.mark.parametrize("name, case", [("example_custom_tito", "my_rig"), ("ga_pi_ccts", "ccts"),
+                                        ("optimal_pid_qts", "qts")])
+def test_element_magnitude_bound_holds_beyond_every_sample(name, case):
+    from heurtune.tito_problem import _element_terms, _magnitude_tail
+
+    prob = heurtune.load_experiment(name).problem(case)
+    w = np.geomspace(1e-4, 1e4, 40001)
+    for i in (1, 2):
+        q = np.abs(prob.chain.element(i)(w))
+        sup_beyond = np.maximum.accumulate(q[::-1])[::-1]
+        bound = _magnitude_tail(_element_terms(prob.chain, i), w)
+        assert np.all(bound >= sup_beyond * (1 - 1e-12))
