@@ -22,7 +22,7 @@ from heurtune.objectives.controllers import (
 from heurtune.objectives.loop import METRIC_NAMES, ClosedLoop, Scenario
 from heurtune.objectives.qtp import QTPParams, preset
 
-__all__ = ["DecisionVectors", "Experiment", "Problem", "Evaluation", "load_experiment", "make_experiment",
+__all__ = ["DecisionVectors", "Experiment", "ExperimentBase", "Problem", "Evaluation", "load_experiment", "make_experiment",
            "FAILED_OBJECTIVE", "FAILED_VIOLATION"]
 
 # A candidate that cannot be simulated gets these (finite) values.
@@ -86,9 +86,20 @@ class DecisionVectors:
     Subclasses set ``names`` (tuple of str), ``lower`` and ``upper`` ((d,) arrays).
     """
 
+    scenario_type = object  # the class of this problem's scenarios
+
     @property
     def dim(self) -> int:
         return len(self.names)
+
+    def scenario(self, scenario):
+        """A scenario from its name in ``self.scenarios`` (a ``scenario_type`` is returned as is)."""
+        if isinstance(scenario, self.scenario_type):
+            return scenario
+        try:
+            return self.scenarios[scenario]
+        except KeyError:
+            raise ConfigError(f"unknown scenario {scenario!r}; allowed: {', '.join(self.scenarios)}") from None
 
     def values(self, x) -> dict:
         """Map a decision vector (or a dict) to ``{name: value}``, checking names and length."""
@@ -145,6 +156,8 @@ class Problem(DecisionVectors):
         The tuning scenario and its uncertainty variants (``nominal``, ``-30%``, ``+30%``).
     """
 
+    scenario_type = Scenario
+
     def __init__(self, case: str, loop: ClosedLoop, names, lower, upper, *, objective: str,
                  constraints: dict, settling_band: float, scenarios: dict, tuning_scenario: str):
         self.case = case
@@ -172,17 +185,6 @@ class Problem(DecisionVectors):
     def __repr__(self):
         return (f"Problem(case={self.case!r}, controller={self.loop.kind!r}, dim={self.dim}, "
                 f"objective={self.objective!r}, constraints={self.constraints})")
-
-    def scenario(self, scenario) -> Scenario:
-        """A Scenario from its name in ``self.scenarios`` (or a Scenario, returned as is)."""
-        if isinstance(scenario, Scenario):
-            return scenario
-        try:
-            return self.scenarios[scenario]
-        except KeyError:
-            raise ConfigError(
-                f"unknown scenario {scenario!r}; allowed: {', '.join(self.scenarios)}"
-            ) from None
 
     # -- evaluation -------------------------------------------------------------------
     def _evaluate_one(self, x, scenario: Scenario, metrics_row: np.ndarray):
@@ -280,7 +282,49 @@ class Problem(DecisionVectors):
         return pd.DataFrame(rows).set_index("scenario")
 
 
-class Experiment:
+class ExperimentBase:
+    """What every experiment config shares: cases per (plant, controller type), optimisers."""
+
+    def _set_cases(self, plant_cases: tuple, kinds) -> None:
+        """One case per (controller, plant case); named by the plant alone when there is one
+        controller type (``"min"``), else ``"<plant>-<controller>"`` (``"min-folqi"``)."""
+        self.controllers = tuple(kinds) if isinstance(kinds, list) else (kinds,)
+        self.controller = self.controllers[0]
+        self._variants = {}
+        for kind in self.controllers:
+            for pc in plant_cases:
+                self._variants[pc if len(self.controllers) == 1 else f"{pc}-{kind}"] = (pc, kind)
+        self.cases = tuple(self._variants)
+
+    def _load_optimisers(self, config: dict) -> None:
+        """Load the config's plugins and validate each ``[[optimisers]]`` entry's settings."""
+        from heurtune import registry
+
+        for spec in config.get("plugins", []):
+            registry.load_plugin(spec)
+        self.optimisers = []
+        for i, opt in enumerate(config.get("optimisers", [])):
+            where = f"{self.name}: optimisers[{i}]"
+            if "name" not in opt:
+                raise ConfigError(f"{where}: missing key 'name'")
+            try:
+                settings = registry.make_settings(opt["name"], opt.get("settings", {}))
+            except ConfigError as exc:
+                raise ConfigError(f"{where}: {exc}") from None
+            self.optimisers.append(dict(opt, settings=settings))
+
+    def controller_of(self, case: str) -> str:
+        """The controller type of a case."""
+        return self._variant(case)[1]
+
+    def _variant(self, case: str):
+        try:
+            return self._variants[case]
+        except KeyError:
+            raise ConfigError(f"unknown case {case!r} for {self.name}; allowed: {', '.join(self.cases)}") from None
+
+
+class Experiment(ExperimentBase):
     """A named experiment config: plant cases, controller, scenario, problem (and optimisers).
 
     Use :func:`load_experiment` to create one.
@@ -297,16 +341,7 @@ class Experiment:
         for case in plant_cases:
             self._plant(case)  # validate early
         ctrl = config.get("controller", {})
-        kinds = ctrl.get("type", "folqi")
-        self.controllers = tuple(kinds) if isinstance(kinds, list) else (kinds,)
-        self.controller = self.controllers[0]
-        # One case per (controller, plant case); named by the plant alone when there is one
-        # controller ("min"), else "<plant>-<controller>" ("min-folqi").
-        self._variants = {}
-        for kind in self.controllers:
-            for pc in plant_cases:
-                self._variants[pc if len(self.controllers) == 1 else f"{pc}-{kind}"] = (pc, kind)
-        self.cases = tuple(self._variants)
+        self._set_cases(plant_cases, ctrl.get("type", "folqi"))
         self.controller_options = dict(
             oustaloup_order=ctrl.get("oustaloup_order", 5),
             band=tuple(ctrl.get("band", (1e-3, 1e3))),
@@ -351,33 +386,10 @@ class Experiment:
             if key in bounds:
                 bounds[key] = (float(lo), float(hi))
         self.bounds = bounds
-        from heurtune import registry
-
-        for spec in config.get("plugins", []):
-            registry.load_plugin(spec)
-        self.optimisers = []
-        for i, opt in enumerate(config.get("optimisers", [])):
-            where = f"{self.name}: optimisers[{i}]"
-            if "name" not in opt:
-                raise ConfigError(f"{where}: missing key 'name'")
-            try:
-                settings = registry.make_settings(opt["name"], opt.get("settings", {}))
-            except ConfigError as exc:
-                raise ConfigError(f"{where}: {exc}") from None
-            self.optimisers.append(dict(opt, settings=settings))
+        self._load_optimisers(config)
 
     def __repr__(self):
         return f"Experiment({self.name!r}, cases={self.cases}, controllers={self.controllers})"
-
-    def controller_of(self, case: str) -> str:
-        """The controller type of a case."""
-        return self._variant(case)[1]
-
-    def _variant(self, case: str):
-        try:
-            return self._variants[case]
-        except KeyError:
-            raise ConfigError(f"unknown case {case!r} for {self.name}; allowed: {', '.join(self.cases)}") from None
 
     def _plant(self, case: str) -> QTPParams:
         if case in self._custom:

@@ -47,7 +47,7 @@ from heurtune.objectives.robustness import (
     interval_characteristic_polynomial, kharitonov_test, pade, spectral_radius_test,
 )
 from heurtune.objectives.tito_sim import TITOScenario, TITOSimulator
-from heurtune.problem import FAILED_OBJECTIVE, FAILED_VIOLATION, DecisionVectors, Evaluation
+from heurtune.problem import FAILED_OBJECTIVE, FAILED_VIOLATION, DecisionVectors, Evaluation, ExperimentBase
 
 __all__ = ["TITOExperiment", "TITOProblem", "TITO_MODELS"]
 
@@ -178,6 +178,8 @@ class TITOProblem(DecisionVectors):
         Decoupler, FOPDT fits and GPM baseline of the case.
     """
 
+    scenario_type = TITOScenario
+
     def __init__(self, case: str, kind: str, chain: DesignChain, bounds: dict, *, objective: str,
                  constraints: dict, scenarios: dict, tuning_scenario: str, N: float, windows: dict,
                  settling_band: float, nonlinear: two_tank.TwoTankParams | None, robustness: dict,
@@ -250,15 +252,6 @@ class TITOProblem(DecisionVectors):
     def __repr__(self):
         return (f"TITOProblem(case={self.case!r}, controller={self.kind!r}, dim={self.dim}, "
                 f"objective={self.objective!r}, constraints={self.constraints})")
-
-    def scenario(self, scenario) -> TITOScenario:
-        """A TITOScenario from its name in ``self.scenarios`` (or a TITOScenario, returned as is)."""
-        if isinstance(scenario, TITOScenario):
-            return scenario
-        try:
-            return self.scenarios[scenario]
-        except KeyError:
-            raise ConfigError(f"unknown scenario {scenario!r}; allowed: {', '.join(self.scenarios)}") from None
 
     def controllers(self, x) -> tuple:
         """The pair of :class:`~heurtune.objectives.tito.ParallelPID` of a decision vector."""
@@ -579,7 +572,7 @@ def _slowest(plant: tito.TITOPlant) -> float:
     return max(vals)
 
 
-class TITOExperiment:
+class TITOExperiment(ExperimentBase):
     """A named TITO experiment config (``[plant] model = "tito"`` or ``"two_tank_nonlinear"``).
 
     Use :func:`heurtune.problem.load_experiment`, which picks this class from the config.
@@ -596,14 +589,7 @@ class TITOExperiment:
                               f"(presets: {', '.join(tito.PRESETS)}, or plant.custom.<name>)")
         self._custom = plant.get("custom", {})
         ctrl = config.get("controller", {})
-        kinds = ctrl.get("type", "pi")
-        self.controllers = tuple(kinds) if isinstance(kinds, list) else (kinds,)
-        self.controller = self.controllers[0]
-        self._variants = {}
-        for kind in self.controllers:
-            for pc in cases:
-                self._variants[pc if len(self.controllers) == 1 else f"{pc}-{kind}"] = (pc, kind)
-        self.cases = tuple(self._variants)
+        self._set_cases(cases, ctrl.get("type", "pi"))
         self.N = float(ctrl.get("N", 100.0))
         if not self.N > 0:
             raise ConfigError(f"{self.name}: controller.N must be > 0, got {self.N}")
@@ -641,18 +627,7 @@ class TITOExperiment:
         self.windows = {k: tuple(v) for k, v in prob.get("windows", default_windows).items()}
         self.bounds_config = prob.get("bounds", {})
         self.robustness = dict(config.get("robustness", {}))
-        from heurtune import registry
-
-        for spec in config.get("plugins", []):
-            registry.load_plugin(spec)
-        self.optimisers = []
-        for i, opt in enumerate(config.get("optimisers", [])):
-            where = f"{self.name}: optimisers[{i}]"
-            try:
-                settings = registry.make_settings(opt["name"], opt.get("settings", {}))
-            except ConfigError as exc:
-                raise ConfigError(f"{where}: {exc}") from None
-            self.optimisers.append(dict(opt, settings=settings))
+        self._load_optimisers(config)
         if not self.optimisers and not self.baselines:
             raise ConfigError(f"{self.name}: give [[optimisers]] or controller.baselines (e.g. [\"gpm\"])")
         self._chains = {}
@@ -684,16 +659,6 @@ class TITOExperiment:
             return {k: TITOScenario(**kw, variation=float(v)) for k, v in variation.items()}
         except ConfigError as exc:
             raise ConfigError(f"{self.name}: {exc}") from None
-
-    def controller_of(self, case: str) -> str:
-        """The controller type (``pi`` / ``pid``) of a case."""
-        return self._variant(case)[1]
-
-    def _variant(self, case: str):
-        try:
-            return self._variants[case]
-        except KeyError:
-            raise ConfigError(f"unknown case {case!r} for {self.name}; allowed: {', '.join(self.cases)}") from None
 
     def _plant(self, case: str):
         """``(TITOPlant, TwoTankParams or None)`` of a plant case."""
