@@ -101,6 +101,13 @@ class DecisionVectors:
         except KeyError:
             raise ConfigError(f"unknown scenario {scenario!r}; allowed: {', '.join(self.scenarios)}") from None
 
+    def batch(self, X) -> np.ndarray:
+        """``X`` as a float (n, d) array (a single vector becomes one row); ConfigError otherwise."""
+        X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+        if X.ndim != 2 or X.shape[1] != self.dim:
+            raise ConfigError(f"X must have shape (n, {self.dim}), got {X.shape}")
+        return X
+
     def values(self, x) -> dict:
         """Map a decision vector (or a dict) to ``{name: value}``, checking names and length."""
         if isinstance(x, dict):
@@ -223,9 +230,7 @@ class Problem(DecisionVectors):
             Never raises for a bad candidate: unstable, undesignable or diverging candidates get
             ``FAILED_OBJECTIVE``, violations ``FAILED_VIOLATION`` and a reason.
         """
-        X = np.atleast_2d(np.asarray(X, dtype=np.float64))
-        if X.ndim != 2 or X.shape[1] != self.dim:
-            raise ConfigError(f"X must have shape (n, {self.dim}), got {X.shape}")
+        X = self.batch(X)
         sc = self.scenario(self.tuning_scenario if scenario is None else scenario)
         n = X.shape[0]
         m = len(self.constraint_names)

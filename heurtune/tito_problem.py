@@ -338,9 +338,7 @@ class TITOProblem(DecisionVectors):
             ``reason``: "" when evaluated, else ``invalid_parameter``, ``unstable``,
             ``diverged`` or ``non_finite``.
         """
-        X = np.atleast_2d(np.asarray(X, dtype=np.float64))
-        if X.ndim != 2 or X.shape[1] != self.dim:
-            raise ConfigError(f"X must have shape (n, {self.dim}), got {X.shape}")
+        X = self.batch(X)
         sc = self.scenario(self.tuning_scenario if scenario is None else scenario)
         n = X.shape[0]
         m = len(self.constraint_names)

@@ -48,6 +48,47 @@ def _block_update(b, w, A, B, ns, x, xt):
         x[b, p] = xt[p]
 
 
+@njit(cache=True, inline="always")
+def controllers_and_decoupler(k, e0, e1, ctrl0, dec0, buf, nd, C, D, ns, x):
+    """Sample ``k`` of the two controllers (blocks ``ctrl0``, ``ctrl0 + 1``, inputs ``e0``, ``e1``)
+    and the decoupler (blocks ``dec0 .. dec0 + 3``, entry ``2 i + j`` from ``v_j`` to ``u_i``),
+    through their delay lines; returns ``(v0, v1, u0, u1)``. Shared by the TITO kernels."""
+    v0 = 0.0
+    v1 = 0.0
+    for i in range(2):
+        b = ctrl0 + i
+        L = nd[b] + 1
+        buf[b, k % L] = e0 if i == 0 else e1
+        o = _block_out(b, buf[b, (k + 1) % L], C, D, ns, x)
+        if i == 0:
+            v0 = o
+        else:
+            v1 = o
+    u0 = 0.0
+    u1 = 0.0
+    for q in range(4):
+        b = dec0 + q
+        L = nd[b] + 1
+        buf[b, k % L] = v0 if q % 2 == 0 else v1
+        o = _block_out(b, buf[b, (k + 1) % L], C, D, ns, x)
+        if q < 2:
+            u0 += o
+        else:
+            u1 += o
+    return v0, v1, u0, u1
+
+
+@njit(cache=True)
+def fill_nan(k0, y_rec, ym_rec, u_rec, v_rec):
+    """Mark the records from row ``k0`` on as NaN (after a divergence)."""
+    for kk in range(k0, y_rec.shape[0]):
+        for c in range(2):
+            y_rec[kk, c] = np.nan
+            ym_rec[kk, c] = np.nan
+            u_rec[kk, c] = np.nan
+            v_rec[kk, c] = np.nan
+
+
 @njit(cache=True)
 def simulate_tito(A, B, C, D, ns, nd, r, d_in, d_out, noise, x, buf, xt,
                   y_rec, ym_rec, u_rec, v_rec):
@@ -88,32 +129,10 @@ def simulate_tito(A, B, C, D, ns, nd, r, d_in, d_out, noise, x, buf, xt,
         y1 = yp1 + d_out[k, 1]
         ym0 = y0 + noise[k, 0]
         ym1 = y1 + noise[k, 1]
-        # controllers
+        # controllers and decoupler
         e0 = r[k, 0] - ym0
         e1 = r[k, 1] - ym1
-        v0 = 0.0
-        v1 = 0.0
-        for i in range(2):
-            b = CTRL0 + i
-            L = nd[b] + 1
-            buf[b, k % L] = e0 if i == 0 else e1
-            o = _block_out(b, buf[b, (k + 1) % L], C, D, ns, x)
-            if i == 0:
-                v0 = o
-            else:
-                v1 = o
-        # decoupler
-        u0 = 0.0
-        u1 = 0.0
-        for q in range(4):
-            b = DEC0 + q
-            L = nd[b] + 1
-            buf[b, k % L] = v0 if q % 2 == 0 else v1
-            o = _block_out(b, buf[b, (k + 1) % L], C, D, ns, x)
-            if q < 2:
-                u0 += o
-            else:
-                u1 += o
+        v0, v1, u0, u1 = controllers_and_decoupler(k, e0, e1, CTRL0, DEC0, buf, nd, C, D, ns, x)
         up0 = u0 + d_in[k, 0]
         up1 = u1 + d_in[k, 1]
         for b in range(PLANT0, PLANT0 + 4):
@@ -131,11 +150,6 @@ def simulate_tito(A, B, C, D, ns, nd, r, d_in, d_out, noise, x, buf, xt,
         v_rec[k, 1] = v1
         big = abs(y0) + abs(y1) + abs(u0) + abs(u1)
         if not big < SIGNAL_LIMIT:
-            for kk in range(k + 1, n1):
-                for c in range(2):
-                    y_rec[kk, c] = np.nan
-                    ym_rec[kk, c] = np.nan
-                    u_rec[kk, c] = np.nan
-                    v_rec[kk, c] = np.nan
+            fill_nan(k + 1, y_rec, ym_rec, u_rec, v_rec)
             return STATUS_DIVERGED
     return STATUS_OK

@@ -23,7 +23,7 @@ import math
 import numpy as np
 from numba import njit
 
-from heurtune.objectives._tito_kernels import _block_out, _block_update  # shared block realisation
+from heurtune.objectives._tito_kernels import _block_update, controllers_and_decoupler, fill_nan
 
 N_BLOCKS = 6
 CTRL0 = 0
@@ -77,16 +77,6 @@ def _rk4(h1, h2, f1, f2, c1, c2, c12, dt):
 
 
 @njit(cache=True)
-def _fill_nan(k0, y_rec, ym_rec, u_rec, v_rec):
-    for kk in range(k0, y_rec.shape[0]):
-        for c in range(2):
-            y_rec[kk, c] = np.nan
-            ym_rec[kk, c] = np.nan
-            u_rec[kk, c] = np.nan
-            v_rec[kk, c] = np.nan
-
-
-@njit(cache=True)
 def simulate_two_tank(A, B, C, D, ns, nd, c, h_op, u_op, ndu, ndy, dt, r, d_in, d_out, noise,
                       x, buf, xt, ubuf, ybuf, y_rec, ym_rec, u_rec, v_rec):
     """Run the loop for samples ``k = 0 .. n`` (``n + 1`` rows in every record).
@@ -135,32 +125,10 @@ def simulate_two_tank(A, B, C, D, ns, nd, c, h_op, u_op, ndu, ndy, dt, r, d_in, 
         y1 = ybuf[1, (k + 1) % Ly1] + d_out[k, 1]
         ym0 = y0 + noise[k, 0]
         ym1 = y1 + noise[k, 1]
-        # controllers
+        # controllers and decoupler
         e0 = r[k, 0] - ym0
         e1 = r[k, 1] - ym1
-        v0 = 0.0
-        v1 = 0.0
-        for i in range(2):
-            b = CTRL0 + i
-            L = nd[b] + 1
-            buf[b, k % L] = e0 if i == 0 else e1
-            o = _block_out(b, buf[b, (k + 1) % L], C, D, ns, x)
-            if i == 0:
-                v0 = o
-            else:
-                v1 = o
-        # decoupler
-        u0 = 0.0
-        u1 = 0.0
-        for q in range(4):
-            b = DEC0 + q
-            L = nd[b] + 1
-            buf[b, k % L] = v0 if q % 2 == 0 else v1
-            o = _block_out(b, buf[b, (k + 1) % L], C, D, ns, x)
-            if q < 2:
-                u0 += o
-            else:
-                u1 += o
+        v0, v1, u0, u1 = controllers_and_decoupler(k, e0, e1, CTRL0, DEC0, buf, nd, C, D, ns, x)
         y_rec[k, 0] = y0
         y_rec[k, 1] = y1
         ym_rec[k, 0] = ym0
@@ -171,7 +139,7 @@ def simulate_two_tank(A, B, C, D, ns, nd, c, h_op, u_op, ndu, ndy, dt, r, d_in, 
         v_rec[k, 1] = v1
         big = abs(y0) + abs(y1) + abs(u0) + abs(u1) + abs(v0) + abs(v1)
         if not big < SIGNAL_LIMIT:
-            _fill_nan(k, y_rec, ym_rec, u_rec, v_rec)
+            fill_nan(k, y_rec, ym_rec, u_rec, v_rec)
             return STATUS_DIVERGED
         # pump dead times
         ubuf[0, k % Lu0] = u0 + d_in[k, 0]
@@ -186,6 +154,6 @@ def simulate_two_tank(A, B, C, D, ns, nd, c, h_op, u_op, ndu, ndy, dt, r, d_in, 
         # plant: RK4 with the pump inputs held over the step
         h1, h2 = _rk4(h1, h2, eta1 * up0, eta2 * up1, c1, c2, c12, dt)
         if not abs(h1) + abs(h2) < LEVEL_LIMIT:
-            _fill_nan(k + 1, y_rec, ym_rec, u_rec, v_rec)
+            fill_nan(k + 1, y_rec, ym_rec, u_rec, v_rec)
             return STATUS_DIVERGED
     return STATUS_OK
