@@ -23,18 +23,14 @@ import math
 import numpy as np
 from numba import njit
 
-from heurtune.objectives._tito_kernels import _block_update, controllers_and_decoupler, fill_nan
+from heurtune.objectives._tito_kernels import (  # noqa: F401  (status codes re-exported)
+    SIGNAL_LIMIT, STATUS_DIVERGED, STATUS_OK, _block_update, controllers_and_decoupler, fill_nan,
+)
 
 N_BLOCKS = 6
 CTRL0 = 0
 DEC0 = 2
 
-STATUS_OK = 0
-STATUS_DIVERGED = 1
-
-# A recorded signal (level deviation, pump input, controller output) whose magnitude sum exceeds
-# this counts as diverged.
-SIGNAL_LIMIT = 1.0e12
 # A level (cm) whose magnitude sum exceeds this counts as diverged (the rig is a few tens of cm).
 LEVEL_LIMIT = 1.0e6
 
