@@ -33,13 +33,18 @@ SCHEMA = {
         "custom": ("map", {
             "A": ("list", NUMBER), "a": ("list", NUMBER), "k": ("list", NUMBER),
             "gamma": ("list", NUMBER), "levels": ("list", NUMBER), "g": NUMBER,
+            "height": ("list", NUMBER), "u_range": PAIR,
         }),
     },
     "controller": {
-        "type": ("choices", ("folqi", "iolqi", "ladr")),  # one, or a list (one case per type)
+        "type": ("choices", ("folqi", "iolqi", "ladr", "lqi")),  # one, or a list (one case per type)
         "oustaloup_order": int,
         "band": PAIR,
         "realisation": ("direct", "integer_split"),
+        # One pairing for every case, "auto" (the one the sign of det G(0) allows), or a table
+        # naming it per plant case.
+        "pairing": ("oneof", (("diagonal", "anti-diagonal", "auto"),
+                              ("map", ("diagonal", "anti-diagonal", "auto")))),
     },
     "scenario": {
         "horizon": NUMBER, "dt": NUMBER,
@@ -47,13 +52,18 @@ SCHEMA = {
         "input_disturbance": PAIR, "input_disturbance_time": NUMBER,
         "noise_sd": NUMBER, "noise_seed": int,
         "saturation": PAIR,
+        "limits": ("none", "physical"),
         "uncertainty": ("map", NUMBER),
     },
     "problem": {
-        "objective": ("effort", "effort_deviation", "iae", "ise", "itae"),
+        "objective": ("effort", "effort_deviation", "iae", "ise", "itae", "weighted"),
+        # objective = "weighted": sum over the named metrics of weight * (metric1 + metric2)
+        "weights": {"J": NUMBER, "Jdev": NUMBER, "IAE": NUMBER, "ISE": NUMBER, "ITAE": NUMBER,
+                    "TV": NUMBER},
         "settling_band": NUMBER,
         "tuning_scenario": str,
-        "constraints": {"Mp": NUMBER, "ts": NUMBER, "ess": NUMBER},
+        # "none": no performance constraints (stability is always required)
+        "constraints": ("oneof", ({"Mp": NUMBER, "ts": NUMBER, "ess": NUMBER}, ("none",))),
         "bounds": ("map", PAIR),
     },
     # Optimiser plugins outside algorithms/: .py paths or importable module names.
@@ -136,8 +146,8 @@ def find_experiment(name: str) -> Path:
 
 
 def _describe(spec) -> str:
-    if isinstance(spec, tuple) and spec and spec[0] in ("list", "map", "pair"):
-        return {"list": "a list", "map": "a table", "pair": "two numbers [a, b]"}[spec[0]]
+    if isinstance(spec, tuple) and spec and spec[0] in ("list", "map", "pair", "oneof"):
+        return {"list": "a list", "map": "a table", "pair": "two numbers [a, b]", "oneof": "one of several forms"}[spec[0]]
     if isinstance(spec, tuple):
         if all(isinstance(s, str) for s in spec):
             return "one of " + ", ".join(repr(s) for s in spec)
@@ -177,6 +187,15 @@ def _check(value, spec, where: str, src: str):
         for i, sub in enumerate(value):
             _check(sub, spec[1], f"{where}[{i}]", src)
         return
+    if isinstance(spec, tuple) and spec and spec[0] == "oneof":
+        errors = []
+        for sub in spec[1]:
+            try:
+                _check(value, sub, where, src)
+                return
+            except ConfigError as exc:
+                errors.append(str(exc).split(": ", 2)[-1])
+        fail(" or ".join(dict.fromkeys(errors)))
     if isinstance(spec, tuple) and spec and spec[0] == "choices":
         values = value if isinstance(value, list) else [value]
         for v in values:

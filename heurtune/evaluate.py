@@ -7,7 +7,9 @@ Usage::
         [--scenario nominal --scenario +30%] [--out traj.parquet] [--plot resp.png]
 
 Prints one row per scenario: overshoot Mp (%), settling time ts (s) and steady-state error
-ess (%) per output, effort J per input and in total, and feasibility. For a TITO experiment
+ess (%) per output, effort J per input and in total, the lowest and highest level (cm) and
+voltage (V), and feasibility, then a line per scenario whose trajectory leaves the plant's
+physical range, and one line when the controller structure cannot hold integral action. For a TITO experiment
 (e.g. ``ga_pi_ccts --case ccts --x "Kp1=..,Ki1=..,Kp2=..,Ki2=.."``): the objective, IAE, ISE,
 ITAE and settling time per loop, the loop margins and sensitivity peaks. Mistakes in the command
 (unknown experiment, case, scenario or variable, a missing variable, a value out of bounds) give
@@ -18,14 +20,16 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 
 import pandas as pd
 
 from heurtune.errors import ConfigError
 from heurtune.objectives.controllers import ControllerDesignError
-from heurtune.problem import load_experiment
+from heurtune.problem import IntegralActionWarning, load_experiment
 
-TABLE_COLUMNS = ["Mp1", "Mp2", "ts1", "ts2", "ess1", "ess2", "J1", "J2", "J", "feasible", "reason"]
+TABLE_COLUMNS = ["Mp1", "Mp2", "ts1", "ts2", "ess1", "ess2", "J1", "J2", "J", "hmin", "hmax", "umin", "umax",
+                 "feasible", "reason"]
 # TITO experiments (heurtune.tito_problem): per loop integrals, settling time and margins.
 TITO_COLUMNS = ["f", "IAE1", "IAE2", "ISE1", "ISE2", "ITAE1", "ITAE2", "ts1", "ts2", "Am1", "Am2",
                 "phim1", "phim2", "Ms1", "Ms2", "feasible", "reason"]
@@ -53,7 +57,10 @@ def run(argv=None) -> int:
         scenarios = args.scenario or list(prob.scenarios)
         for name in scenarios:
             prob.scenario(name)
-        table = prob.report(x, scenarios)
+        structure_warning = getattr(prob, "structure_warning", None)
+        with warnings.catch_warnings():  # said once below, as one line
+            warnings.simplefilter("ignore", IntegralActionWarning)
+            table = prob.report(x, scenarios)
         tito = hasattr(prob, "chain")
         trajectories = None
         if args.out or args.plot:
@@ -65,10 +72,16 @@ def run(argv=None) -> int:
     except (ConfigError, ControllerDesignError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    if structure_warning:
+        print(f"warning: {args.case}: {structure_warning}", file=sys.stderr)
     print(f"{exp.name} / case {args.case} / {prob.kind if tito else prob.loop.kind}")
     with pd.option_context("display.width", 250, "display.max_columns", 24,
                            "display.float_format", "{:.4f}".format):
         print(table[TITO_COLUMNS if tito else TABLE_COLUMNS].to_string())
+    if not tito:
+        for name, flags in table["range"].items():
+            if flags:
+                print(f"{name}: outside the physical range: {flags}")
     if args.out:
         from heurtune.io import write_parquet
 
@@ -82,7 +95,7 @@ def run(argv=None) -> int:
         else:
             from heurtune.plots import plot_responses
 
-            plot_responses(trajectories, args.plot, title=f"{exp.name} / {args.case}")
+            plot_responses(trajectories, args.plot, title=f"{exp.name} / {args.case}", plant=prob.loop.plant)
         print(f"figure written to {args.plot}")
     return 0
 

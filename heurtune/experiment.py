@@ -48,7 +48,7 @@ from heurtune.evaluator import BACKENDS, Evaluator
 from heurtune.io import atomic_path, write_parquet
 from heurtune.problem import make_experiment
 
-__all__ = ["RunSpec", "plan", "execute", "problem_id", "run_experiment", "main"]
+__all__ = ["RunSpec", "plan", "execute", "problem_id", "run_status", "RUN_STATUSES", "run_experiment", "main"]
 
 # Budgets of --smoke: the same problem, a quick check.
 SMOKE_RUNS = 2
@@ -94,11 +94,17 @@ def problem_id(exp, case: str) -> str:
         payload = dict(
             plant=dict(A=p.A, a=p.a, k=p.k, gamma=p.gamma, levels=p.levels, g=p.g),
             controller=prob.loop.kind, options={k: list(v) if isinstance(v, tuple) else v
-                                                for k, v in prob.loop.options.items()},
+                                                for k, v in prob.loop.options.items()
+                                                if not (k == "pairing" and v == "diagonal")},
             scenario=dataclasses.asdict(prob.scenario(prob.tuning_scenario)),
             objective=prob.objective, constraints=prob.constraints, band=prob.settling_band,
             bounds=dict(zip(prob.names, zip(prob.lower.tolist(), prob.upper.tolist()))),
         )
+        # Options added later enter only when set, so earlier problems keep their ids.
+        if prob.weights:
+            payload["weights"] = prob.weights
+        if payload["scenario"].get("limits", "none") == "none":
+            payload["scenario"].pop("limits", None)
     text = json.dumps(payload, sort_keys=True, default=list)
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 
@@ -176,14 +182,42 @@ def execute(config: dict, spec: RunSpec, evaluator: Evaluator | None = None):
                wall_time_s=time.perf_counter() - t0, stop_reason=res.stop_reason,
                settings=json.dumps(spec.settings, sort_keys=True))
     row.update(zip(prob.names, map(float, res.x)))
+    row.update(run_status(prob, res.x))
     _add_report(row, prob, res.x)
     hist = res.history.assign(case=spec.case, algorithm=spec.algorithm, optimiser_index=spec.optimiser_index,
                               run=spec.run)
     return row, hist
 
 
+RUN_STATUSES = ("feasible", "infeasible", "failed")
+
+
+def run_status(prob, x) -> dict:
+    """How a run's best candidate fares under the tuning scenario, for ``runs.parquet``.
+
+    Returns
+    -------
+    dict
+        ``status``: ``"feasible"``; ``"infeasible"`` (simulated, violates a constraint); or
+        ``"failed"`` (no stable, simulable candidate was found: its ``best_f`` is the
+        ``FAILED_OBJECTIVE`` sentinel, not a number to average). ``failure``: the reason of a
+        failed candidate (``unstable``, ``diverged``, ``riccati_failed``, ...), else "".
+    """
+    ev = prob.evaluate(np.asarray(x, dtype=np.float64)[None, :])
+    reason = str(ev.reason[0])
+    status = "failed" if reason else ("feasible" if bool(ev.feasible[0]) else "infeasible")
+    return dict(status=status, failure=reason)
+
+
 def _add_report(row: dict, prob, x):
-    for scenario, values in prob.report(x).iterrows():
+    import warnings
+
+    from heurtune.problem import IntegralActionWarning
+
+    with warnings.catch_warnings():  # said once, when the experiment starts
+        warnings.simplefilter("ignore", IntegralActionWarning)
+        table = prob.report(x)
+    for scenario, values in table.iterrows():
         for key, value in values.items():
             row[f"{key}@{scenario}"] = value
 
@@ -200,6 +234,7 @@ def _execute_baseline(prob, spec: RunSpec):
                wall_time_s=time.perf_counter() - t0, stop_reason="analytic design",
                settings=json.dumps({}, sort_keys=True))
     row.update(zip(prob.names, map(float, x)))
+    row.update(run_status(prob, x))
     _add_report(row, prob, x)
     hist = pd.DataFrame(dict(epoch=[0], n_evals=[1], best_f=[float(ev.f[0])], best_violation=[viol],
                              mean_f=[float(ev.f[0])], sd_f=[0.0], feasible_fraction=[float(ev.feasible[0])],
@@ -302,6 +337,9 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     else:
         with atomic_path(meta_path) as tmp:
             tmp.write_text(json.dumps(plan_key))
+    warnings_ = exp.structure_warnings() if hasattr(exp, "structure_warnings") else {}
+    for case, msg in warnings_.items():
+        print(f"warning: {case}: {msg}", file=sys.stderr)
     done = _finished(parts)
     pending = [s for s in specs if s.part_name not in done]
     bar = Progress(len(specs), len(specs) - len(pending), progress_stream)
@@ -382,7 +420,9 @@ def _gather(exp, specs, parts, out_dir, ids, config, plan_key, *, figures):
     history = history[lead + [c for c in history.columns if c not in lead]]
     write_parquet(runs, out_dir / "runs.parquet")
     write_parquet(history, out_dir / "history.parquet")
+    warnings_ = exp.structure_warnings() if hasattr(exp, "structure_warnings") else {}
     meta = dict(experiment=exp.name, config=config, plan=plan_key, root_seed=specs[0].root_seed,
+                structure_warnings=warnings_,
                 seeds={s.part_name: dict(seed=s.root_seed, spawn_key=list(s.spawn_key)) for s in specs},
                 problem_ids=ids, versions=_versions(), git_commit=_git_commit(),
                 written=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
@@ -400,7 +440,7 @@ def _gather(exp, specs, parts, out_dir, ids, config, plan_key, *, figures):
             x = np.array([r[n] for n in prob.names])
             if hasattr(prob, "margins"):  # TITO: exact margins of each decoupled loop
                 m = prob.margins(x)
-            elif prob.loop.kind in ("folqi", "iolqi"):
+            elif prob.loop.kind in ("folqi", "iolqi", "lqi"):
                 m = loop_margins(prob, x)
             else:
                 continue
@@ -454,18 +494,35 @@ def _slug(text: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in text)
 
 
+def _failed(runs: pd.DataFrame) -> pd.Series:
+    """Which runs failed: ``status == "failed"``, or (parts written before the status column)
+    a best objective at the failure sentinel."""
+    from heurtune.problem import FAILED_OBJECTIVE
+
+    by_value = runs["best_f"] >= FAILED_OBJECTIVE
+    if "status" not in runs:
+        return by_value
+    return runs["status"].eq("failed") | (runs["status"].isna() & by_value)
+
+
 def print_summary(runs: pd.DataFrame, exp, stream=sys.stdout):
-    """Per case and optimiser: best, mean, SD, median, worst objective, feasible runs, mean
-    convergence epoch, wall time and the best gains."""
+    """Per case and optimiser: best, mean, SD, median, worst objective, feasible runs, failed
+    runs, mean convergence epoch, wall time and the best gains.
+
+    Failed runs (``status == "failed"``: no stable, simulable candidate) are counted, not
+    averaged: their ``best_f`` is a sentinel, so the statistics cover the other runs (NaN when
+    every run failed)."""
     rows = []
     for (case, _), grp in runs.groupby(["case", "optimiser_index"], sort=False):
-        f = grp["best_f"]
+        failed = _failed(grp)
+        f = grp.loc[~failed, "best_f"]
         best = _best_runs(grp).iloc[0]
         names = exp.problem(case).names
         rows.append({
             "case": case, "algorithm": grp["algorithm"].iloc[0], "runs": len(grp),
             "best": f.min(), "mean": f.mean(), "sd": f.std(ddof=1) if len(f) > 1 else 0.0,
             "median": f.median(), "worst": f.max(), "feasible": f"{int(grp['feasible'].sum())}/{len(grp)}",
+            "failed": int(failed.sum()),
             "conv_epoch": grp["convergence_epoch"].mean(), "wall_s": grp["wall_time_s"].sum(),
             "best gains": " ".join(f"{n}={best[n]:.4g}" for n in names),
         })

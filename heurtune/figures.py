@@ -203,7 +203,9 @@ def response_figure(problem, x, path, scenarios=("nominal", "-30%", "+30%"), tit
 
     Simulates ``x`` under each scenario and draws, per lower tank, the measured level y
     (solid) and the true level h (dashed), and below them the pump voltages u1, u2, with
-    :func:`heurtune.plots.plot_responses`.
+    :func:`heurtune.plots.plot_responses`. When the plant (``problem.loop.plant``) has
+    physical limits, the tank heights and the pump voltage range are drawn as dashed lines and
+    a response that leaves them is marked "outside physical range".
 
     Parameters
     ----------
@@ -238,4 +240,5 @@ def response_figure(problem, x, path, scenarios=("nominal", "-30%", "+30%"), tit
             df = df[(df["t"] >= tlim[0]) & (df["t"] <= tlim[1])]
         frames.append(df.assign(scenario=label))
     traj = pd.concat(frames, ignore_index=True)
-    plot_responses(traj, path, title=title or f"{problem.case} / {problem.loop.kind}")
+    plot_responses(traj, path, title=title or f"{problem.case} / {problem.loop.kind}",
+                   plant=getattr(problem.loop, "plant", None))

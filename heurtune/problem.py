@@ -17,13 +17,14 @@ import pandas as pd
 from heurtune.config import load_config
 from heurtune.errors import ConfigError
 from heurtune.objectives.controllers import (
-    CONTROLLER_TYPES, ControllerDesignError, decision_names, default_bounds,
+    CONTROLLER_TYPES, PAIRED_TYPES, ControllerDesignError, dc_gain, decision_names, default_bounds,
+    integral_action_obstruction,
 )
-from heurtune.objectives.loop import METRIC_NAMES, ClosedLoop, Scenario
-from heurtune.objectives.qtp import QTPParams, preset
+from heurtune.objectives.loop import METRIC_NAMES, ClosedLoop, Scenario, physical_range_flags
+from heurtune.objectives.qtp import QTPParams, linearise, preset
 
 __all__ = ["DecisionVectors", "Experiment", "ExperimentBase", "Problem", "Evaluation", "load_experiment", "make_experiment",
-           "FAILED_OBJECTIVE", "FAILED_VIOLATION"]
+           "FAILED_OBJECTIVE", "FAILED_VIOLATION", "IntegralActionWarning", "STABILITY_CONSTRAINT"]
 
 # A candidate that cannot be simulated gets these (finite) values.
 FAILED_OBJECTIVE = 1.0e10
@@ -41,6 +42,15 @@ _OBJECTIVES = {
     "itae": ("ITAE1", "ITAE2"),
 }
 _METRIC_INDEX = {name: i for i, name in enumerate(METRIC_NAMES)}
+# Metrics a weighted objective may combine (each summed over both loops or pumps).
+WEIGHTED_METRICS = ("J", "Jdev", "IAE", "ISE", "ITAE", "TV")
+# The constraint that a problem without performance constraints keeps: the candidate's loop is
+# stable and its simulation finished (g = 0), else it carries the failure's violation.
+STABILITY_CONSTRAINT = "stability"
+
+
+class IntegralActionWarning(UserWarning):
+    """The configured controller structure cannot hold integral action on this plant."""
 
 
 @dataclasses.dataclass
@@ -166,7 +176,8 @@ class Problem(DecisionVectors):
     scenario_type = Scenario
 
     def __init__(self, case: str, loop: ClosedLoop, names, lower, upper, *, objective: str,
-                 constraints: dict, settling_band: float, scenarios: dict, tuning_scenario: str):
+                 constraints: dict, settling_band: float, scenarios: dict, tuning_scenario: str,
+                 weights: dict | None = None, structure_warning: str | None = None):
         self.case = case
         self.loop = loop
         self.names = tuple(names)
@@ -177,7 +188,18 @@ class Problem(DecisionVectors):
         self.settling_band = float(settling_band)
         self.scenarios = dict(scenarios)
         self.tuning_scenario = tuning_scenario
-        self._objective_idx = [_METRIC_INDEX[m] for m in _OBJECTIVES[objective]]
+        self.structure_warning = structure_warning
+        if objective == "weighted":
+            if not weights:
+                raise ConfigError("problem.objective = 'weighted' needs problem.weights "
+                                  f"(a weight per metric among {', '.join(WEIGHTED_METRICS)})")
+            self.weights = dict(weights)
+            self._objective_idx = [_METRIC_INDEX[f"{m}{i}"] for m in self.weights for i in (1, 2)]
+            self._objective_w = np.repeat([float(w) for w in self.weights.values()], 2)
+        else:
+            self.weights = None
+            self._objective_idx = [_METRIC_INDEX[m] for m in _OBJECTIVES[objective]]
+            self._objective_w = None
         self._constraint_idx = []
         self._constraint_limit = []
         names_g = []
@@ -186,7 +208,10 @@ class Problem(DecisionVectors):
                 names_g.append(f"{key}{i}")
                 self._constraint_idx.append(_METRIC_INDEX[f"{key}{i}"])
                 self._constraint_limit.append(limit)
-        self.constraint_names = tuple(names_g)
+        # Without performance constraints a column still carries stability, so that an unstable
+        # or diverging candidate is never feasible to the optimisers either.
+        self._stability_only = not names_g
+        self.constraint_names = (STABILITY_CONSTRAINT,) if self._stability_only else tuple(names_g)
         self._constraint_limit = np.array(self._constraint_limit)
 
     def __repr__(self):
@@ -241,8 +266,12 @@ class Problem(DecisionVectors):
         for i in range(n):
             reason[i], margin = self._evaluate_one(X[i], sc, metrics[i])
             if reason[i] == "":
-                f[i] = metrics[i, self._objective_idx].sum()
-                g[i] = metrics[i, self._constraint_idx] / self._constraint_limit - 1.0
+                if self._objective_w is None:
+                    f[i] = metrics[i, self._objective_idx].sum()
+                else:
+                    f[i] = metrics[i, self._objective_idx] @ self._objective_w
+                g[i] = 0.0 if self._stability_only else (
+                    metrics[i, self._constraint_idx] / self._constraint_limit - 1.0)
             else:
                 metrics[i] = np.nan
                 if reason[i] == "unstable":
@@ -274,7 +303,19 @@ class Problem(DecisionVectors):
         return self.loop.run(ctrl, sc, record_levels=record_levels).to_frame()
 
     def report(self, x, scenarios=None) -> pd.DataFrame:
-        """Metrics of one candidate per scenario (rows) with its objective and feasibility."""
+        """Metrics of one candidate per scenario (rows) with its objective and feasibility.
+
+        Column ``range`` names where the trajectory leaves the plant's physical range (levels
+        outside [0, height], voltages outside ``u_range``; "" when inside or when the plant has
+        no limits), see :func:`heurtune.objectives.loop.physical_range_flags`.
+
+        When the controller structure cannot hold integral action on this plant
+        (``structure_warning``), an :class:`IntegralActionWarning` says so.
+        """
+        if self.structure_warning:
+            import warnings
+
+            warnings.warn(f"{self.case}: {self.structure_warning}", IntegralActionWarning, stacklevel=2)
         x = np.array([self.values(x)[n] for n in self.names])
         rows = []
         for name in (scenarios or list(self.scenarios)):
@@ -283,6 +324,7 @@ class Problem(DecisionVectors):
                    "reason": ev.reason[0]}
             row.update(zip(METRIC_NAMES, ev.metrics[0]))
             row["J"] = row["J1"] + row["J2"]
+            row["range"] = "; ".join(physical_range_flags(ev.metrics[0], self.loop.plant))
             rows.append(row)
         return pd.DataFrame(rows).set_index("scenario")
 
@@ -352,6 +394,16 @@ class Experiment(ExperimentBase):
             band=tuple(ctrl.get("band", (1e-3, 1e3))),
             realisation=ctrl.get("realisation", "direct"),
         )
+        self.pairing = ctrl.get("pairing", "diagonal")
+        if isinstance(self.pairing, dict):
+            unknown = [c for c in self.pairing if c not in plant_cases]
+            if unknown:
+                raise ConfigError(f"{self.name}: controller.pairing: unknown case {unknown[0]!r}; "
+                                  f"allowed: {', '.join(plant_cases)}")
+        unpaired = [k for k in self.controllers if k not in PAIRED_TYPES]
+        if unpaired and self.pairing != "diagonal" and len(self.controllers) == len(unpaired):
+            raise ConfigError(f"{self.name}: controller.pairing applies to {', '.join(PAIRED_TYPES)}; "
+                              f"{unpaired[0]} designs its full integral gain (leave pairing out)")
         sc = dict(config.get("scenario", {}))
         uncertainty = sc.pop("uncertainty", DEFAULT_UNCERTAINTY)
         if "nominal" not in uncertainty:
@@ -364,7 +416,16 @@ class Experiment(ExperimentBase):
             raise ConfigError(f"{self.name}: {exc}") from None
         prob = config.get("problem", {})
         self.objective = prob.get("objective", "effort")
+        self.weights = prob.get("weights")
+        if self.objective == "weighted" and not self.weights:
+            raise ConfigError(f"{self.name}: problem.objective = 'weighted' needs problem.weights "
+                              f"(a weight per metric among {', '.join(WEIGHTED_METRICS)})")
+        if self.weights and self.objective != "weighted":
+            raise ConfigError(f"{self.name}: problem.weights needs problem.objective = 'weighted', "
+                              f"got {self.objective!r}")
         self.constraints = prob.get("constraints", DEFAULT_CONSTRAINTS)
+        if self.constraints == "none":
+            self.constraints = {}
         for key, lim in self.constraints.items():
             if lim <= 0:
                 raise ConfigError(f"{self.name}: problem.constraints.{key} must be positive, got {lim}")
@@ -408,17 +469,51 @@ class Experiment(ExperimentBase):
         except ConfigError as exc:
             raise ConfigError(f"{self.name}: plant.cases: {exc} (or define plant.custom.{case})") from None
 
+    def pairing_of(self, case: str) -> str:
+        """The resolved integral pairing of a case: ``"diagonal"`` or ``"anti-diagonal"``.
+
+        ``"auto"`` picks the pairing whose integral action can be stable on the case's plant:
+        diagonal when det G(0) > 0, anti-diagonal when det G(0) < 0 (the pairing the relative
+        gain array recommends for the QTP). Types without a pairing (``lqi``) get diagonal.
+        """
+        plant_case, kind = self._variant(case)
+        choice = self.pairing.get(plant_case, "diagonal") if isinstance(self.pairing, dict) else self.pairing
+        if kind not in PAIRED_TYPES:
+            return "diagonal"
+        if choice == "auto":
+            A, B, C = linearise(self._plant(plant_case))
+            choice = "diagonal" if np.linalg.det(dc_gain(A, B, C)) > 0 else "anti-diagonal"
+        return choice
+
     def problem(self, case: str) -> Problem:
         """The tuning problem of one case (e.g. ``"min"``, or ``"min-folqi"`` when the experiment
         names several controllers)."""
         plant_case, kind = self._variant(case)
-        loop = ClosedLoop(self._plant(plant_case), kind, **self.controller_options)
+        pairing = self.pairing_of(case)
+        loop = ClosedLoop(self._plant(plant_case), kind, **self.controller_options, pairing=pairing)
         names = decision_names(kind)
         lower = [self.bounds[n][0] for n in names]
         upper = [self.bounds[n][1] for n in names]
+        ki = tuple(self.bounds.get(k, (1.0, 1.0)) for k in ("Ki1", "Ki2"))
+        warning = integral_action_obstruction(kind, pairing, loop.A, loop.B, loop.C, ki)
         return Problem(case, loop, names, lower, upper, objective=self.objective,
                        constraints=self.constraints, settling_band=self.settling_band,
-                       scenarios=self.scenarios, tuning_scenario=self.tuning_scenario)
+                       scenarios=self.scenarios, tuning_scenario=self.tuning_scenario,
+                       weights=self.weights, structure_warning=warning)
+
+    def structure_warnings(self) -> dict:
+        """``{case: one-line reason}`` for every case whose controller structure cannot hold
+        integral action on its plant (see :func:`integral_action_obstruction`)."""
+        out = {}
+        for case in self.cases:
+            plant_case, kind = self._variant(case)
+            pairing = self.pairing_of(case)
+            A, B, C = linearise(self._plant(plant_case))
+            ki = tuple(self.bounds.get(k, (1.0, 1.0)) for k in ("Ki1", "Ki2"))
+            msg = integral_action_obstruction(kind, pairing, A, B, C, ki)
+            if msg:
+                out[case] = msg
+        return out
 
 
 def load_experiment(name: str) -> Experiment:

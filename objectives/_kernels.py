@@ -16,11 +16,14 @@ STATUS_DIVERGED = 1
 # A simulation whose levels reach this sum of magnitudes (cm) counts as diverged.
 LEVEL_LIMIT = 1.0e6
 
-# Index of each metric in the vectors written by simulate_loop and loop_metrics.
+# Index of each metric in the vectors written by simulate_loop and loop_metrics. The last four
+# are the physical range of the run: lowest and highest true level (any tank) and applied
+# voltage (either pump).
 METRIC_NAMES = (
     "Mp1", "Mp2", "ts1", "ts2", "ess1", "ess2",
     "IAE1", "IAE2", "ISE1", "ISE2", "ITAE1", "ITAE2",
     "J1", "J2", "Jdev1", "Jdev2", "TV1", "TV2",
+    "hmin", "hmax", "umin", "umax",
 )
 N_METRICS = len(METRIC_NAMES)
 
@@ -118,17 +121,59 @@ def _rk4_step(h1, h2, h3, h4, f1, f2, f3, f4, c, dt):
             q4 - sixth * c[3] * o4)
 
 
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _limited(x, d, hi):
+    """Slope ``d`` of a level ``x`` held in [0, hi]: none past a limit (NaN passes through)."""
+    if (x >= hi and d > 0.0) or (x <= 0.0 and d < 0.0):
+        return 0.0
+    return d
+
+
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _rhs_limited(h1, h2, h3, h4, f1, f2, f3, f4, c, m1, m2, m3, m4):
+    """dh/dt of the QTP with tanks of heights ``m``: levels clamped to [0, m_i] and each slope
+    projected (water above a rim overflows, an empty tank stays empty)."""
+    x1 = min(max(h1, 0.0), m1)
+    x2 = min(max(h2, 0.0), m2)
+    x3 = min(max(h3, 0.0), m3)
+    x4 = min(max(h4, 0.0), m4)
+    d1, d2, d3, d4 = _qtp_rhs(x1, x2, x3, x4, f1, f2, f3, f4, c)
+    return _limited(x1, d1, m1), _limited(x2, d2, m2), _limited(x3, d3, m3), _limited(x4, d4, m4)
+
+
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _rk4_limited(h1, h2, h3, h4, f1, f2, f3, f4, c, dt, m1, m2, m3, m4):
+    """Classic RK4 step of the QTP with tank heights ``m`` (see :func:`_rhs_limited`), the
+    result clipped to [0, m_i]. Where no level touches a limit during the step it is the step
+    of :func:`_rk4_clipped`; where one does, it is first-order accurate at that instant."""
+    half = 0.5 * dt
+    sixth = dt / 6.0
+    a1, a2, a3, a4 = _rhs_limited(h1, h2, h3, h4, f1, f2, f3, f4, c, m1, m2, m3, m4)
+    b1, b2, b3, b4 = _rhs_limited(h1 + half * a1, h2 + half * a2, h3 + half * a3, h4 + half * a4,
+                                  f1, f2, f3, f4, c, m1, m2, m3, m4)
+    e1, e2, e3, e4 = _rhs_limited(h1 + half * b1, h2 + half * b2, h3 + half * b3, h4 + half * b4,
+                                  f1, f2, f3, f4, c, m1, m2, m3, m4)
+    g1, g2, g3, g4 = _rhs_limited(h1 + dt * e1, h2 + dt * e2, h3 + dt * e3, h4 + dt * e4,
+                                  f1, f2, f3, f4, c, m1, m2, m3, m4)
+    # Written so that NaN passes through (max and min keep their first argument when the
+    # comparison fails) and still counts as divergence.
+    return (min(max(h1 + sixth * (a1 + 2.0 * b1 + 2.0 * e1 + g1), 0.0), m1),
+            min(max(h2 + sixth * (a2 + 2.0 * b2 + 2.0 * e2 + g2), 0.0), m2),
+            min(max(h3 + sixth * (a3 + 2.0 * b3 + 2.0 * e3 + g3), 0.0), m3),
+            min(max(h4 + sixth * (a4 + 2.0 * b4 + 2.0 * e4 + g4), 0.0), m4))
+
+
 # Metrics are folded block by block: the simulation loop only stores the deviations
 # a = |y - y_op| and voltages u of up to METRIC_BLOCK samples, and a separate tight (vectorised)
 # loop folds them into a small state. Per output (OUT_STATE slots): plain sums of a, a^2 and
 # k a, from which the trapezoid integrals follow at the end; the maximum after t_d; the last
 # sample outside the band after t_d, its deviation and that of the sample after it (with a flag
 # when that sample falls in the next block); the deviations at samples 0, i_dist - 1, i_dist
-# and the latest. Per input (IN_STATE slots): sums of u^2 and (u - u_op)^2, the total variation
-# and the latest voltage.
+# and the latest. Per input (IN_STATE slots): sums of u^2 and (u - u_op)^2, the total variation,
+# the latest voltage, and the lowest and highest voltage.
 METRIC_BLOCK = 256
 OUT_STATE = 12
-IN_STATE = 4
+IN_STATE = 6
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")
@@ -195,10 +240,18 @@ def _fold_input(u, k0, cnt, u_op, st):
         sd2 += d * d
     for j in range(1, cnt):
         tv += abs(u[j] - u[j - 1])
+    # Range in a loop of its own, so that the sums above keep their vectorised grouping.
+    lo = st[4] if k0 > 0 else u[0]
+    hi = st[5] if k0 > 0 else u[0]
+    for j in range(cnt):
+        lo = min(lo, u[j])
+        hi = max(hi, u[j])
     st[0] += s2
     st[1] += sd2
     st[2] += tv
     st[3] = u[cnt - 1]
+    st[4] = lo
+    st[5] = hi
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")
@@ -240,8 +293,16 @@ def _finish_input(dt, u_op, st, out, j):
     out[16 + j] = st[2]
 
 
-@njit(cache=True, fastmath=_FAST)
-def loop_metrics(y, u, y_op, u_op, dt, i_dist, band_pct, out):
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _finish_range(h_lo, h_hi, si, out):
+    """Write hmin, hmax (levels, over all tanks) and umin, umax (voltages, both pumps)."""
+    out[18] = h_lo
+    out[19] = h_hi
+    out[20] = min(si[0, 4], si[1, 4])
+    out[21] = max(si[0, 5], si[1, 5])
+
+
+def loop_metrics(y, u, y_op, u_op, dt, i_dist, band_pct, out, h=None):
     """Performance metrics of a sampled closed-loop response.
 
     The same block folds that :func:`simulate_loop` runs on its buffered samples.
@@ -265,7 +326,21 @@ def loop_metrics(y, u, y_op, u_op, dt, i_dist, band_pct, out):
         J_j    integral of u_j^2 over [0, T] (exact for the held input)
         Jdev_j integral of (u_j - u_op_j)^2 over [0, T]
         TV_j   sum of |u_j[k+1] - u_j[k]|
+        hmin, hmax  lowest and highest true level over all four tanks and samples k = 0..n
+               (NaN when ``h`` is not given)
+        umin, umax  lowest and highest applied voltage over both pumps and samples k = 0..n
+
+    h : (n + 1, 4) true levels at the same instants, optional (None or shape (0, 4): none)
     """
+    h = np.empty((0, 4)) if h is None else np.asarray(h, dtype=np.float64)
+    if h.ndim != 2 or h.shape[1] != 4 or h.shape[0] not in (0, y.shape[0]):
+        raise ValueError(f"loop_metrics: h must have shape ({y.shape[0]}, 4) or (0, 4), got {h.shape}")
+    _loop_metrics(y, u, h, y_op, u_op, dt, i_dist, band_pct, out)
+
+
+@njit(cache=True, fastmath=_FAST)
+def _loop_metrics(y, u, h, y_op, u_op, dt, i_dist, band_pct, out):
+    """Kernel of :func:`loop_metrics` (``h`` of shape (n + 1, 4) or (0, 4))."""
     n = y.shape[0] - 1
     so = np.empty((2, OUT_STATE))
     si = np.zeros((2, IN_STATE))
@@ -276,6 +351,24 @@ def loop_metrics(y, u, y_op, u_op, dt, i_dist, band_pct, out):
         _fold_input(np.ascontiguousarray(u[:, i]), 0, n + 1, u_op[i], si[i])
         _finish_output(n, dt, i_dist, band, y_op[i], so[i], out, i)
         _finish_input(dt, u_op[i], si[i], out, i)
+    h_lo = np.nan
+    h_hi = np.nan
+    if h.shape[0] > 0:
+        # one running minimum and maximum per tank: independent chains, combined at the end
+        lo1, lo2, lo3, lo4 = h[0, 0], h[0, 1], h[0, 2], h[0, 3]
+        hi1, hi2, hi3, hi4 = lo1, lo2, lo3, lo4
+        for k in range(1, h.shape[0]):
+            lo1 = min(lo1, h[k, 0])
+            lo2 = min(lo2, h[k, 1])
+            lo3 = min(lo3, h[k, 2])
+            lo4 = min(lo4, h[k, 3])
+            hi1 = max(hi1, h[k, 0])
+            hi2 = max(hi2, h[k, 1])
+            hi3 = max(hi3, h[k, 2])
+            hi4 = max(hi4, h[k, 3])
+        h_lo = min(min(lo1, lo2), min(lo3, lo4))
+        h_hi = max(max(hi1, hi2), max(hi3, hi4))
+    _finish_range(h_lo, h_hi, si, out)
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")
@@ -292,7 +385,7 @@ def _modal_sum(z, ad, bd, lo, hi, w):
 @njit(cache=True, fastmath=_FAST)
 def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel, segments,
                   dt, n_steps, i_out_dist, out_dist, i_in_dist, in_dist, noise,
-                  saturate, u_min, u_max, band_pct, metrics, y_rec, u_rec, h_rec):
+                  saturate, u_min, u_max, clip_levels, h_max, band_pct, metrics, y_rec, u_rec, h_rec):
     """Fixed-step closed loop: sampled linear controller, RK4 nonlinear plant, metrics.
 
     At each sample ``k`` (``t = k dt``) the controller reads the measured deviations
@@ -302,7 +395,13 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
     zero-order-hold discretisation. The first ``nd = ad.size`` controller states are modal and
     single-input (``z_i <- ad_i z_i + bd_i w[state_input[i]]``, in the order of ``segments``),
     the remaining ones evolve with the dense ``Ad`` and ``Bd``. With saturation on, the states
-    of a saturated pump's channel are held (conditional-integration anti-windup). The metrics
+    of a saturated pump's channel are held (conditional-integration anti-windup). With
+    ``clip_levels`` on, every level stays in [0, h_max_i]: a tank cannot hold more than its
+    height (the water above the rim is lost) nor less than nothing. RK4 then works on the
+    projected slopes (:func:`_rk4_limited`: no rise at a rim, no fall at the floor) and clips
+    each level after the step, which is first-order accurate over the step in which a level
+    reaches a limit and as accurate as without limits elsewhere. The input disturbance is
+    added to the plant input after saturation. The metrics
     of :func:`loop_metrics` are folded in the same pass from a small buffer of samples, so an
     evaluation needs no trajectory in memory. The plant state lives in scalars: the RK4 chain of square roots is
     the loop's critical path, and everything else overlaps with it.
@@ -321,9 +420,12 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
     i_out_dist : int, first sample with the measured-level disturbance ``out_dist`` (2,)
     i_in_dist : int, first sample with the pump-voltage disturbance ``in_dist`` (2,)
     noise : (n_steps + 1, 4) measurement noise, or shape (0, 4) for none
-    saturate : bool; u_min, u_max : float
+    saturate : bool; u_min, u_max : float, limits of the applied voltages
+    clip_levels : bool; h_max : (4,) tank heights in cm (read only when ``clip_levels``)
     band_pct : float, settling band of the metrics, percent of the operating level
-    metrics : (N_METRICS,) output, in the order of METRIC_NAMES
+    metrics : (N_METRICS,) output, in the order of METRIC_NAMES; hmin, hmax cover the true
+        levels and umin, umax the applied voltages (what ``u_rec`` records: after saturation,
+        before the input disturbance) at samples 0..n_steps
     y_rec, u_rec : (n_steps + 1, 2) measured levels and applied voltages, or shape (0, 2)
     h_rec : (n_steps + 1, 4) true levels, or shape (0, 4)
 
@@ -359,8 +461,14 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
     rec_h = h_rec.shape[0] > 0
     band1 = band_pct / 100.0 * h_op[0]
     band2 = band_pct / 100.0 * h_op[1]
+    hm1, hm2, hm3, hm4 = (h_max[0], h_max[1], h_max[2], h_max[3]) if clip_levels else (0.0, 0.0, 0.0, 0.0)
+    h_lo = math.inf
+    h_hi = -math.inf
     diverged_at = -1
     for k in range(n_steps + 1):
+        # Range of the true levels (not on the plant's critical path).
+        h_lo = min(h_lo, min(min(h1, h2), min(h3, h4)))
+        h_hi = max(h_hi, max(max(h1, h2), max(h3, h4)))
         d1 = out_dist[0] if k >= i_out_dist else 0.0
         d2 = out_dist[1] if k >= i_out_dist else 0.0
         w0 = h1 + (d1 - h_op[0])
@@ -442,7 +550,11 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
         if k >= i_in_dist:
             u1 += in_dist[0]
             u2 += in_dist[1]
-        h1, h2, h3, h4 = _rk4_step(h1, h2, h3, h4, c[6] * u1, c[7] * u2, c[8] * u2, c[9] * u1, c, dt)
+        if clip_levels:
+            h1, h2, h3, h4 = _rk4_limited(h1, h2, h3, h4, c[6] * u1, c[7] * u2, c[8] * u2, c[9] * u1, c, dt,
+                                          hm1, hm2, hm3, hm4)
+        else:
+            h1, h2, h3, h4 = _rk4_step(h1, h2, h3, h4, c[6] * u1, c[7] * u2, c[8] * u2, c[9] * u1, c, dt)
         # One comparison per step; NaN fails it, so it counts as divergence too.
         if not (abs(h1) + abs(h2) + abs(h3) + abs(h4) < LEVEL_LIMIT):
             diverged_at = k
@@ -452,6 +564,7 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
         _finish_output(n_steps, dt, i_out_dist, band2, h_op[1], so[1], metrics, 1)
         _finish_input(dt, u_op[0], si[0], metrics, 0)
         _finish_input(dt, u_op[1], si[1], metrics, 1)
+        _finish_range(h_lo, h_hi, si, metrics)
         return STATUS_OK, n_steps
     # Kept out of the time loop so that it stays lean.
     for kk in range(diverged_at + 1, y_rec.shape[0]):

@@ -40,6 +40,9 @@ __all__ = [
     "decision_names",
     "default_bounds",
     "build_controller",
+    "PAIRINGS",
+    "dc_gain",
+    "integral_action_obstruction",
 ]
 
 N_MEASURED = 4
@@ -291,9 +294,16 @@ def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.n
     return K
 
 
-CONTROLLER_TYPES = ("folqi", "iolqi", "ladr")
+CONTROLLER_TYPES = ("folqi", "iolqi", "ladr", "lqi")
+# Which error each pump integrates: "diagonal" (thesis eq. 3.9: pump r integrates e_r) or
+# "anti-diagonal" (pump 1 integrates e2, pump 2 integrates e1).
+PAIRINGS = ("diagonal", "anti-diagonal")
+# Controller types whose integral action follows a pairing (LQI's 2 x 2 integral gain comes from
+# the Riccati solution and couples both errors to both pumps).
+PAIRED_TYPES = ("folqi", "iolqi", "ladr")
 
 _LQI_NAMES = ("Q11", "Q22", "Q33", "Q44", "R11", "R22", "Ki1", "Ki2")
+_AUGMENTED_LQI_NAMES = ("Q11", "Q22", "Q33", "Q44", "Qi1", "Qi2", "R11", "R22")
 _LADR_BETAS = tuple(f"beta{i}{j}" for j in (1, 2, 3) for i in (1, 2, 3, 4))
 _LADR_NAMES = _LADR_BETAS + ("b1", "b2", "b3", "b4", "r1", "r2", "r3", "r4")
 
@@ -306,15 +316,25 @@ def decision_names(kind: str) -> tuple:
         return _LQI_NAMES
     if kind == "ladr":
         return _LADR_NAMES
+    if kind == "lqi":
+        return _AUGMENTED_LQI_NAMES
     raise ConfigError(f"unknown controller type {kind!r}; allowed: {', '.join(CONTROLLER_TYPES)}")
+
+
+# Bounds of the LQI's weights on the integrated errors (see docs/model.md, "Integral action"
+# for the sweep they come from).
+LQI_INTEGRAL_WEIGHT_BOUNDS = (1e-4, 10.0)
 
 
 def default_bounds(kind: str) -> dict:
     """Thesis bounds (sec. 4.3 and 5.3): Q in [0.01, 2.5], R in [0.1, 5], Ki in [0.1, 10],
-    alpha in [0.1, 2]; LADR beta in [0, 150], b and r in [0, 10]."""
+    alpha in [0.1, 2]; LADR beta in [0, 150], b and r in [0, 10]; the LQI's integral weights
+    Qi in ``LQI_INTEGRAL_WEIGHT_BOUNDS``."""
     out = {}
     for name in decision_names(kind):
-        if name.startswith("Q"):
+        if name.startswith("Qi"):
+            out[name] = LQI_INTEGRAL_WEIGHT_BOUNDS
+        elif name.startswith("Q"):
             out[name] = (0.01, 2.5)
         elif name.startswith("R"):
             out[name] = (0.1, 5.0)
@@ -329,7 +349,12 @@ def default_bounds(kind: str) -> dict:
     return out
 
 
-def _folqi(values: dict, A, B, alphas, order, band, realisation) -> LinearController:
+def _error_of_pump(pairing: str, pump: int) -> int:
+    """Index of the error (0: e1, 1: e2) that pump ``pump`` integrates under ``pairing``."""
+    return pump if pairing == "diagonal" else 1 - pump
+
+
+def _folqi(values: dict, A, B, alphas, order, band, realisation, pairing="diagonal") -> LinearController:
     Q = np.diag([values["Q11"], values["Q22"], values["Q33"], values["Q44"]])
     R = np.diag([values["R11"], values["R22"]])
     K = lqr_gain(A, B, Q, R)
@@ -352,16 +377,17 @@ def _folqi(values: dict, A, B, alphas, order, band, realisation) -> LinearContro
     start = 0
     for ch, (Af, bf, cf, df) in enumerate(parts):
         stop = start + Af.shape[0]
+        err = _error_of_pump(pairing, ch)
         Ac[start:stop, start:stop] = Af
-        Bc[start:stop, ch] = -bf  # e_ch = -w_ch
+        Bc[start:stop, err] = -bf  # e_err = -w_err
         Cc[ch, start:stop] = ki[ch] * cf
-        Dc[ch, ch] -= ki[ch] * df
+        Dc[ch, err] -= ki[ch] * df
         blocks.append((start, stop))
         start = stop
     return LinearController(Ac, Bc, Cc, Dc, tuple(blocks), (0, 1))
 
 
-def _ladr(values: dict) -> LinearController:
+def _ladr(values: dict, pairing: str = "diagonal") -> LinearController:
     """LADR of the thesis Appendix A (eq. A.1-A.22), implemented as printed.
 
     Channel 1 (pump 1) observes tanks 1 and 4 with states (Z1, Z4, Z5, Z7); channel 2 observes
@@ -372,6 +398,10 @@ def _ladr(values: dict) -> LinearController:
     realisation and ``r1..r4`` have no effect on the regulator. As printed, the observer has
     structural zero eigenvalues (``Z1 - Z4`` and ``Z2 - Z3`` are never fed back, ``beta32 Z6 -
     beta22 Z8`` never changes), so the realisation is marked non-minimal for the stability check.
+
+    With ``pairing = "anti-diagonal"`` each channel regulates the other lower tank: channel 1
+    observes tanks 2 and 4 (pump 1 reaches tank 2 through tank 4), channel 2 tanks 1 and 3; the
+    gains keep their printed slots.
     """
     b = [values[f"b{i}"] for i in (1, 2, 3, 4)]
     if min(b) <= 0.0:
@@ -379,10 +409,10 @@ def _ladr(values: dict) -> LinearController:
     beta = {name: values[name] for name in _LADR_BETAS}
     # channel: (pump, measured pair, observer gains, b pair, feedback gain, extended-state terms)
     channels = [
-        dict(ch=0, meas=(0, 3), l=(beta["beta11"], beta["beta41"]), bb=(b[0], b[3]),
+        dict(ch=0, meas=(_error_of_pump(pairing, 0), 3), l=(beta["beta11"], beta["beta41"]), bb=(b[0], b[3]),
              kp=beta["beta13"] + beta["beta43"],
              ext=((-beta["beta12"], b[3]), (-beta["beta12"], 0.0))),
-        dict(ch=1, meas=(1, 2), l=(beta["beta21"], beta["beta31"]), bb=(b[1], b[2]),
+        dict(ch=1, meas=(_error_of_pump(pairing, 1), 2), l=(beta["beta21"], beta["beta31"]), bb=(b[1], b[2]),
              kp=beta["beta23"] + beta["beta33"],
              ext=((-beta["beta22"], 0.0), (-beta["beta32"], 0.0))),
     ]
@@ -417,20 +447,104 @@ def _ladr(values: dict) -> LinearController:
     return LinearController(Ac, Bc, Cc, Dc, tuple(blocks), (0, 1), minimal=False)
 
 
+def _lqi(values: dict, A, B) -> LinearController:
+    """Textbook LQI: the integrated errors augment the plant state in the Riccati design.
+
+    With ``xi' = e = r - y = -C x`` (regulation) the augmented plant is
+    ``[x; xi]' = [[A, 0], [-C, 0]] [x; xi] + [B; 0] du`` with ``C = [I2 0]``; LQR with
+    ``Q = diag(Q11..Q44, Qi1, Qi2)``, ``R = diag(R11, R22)`` gives ``du = -Kx x - Kxi xi``. The
+    controller's states are the two exact integrators; their 2 x 2 output matrix is ``-Kxi``
+    (both errors drive both pumps). For anti-windup, integrator j belongs to the pump it drives
+    most strongly.
+    """
+    n, m = A.shape[0], B.shape[1]
+    Aa = np.zeros((n + m, n + m))
+    Aa[:n, :n] = A
+    Aa[n:, :n] = -np.eye(m, n)
+    Ba = np.vstack([B, np.zeros((m, m))])
+    Qa = np.diag([values[k] for k in ("Q11", "Q22", "Q33", "Q44", "Qi1", "Qi2")])
+    R = np.diag([values["R11"], values["R22"]])
+    Ka = lqr_gain(Aa, Ba, Qa, R)
+    Kint = -Ka[:, n:]
+    Bc = np.zeros((m, N_MEASURED))
+    Bc[0, 0] = Bc[1, 1] = -1.0  # xi_j' = e_j = -w_j
+    channel = tuple(int(np.argmax(np.abs(Kint[:, j]))) for j in range(m))
+    return LinearController(np.zeros((m, m)), Bc, np.ascontiguousarray(Kint), -Ka[:, :n].copy(),
+                            ((0, 1), (1, 2)), channel)
+
+
+def dc_gain(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """Steady-state gain ``G(0) = -C A^-1 B`` of a stable linear plant."""
+    return -C @ np.linalg.solve(A, B)
+
+
+def integral_action_obstruction(kind: str, pairing: str, A, B, C, ki_bounds=((0.1, 10.0), (0.1, 10.0))):
+    """Why no controller of this structure can hold integral action on this plant, or None.
+
+    For state feedback ``-K x`` that stabilises a stable plant, ``det(I + K (-A)^-1 B) > 0``, so
+    the inner loop keeps the sign of ``det G(0)``. Integrators ``Kint / s`` on the errors then
+    close a loop whose state matrix has determinant ``det(A - BK) det G(0) det(Kint)`` times a
+    positive factor, and a Hurwitz matrix of even size has a positive determinant: the loop can
+    be stable only if ``det G(0) det(Kint) > 0`` (derivation in docs/model.md). ``Kint`` is
+    ``diag(Ki1, Ki2)`` (diagonal pairing) or ``[[0, Ki1], [Ki2, 0]]`` (anti-diagonal), so
+    ``sign det(Kint) = +-sign(Ki1) sign(Ki2)``.
+
+    Parameters
+    ----------
+    kind : str
+        Controller type; ``lqi`` needs only ``det G(0) != 0``, ``ladr`` is not checked (its
+        extended-state observer is not an integrator on the errors).
+    pairing : {"diagonal", "anti-diagonal"}
+    A, B, C : ndarray
+        Linearised plant.
+    ki_bounds : pair of (low, high)
+        Bounds of Ki1 and Ki2: the signs they allow.
+
+    Returns
+    -------
+    str or None
+        A one-line explanation naming the fix, or None when the structure can work.
+    """
+    if kind == "ladr":
+        return None
+    G0 = dc_gain(A, B, C)
+    det = float(np.linalg.det(G0))
+    scale = float(np.abs(G0).max()) ** 2
+    if abs(det) <= 1e-9 * scale:
+        return (f"det G(0) = {det:.3g}: the plant has a transmission zero at s = 0, so no controller "
+                "can hold integral action on both outputs; change the valve splits (gamma1 + gamma2 != 1)")
+    if kind == "lqi":
+        return None
+    signs = [{s for s, ok in ((1, hi > 0), (-1, lo < 0)) if ok} for lo, hi in ki_bounds]
+    flip = 1 if pairing == "diagonal" else -1
+    possible = {flip * a * b for a in signs[0] for b in signs[1]}
+    needed = 1 if det > 0 else -1
+    if needed in possible:
+        return None
+    other = "anti-diagonal" if pairing == "diagonal" else "diagonal"
+    return (f"det G(0) = {det:.3g} and {pairing} integral action with Ki1, Ki2 in their bounds has "
+            f"det(Kint) of sign {-needed:+d}: every such loop with exact integral action has a real "
+            f"right-half-plane pole (see docs/model.md); use [controller] pairing = \"{other}\" "
+            "or type = \"lqi\"")
+
+
 def build_controller(kind: str, values: dict, A: np.ndarray, B: np.ndarray, *,
                      oustaloup_order: int = 5, band: tuple = (1e-3, 1e3),
-                     realisation: str = "direct") -> LinearController:
+                     realisation: str = "direct", pairing: str = "diagonal") -> LinearController:
     """Build a controller from its named tuning variables and the linearised plant.
 
     Parameters
     ----------
-    kind : {"folqi", "iolqi", "ladr"}
+    kind : {"folqi", "iolqi", "ladr", "lqi"}
     values : dict
         Tuning variables by name (see :func:`decision_names`).
     A, B : ndarray
         Linearised plant used for the LQR design (nominal model).
     oustaloup_order, band, realisation :
         Fractional-integrator options (FOLQI only).
+    pairing : {"diagonal", "anti-diagonal"}
+        Which error each pump integrates (FOLQI, IOLQI) or which lower tank each LADR channel
+        regulates; LQI ignores it (its integral gain is a full 2 x 2 matrix).
 
     Raises
     ------
@@ -439,11 +553,15 @@ def build_controller(kind: str, values: dict, A: np.ndarray, B: np.ndarray, *,
     """
     if realisation not in REALISATIONS:
         raise ConfigError(f"unknown realisation {realisation!r}; allowed: {', '.join(REALISATIONS)}")
+    if pairing not in PAIRINGS:
+        raise ConfigError(f"unknown pairing {pairing!r}; allowed: {', '.join(PAIRINGS)}")
     if kind == "folqi":
         return _folqi(values, A, B, (values["alpha1"], values["alpha2"]),
-                      oustaloup_order, band, realisation)
+                      oustaloup_order, band, realisation, pairing)
     if kind == "iolqi":
-        return _folqi(values, A, B, (1.0, 1.0), oustaloup_order, band, realisation)
+        return _folqi(values, A, B, (1.0, 1.0), oustaloup_order, band, realisation, pairing)
     if kind == "ladr":
-        return _ladr(values)
+        return _ladr(values, pairing)
+    if kind == "lqi":
+        return _lqi(values, A, B)
     raise ConfigError(f"unknown controller type {kind!r}; allowed: {', '.join(CONTROLLER_TYPES)}")

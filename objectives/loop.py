@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 
 import numpy as np
 import pandas as pd
@@ -19,9 +20,17 @@ from heurtune.objectives.qtp import QTPParams, linearise, operating_point
 
 _DGEEV = scipy.linalg.lapack.get_lapack_funcs("geev", dtype=np.float64)
 
-__all__ = ["Scenario", "ClosedLoop", "SimulationResult", "METRIC_NAMES"]
+__all__ = ["Scenario", "ClosedLoop", "SimulationResult", "METRIC_NAMES", "LIMITS",
+           "physical_range_flags"]
 
 METRIC_NAMES = _kernels.METRIC_NAMES
+
+# Allowed values of Scenario.limits: the thesis' unlimited model, or the plant's physical limits.
+LIMITS = ("none", "physical")
+
+# Relative tolerance of physical_range_flags: a clipped level or saturated voltage sits exactly
+# on its limit and must not count as leaving the range.
+RANGE_RTOL = 1e-9
 
 
 def _pair(key, value):
@@ -60,6 +69,11 @@ class Scenario:
         Pump limits [u_min, u_max] in V with conditional-integration anti-windup; None = off.
     uncertainty : float
         Factor on every A_i and a_i of the plant (1.0 nominal; thesis robustness 0.7 and 1.3).
+    limits : {"none", "physical"}
+        ``"none"`` (default): the thesis' model, with no bound on levels or voltages.
+        ``"physical"``: the pumps saturate at the plant's ``u_range`` (with the anti-windup of
+        ``saturation``) and every level stays in [0, H_i], the water above a rim being lost;
+        needs a plant with ``height`` and ``u_range``. Excludes ``saturation``.
     """
 
     horizon: float = 350.0
@@ -72,6 +86,7 @@ class Scenario:
     noise_seed: int = 0
     saturation: tuple | None = None
     uncertainty: float = 1.0
+    limits: str = "none"
 
     def __post_init__(self):
         for key in ("horizon", "dt", "disturbance_time", "input_disturbance_time", "noise_sd",
@@ -102,6 +117,10 @@ class Scenario:
             if not lo < hi:
                 raise ConfigError(f"scenario.saturation needs u_min < u_max, got {self.saturation!r}")
             object.__setattr__(self, "saturation", (lo, hi))
+        if not isinstance(self.limits, str) or self.limits not in LIMITS:
+            raise ConfigError(f"scenario.limits must be one of {', '.join(map(repr, LIMITS))}, got {self.limits!r}")
+        if self.limits == "physical" and self.saturation is not None:
+            raise ConfigError("scenario.saturation and scenario.limits = 'physical' both set pump limits; give one")
 
     @property
     def n_steps(self) -> int:
@@ -157,27 +176,36 @@ class ClosedLoop:
     ----------
     plant : QTPParams
         The nominal plant; controllers are designed on its linearisation.
-    kind : {"folqi", "iolqi", "ladr"}
+    kind : {"folqi", "iolqi", "ladr", "lqi"}
     oustaloup_order, band, realisation :
         Fractional-integrator options (FOLQI).
+    pairing : {"diagonal", "anti-diagonal"}
+        Which error each pump integrates (see :func:`build_controller`).
     """
 
     def __init__(self, plant: QTPParams, kind: str, *, oustaloup_order: int = 5,
-                 band: tuple = (1e-3, 1e3), realisation: str = "direct"):
+                 band: tuple = (1e-3, 1e3), realisation: str = "direct", pairing: str = "diagonal"):
         self.plant = plant
         self.kind = kind
-        self.options = dict(oustaloup_order=oustaloup_order, band=tuple(band), realisation=realisation)
+        self.options = dict(oustaloup_order=oustaloup_order, band=tuple(band), realisation=realisation,
+                            pairing=pairing)
         self.op = operating_point(plant)
         self.A, self.B, self.C = linearise(plant, self.op)
         self._plants = {}
         self._scenarios = {}
+        self._limits = None
 
     def __getstate__(self):
         # Caches are rebuilt on demand.
         state = self.__dict__.copy()
         state["_plants"] = {}
         state["_scenarios"] = {}
+        state["_limits"] = None
         return state
+
+    def __setstate__(self, state):
+        state.setdefault("_limits", None)
+        self.__dict__.update(state)
 
     # -- design ---------------------------------------------------------------------------
     def controller(self, values: dict) -> LinearController:
@@ -210,12 +238,54 @@ class ClosedLoop:
             self._plants[factor] = (_kernels.plant_coefficients(p.as_array()), operating_point(p).u)
         return self._plants[factor]
 
+    def _physical_limits(self, u_op: np.ndarray):
+        """Tank heights (4,) and pump range of the nominal plant, checked against the operating
+        point (raises ConfigError when the plant has no limits or cannot hold that point)."""
+        if self._limits is None:
+            self._limits = self.plant.physical_limits()
+        height, (lo, hi) = self._limits
+        if np.any(self.op.h > height):
+            raise ConfigError(
+                f"plant '{self.plant.name}': operating levels {np.round(self.op.h, 4).tolist()} exceed the "
+                f"tank heights {list(self.plant.height)}; scenario.limits = 'physical' cannot hold them"
+            )
+        if np.any(u_op < lo) or np.any(u_op > hi):
+            raise ConfigError(
+                f"plant '{self.plant.name}': operating voltages {np.round(u_op, 4).tolist()} lie outside "
+                f"u_range {self.plant.u_range}; scenario.limits = 'physical' cannot hold them"
+            )
+        return height, lo, hi
+
     def run(self, ctrl: LinearController, scenario: Scenario, *, settling_band: float = 3.0,
-            record: bool = True, record_levels: bool = False) -> SimulationResult:
+            record: bool = True, record_levels: bool | None = None) -> SimulationResult:
         """Simulate the nonlinear loop and its metrics (kernel :func:`simulate_loop`).
 
-        With ``record=False`` only the metrics are kept (what a tuning evaluation needs).
+        Parameters
+        ----------
+        ctrl : LinearController
+        scenario : Scenario
+            With ``limits = "physical"`` the pumps saturate at the nominal plant's ``u_range``
+            and the levels stay within [0, height] (uncertainty scales areas, not heights).
+        settling_band : float
+            Band of the settling time, percent of the operating level.
+        record : bool
+            Keep the sampled y and u; ``False`` keeps only the metrics (what a tuning
+            evaluation needs).
+        record_levels : bool, optional
+            Keep the true levels h1..h4 as well; default: as ``record``.
+
+        Returns
+        -------
+        SimulationResult
+
+        Raises
+        ------
+        ConfigError
+            ``limits = "physical"`` on a plant without height and u_range, or whose operating
+            point lies outside them.
         """
+        if record_levels is None:
+            record_levels = record
         coef, u_op = self._perturbed(scenario.uncertainty)
         n = scenario.n_steps
         rows = n + 1 if record else 0
@@ -225,13 +295,19 @@ class ClosedLoop:
         dc = ctrl.discretise(scenario.dt)
         out_dist, in_dist, noise = self._scenario_arrays(scenario)
         sat = scenario.saturation
+        clip = scenario.limits == "physical"
+        if clip:
+            h_max, u_lo, u_hi = self._physical_limits(u_op)
+            sat = (u_lo, u_hi)
+        else:
+            h_max = self.op.h  # not read by the kernel
         status, _ = _kernels.simulate_loop(
             coef, self.op.h, self.op.h, u_op, dc.ad, dc.bd, dc.state_input, dc.Ad, dc.Bd, dc.Cc, dc.Dc,
             dc.state_channel, dc.segments,
             scenario.dt, n, scenario.disturbance_index, out_dist,
             scenario.input_disturbance_index, in_dist,
             noise, sat is not None, sat[0] if sat else 0.0, sat[1] if sat else 0.0,
-            float(settling_band), metrics, y, u, h,
+            clip, h_max, float(settling_band), metrics, y, u, h,
         )
         t = np.arange(n + 1) * scenario.dt if record or record_levels else None
         return SimulationResult(t, y if record else None, u if record else None,
@@ -239,12 +315,15 @@ class ClosedLoop:
                                 self.op.h.copy(), u_op.copy(), metrics)
 
     def metrics(self, sim: SimulationResult, scenario: Scenario, settling_band: float) -> np.ndarray:
-        """Metrics recomputed from a recorded run (:func:`loop_metrics`; NaN when diverged)."""
+        """Metrics recomputed from a recorded run (:func:`loop_metrics`; NaN when diverged).
+
+        hmin and hmax need the recorded true levels ``sim.h``: NaN for a run without them.
+        """
         out = np.full(_kernels.N_METRICS, np.nan)
         if sim.diverged:
             return out
         _kernels.loop_metrics(sim.y, sim.u, sim.h_op[:2], sim.u_op, scenario.dt,
-                              scenario.disturbance_index, settling_band, out)
+                              scenario.disturbance_index, settling_band, out, sim.h)
         return out
 
     def warm_up(self):
@@ -255,3 +334,51 @@ class ClosedLoop:
         self.metrics(self.run(ctrl, sc), sc, 3.0)
         self.run(ctrl, sc, record=False)
 
+
+def physical_range_flags(metrics, plant: QTPParams) -> list[str]:
+    """Say where a run leaves the plant's physical range.
+
+    Parameters
+    ----------
+    metrics : mapping or array_like
+        The run's metrics: a mapping (dict, pandas Series) with any of ``hmin``, ``hmax``,
+        ``umin``, ``umax``, or a vector in the order of :data:`METRIC_NAMES`.
+    plant : QTPParams
+        Its tank heights and pump voltage range are the limits.
+
+    Returns
+    -------
+    list of str
+        One flag per limit crossed, e.g. ``"levels below 0 cm (min -226.1)"`` or
+        ``"u above 10 V (max 12.3)"``; empty when the run stays inside, when the plant has no
+        limits, or for missing or NaN values (a diverged run, levels not recorded). A value on a
+        limit (a clipped level, a saturated pump) is inside: the comparison allows a relative
+        ``RANGE_RTOL``. ``hmax`` is the highest level of any tank, so it is compared with the
+        tallest tank's height.
+    """
+    if not getattr(plant, "has_limits", False):
+        return []
+    if isinstance(metrics, (Mapping, pd.Series)):
+        values = {k: metrics[k] for k in ("hmin", "hmax", "umin", "umax") if k in metrics}
+    else:
+        row = np.asarray(metrics, dtype=np.float64)
+        if row.shape != (len(METRIC_NAMES),):
+            raise ValueError(f"physical_range_flags: a metrics vector needs {len(METRIC_NAMES)} values, "
+                             f"got shape {row.shape}")
+        values = {k: row[METRIC_NAMES.index(k)] for k in ("hmin", "hmax", "umin", "umax")}
+    h_top = max(plant.height)
+    u_lo, u_hi = plant.u_range
+    checks = (
+        ("hmin", "levels below", 0.0, "cm", "min", -1.0, h_top),
+        ("hmax", "levels above", h_top, "cm", "max", 1.0, h_top),
+        ("umin", "u below", u_lo, "V", "min", -1.0, max(abs(u_lo), abs(u_hi))),
+        ("umax", "u above", u_hi, "V", "max", 1.0, max(abs(u_lo), abs(u_hi))),
+    )
+    flags = []
+    for key, what, limit, unit, stat, sign, scale in checks:
+        v = values.get(key)
+        if v is None or not math.isfinite(float(v)):
+            continue
+        if sign * (float(v) - limit) > RANGE_RTOL * max(scale, 1.0):
+            flags.append(f"{what} {limit:g} {unit} ({stat} {float(v):.4g})")
+    return flags

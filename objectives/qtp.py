@@ -48,6 +48,12 @@ class QTPParams:
         Valve splits gamma1, gamma2 in (0, 1): fraction of pump j's flow sent to lower tank j.
     levels : tuple of 2 float
         Target (operating) levels of the lower tanks h1, h2 in cm.
+    height : tuple of 4 float, optional
+        Tank heights H1..H4 in cm (water above the rim is lost). None: no height given.
+    u_range : (float, float), optional
+        Pump voltage range (lo, hi) in V, lo < hi. None: no range given.
+        Both ``height`` and ``u_range`` are needed for ``scenario.limits = "physical"``
+        (see :attr:`has_limits`); neither enters the model equations otherwise.
     g : float
         Gravitational acceleration in cm/s^2.
     name : str
@@ -59,6 +65,8 @@ class QTPParams:
     k: tuple
     gamma: tuple
     levels: tuple
+    height: tuple | None = None
+    u_range: tuple | None = None
     g: float = 981.0
     name: str = "custom"
 
@@ -84,14 +92,56 @@ class QTPParams:
         check("k", self.k, 2)
         check("gamma", self.gamma, 2, 0.0, 1.0, open_high=True)
         check("levels", self.levels, 2)
+        if self.height is not None:
+            check("height", self.height, 4)
+        if self.u_range is not None:
+            try:
+                lo, hi = (float(v) for v in self.u_range)
+            except (TypeError, ValueError):
+                raise ConfigError(
+                    f"plant '{self.name}': u_range must be two numbers (lo, hi) in V, got {self.u_range!r}"
+                ) from None
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+                raise ConfigError(
+                    f"plant '{self.name}': u_range must be finite with lo < hi, got {self.u_range!r}"
+                )
+            object.__setattr__(self, "u_range", (lo, hi))
         if not (math.isfinite(self.g) and self.g > 0):
             raise ConfigError(f"plant '{self.name}': g must be positive, got {self.g!r}")
+
+    @property
+    def has_limits(self) -> bool:
+        """True when both the tank heights and the pump voltage range are given."""
+        return self.height is not None and self.u_range is not None
+
+    def physical_limits(self) -> tuple[np.ndarray, tuple]:
+        """Tank heights and pump voltage range, for ``scenario.limits = "physical"``.
+
+        Returns
+        -------
+        height : numpy.ndarray, shape (4,)
+            Tank heights in cm.
+        u_range : (float, float)
+            Pump voltage range (lo, hi) in V.
+
+        Raises
+        ------
+        ConfigError
+            When the plant lacks ``height`` or ``u_range``.
+        """
+        if not self.has_limits:
+            raise ConfigError(
+                f"plant '{self.name}': scenario.limits = 'physical' needs plant height and u_range "
+                f"(give plant.custom.{self.name}.height and u_range)"
+            )
+        return np.array(self.height, dtype=np.float64), self.u_range
 
     def scaled(self, factor: float) -> "QTPParams":
         """Return the plant with every A_i and a_i multiplied by ``factor``.
 
         This is the thesis' parameter uncertainty: time constants and operating levels stay,
-        the equilibrium input scales with ``factor``.
+        the equilibrium input scales with ``factor``. Tank heights and the voltage range are
+        kept.
         """
         if not (math.isfinite(factor) and factor > 0):
             raise ConfigError(f"uncertainty factor must be positive, got {factor!r}")
@@ -114,22 +164,33 @@ class QTPParams:
 
 
 # Thesis Table 4.1 (A_i = 176.71, a1 = a2 = 2.54, a3 = a4 = 1.43) and Johansson (2000) P-/P+.
+#
+# Physical limits (used only with scenario.limits = "physical"):
+# - P-, P+: Johansson's lab rig, tanks 20 cm tall, pumps driven by 0..10 V.
+# - min, nmp: the thesis gives neither a height nor a voltage range. The pumps get the same
+#   0..10 V as Johansson's rig. The thesis' A_i = 176.71 cm^2 is a 15 cm diameter tank, whereas
+#   Johansson's 28-32 cm^2 tanks are about 6 cm wide and 20 cm tall; the same aspect ratio at
+#   15 cm diameter gives 50 cm. (Johansson's own 20 cm would not do: the nmp operating point
+#   has h3 = 22.9 cm, above such a rim.)
+_RIG_HEIGHT = (20.0,) * 4
+_THESIS_HEIGHT = (50.0,) * 4
+_PUMP_RANGE = (0.0, 10.0)
 PRESETS = {
     "min": QTPParams(
         A=(176.71,) * 4, a=(2.54, 2.54, 1.43, 1.43), k=(180.29, 180.29), gamma=(0.60, 0.60),
-        levels=(16.47, 16.71), name="min",
+        levels=(16.47, 16.71), height=_THESIS_HEIGHT, u_range=_PUMP_RANGE, name="min",
     ),
     "nmp": QTPParams(
         A=(176.71,) * 4, a=(2.54, 2.54, 1.43, 1.43), k=(186.86, 186.86), gamma=(0.45, 0.35),
-        levels=(20.20, 13.33), name="nmp",
+        levels=(20.20, 13.33), height=_THESIS_HEIGHT, u_range=_PUMP_RANGE, name="nmp",
     ),
     "P-": QTPParams(
         A=(28.0, 32.0, 28.0, 32.0), a=(0.071, 0.057, 0.071, 0.057), k=(3.33, 3.35),
-        gamma=(0.70, 0.60), levels=(12.4, 12.7), name="P-",
+        gamma=(0.70, 0.60), levels=(12.4, 12.7), height=_RIG_HEIGHT, u_range=_PUMP_RANGE, name="P-",
     ),
     "P+": QTPParams(
         A=(28.0, 32.0, 28.0, 32.0), a=(0.071, 0.057, 0.071, 0.057), k=(3.14, 3.29),
-        gamma=(0.43, 0.34), levels=(12.6, 13.0), name="P+",
+        gamma=(0.43, 0.34), levels=(12.6, 13.0), height=_RIG_HEIGHT, u_range=_PUMP_RANGE, name="P+",
     ),
 }
 

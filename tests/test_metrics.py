@@ -144,5 +144,5 @@ def test_block_folds_match_the_definitions(n, i_d, last_exit):
     loop_metrics(y, u, y0, u0, 0.01, i_d, band, out)
     got = dict(zip(METRIC_NAMES, out))
     ref = reference_metrics(y, u, y0, u0, 0.01, i_d, band)
-    for name in METRIC_NAMES:
+    for name in ref:  # the 18 performance metrics (the range ones need levels)
         assert got[name] == pytest.approx(ref[name], rel=1e-11, abs=1e-12), name
