@@ -414,6 +414,13 @@ class Experiment(ExperimentBase):
             self.scenarios = {k: Scenario(**sc, uncertainty=float(v)) for k, v in uncertainty.items()}
         except ConfigError as exc:
             raise ConfigError(f"{self.name}: {exc}") from None
+        for case in plant_cases:
+            loop = ClosedLoop(self._plant(case), "iolqi")
+            for scenario in self.scenarios.values():
+                try:
+                    loop.check_scenario(scenario)
+                except ConfigError as exc:
+                    raise ConfigError(f"{self.name}: {exc}") from None
         prob = config.get("problem", {})
         self.objective = prob.get("objective", "effort")
         self.weights = prob.get("weights")

@@ -238,6 +238,13 @@ class ClosedLoop:
             self._plants[factor] = (_kernels.plant_coefficients(p.as_array()), operating_point(p).u)
         return self._plants[factor]
 
+    def check_scenario(self, scenario: Scenario) -> None:
+        """Raise ConfigError now if ``scenario`` cannot run on this plant (``limits =
+        "physical"`` on a plant without limits, or whose operating point they exclude), so
+        that a bad config fails when it is loaded, not in every evaluation."""
+        if scenario.limits == "physical":
+            self._physical_limits(self._perturbed(scenario.uncertainty)[1])
+
     def _physical_limits(self, u_op: np.ndarray):
         """Tank heights (4,) and pump range of the nominal plant, checked against the operating
         point (raises ConfigError when the plant has no limits or cannot hold that point)."""

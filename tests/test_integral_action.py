@@ -263,3 +263,40 @@ def test_printed_thesis_nmp_gains_are_unstable(label):
     names = decision_names(kind)
     ctrl = loop.controller(dict(zip(names, THESIS_NMP[label])))
     assert loop.stability_margin(ctrl) > 0.01
+
+
+def test_benchmark_runs_every_population_metaheuristic_on_a_sound_problem():
+    """benchmark_qtp: every registered ask/tell metaheuristic (not the gradient methods, not the
+    multistart driver) with the same budget, on min and nmp with integral action that can be
+    stable, physical limits and a discriminating objective."""
+    from heurtune import registry
+    from heurtune.algorithms._gradient import GradientOptimizer
+
+    exp = heurtune.load_experiment("benchmark_qtp")
+    population = {n for n in registry.available()
+                  if registry.get(n).kind == "population" and not issubclass(registry.get(n).cls, GradientOptimizer)}
+    assert {o["name"] for o in exp.optimisers} == population
+    assert len({o["max_evals"] for o in exp.optimisers}) == 1
+    assert exp.config["runs"] >= 20
+    assert exp.structure_warnings() == {}
+    assert [exp.pairing_of(c) for c in exp.cases] == ["diagonal", "anti-diagonal"]
+    for case in exp.cases:
+        prob = exp.problem(case)
+        assert prob.objective == "iae"
+        assert prob.scenario("nominal").limits == "physical"
+        X = np.random.default_rng(1).uniform(prob.lower, prob.upper, size=(20, prob.dim))
+        assert prob.evaluate(X).feasible.any()
+
+
+def test_physical_limits_on_a_plant_without_them_fail_when_the_config_loads(tmp_path):
+    text = ('extends = "cs_iolqi_qtp"\n[plant]\ncases = ["mine"]\n[plant.custom.mine]\n'
+            'A = [176.71, 176.71, 176.71, 176.71]\na = [2.54, 2.54, 1.43, 1.43]\nk = [180.29, 180.29]\n'
+            'gamma = [0.6, 0.6]\nlevels = [16.47, 16.71]\n[scenario]\nlimits = "physical"\n')
+    with pytest.raises(ConfigError, match="plant.custom.mine.height"):
+        config_with(tmp_path, text)
+    ok = config_with(tmp_path, text.replace('levels = [16.47, 16.71]\n',
+                                            'levels = [16.47, 16.71]\nheight = [50, 50, 50, 50]\nu_range = [0, 10]\n'))
+    assert ok.problem("mine").loop.plant.has_limits
+    with pytest.raises(ConfigError, match="exceed the tank heights"):
+        config_with(tmp_path, text.replace('levels = [16.47, 16.71]\n',
+                                           'levels = [16.47, 16.71]\nheight = [15, 50, 50, 50]\nu_range = [0, 10]\n'))
