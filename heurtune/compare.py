@@ -201,12 +201,15 @@ def summary_table(runs: pd.DataFrame, metric: str = "best_f") -> pd.DataFrame:
         One row per (case, algorithm) in order of appearance, columns ``case, algorithm, n,
         mean, sd, median, best, worst`` (``n`` counts non-missing values, ``sd`` uses
         ddof=1, ``best``/``worst`` are the minimum/maximum), then ``mean_convergence_epoch``
-        if ``convergence_epoch`` exists and ``feasible_rate`` if ``feasible`` exists.
+        if ``convergence_epoch`` exists and ``feasible_rate`` if ``feasible`` exists. Where
+        ``status`` exists, failed runs (no stable, simulable candidate: their objective is a
+        sentinel) are left out of the statistics and counted in a ``failed`` column.
     """
     _check_metric(runs, metric)
     rows = []
     for (case, alg), g in runs.groupby(["case", "algorithm"], sort=False):
-        v = g[metric].to_numpy(dtype=float)
+        failed = g["status"].eq("failed").to_numpy() if "status" in g else np.zeros(len(g), dtype=bool)
+        v = g[metric].to_numpy(dtype=float)[~failed]
         v = v[~np.isnan(v)]
         row = {"case": case, "algorithm": alg, "n": int(v.size),
                "mean": v.mean() if v.size else np.nan,
@@ -218,6 +221,8 @@ def summary_table(runs: pd.DataFrame, metric: str = "best_f") -> pd.DataFrame:
             row["mean_convergence_epoch"] = float(g["convergence_epoch"].astype(float).mean())
         if "feasible" in g:
             row["feasible_rate"] = float(g["feasible"].astype(float).mean())
+        if "status" in g:
+            row["failed"] = int(failed.sum())
         rows.append(row)
     return pd.DataFrame(rows)
 

@@ -300,3 +300,30 @@ def test_physical_limits_on_a_plant_without_them_fail_when_the_config_loads(tmp_
     with pytest.raises(ConfigError, match="exceed the tank heights"):
         config_with(tmp_path, text.replace('levels = [16.47, 16.71]\n',
                                            'levels = [16.47, 16.71]\nheight = [15, 50, 50, 50]\nu_range = [0, 10]\n'))
+
+
+def test_compare_summary_leaves_failed_runs_out():
+    import pandas as pd
+
+    from heurtune.compare import summary_table
+
+    runs = pd.DataFrame(dict(case="nmp", algorithm="cs", run=[0, 1, 2], best_f=[10.0, 12.0, FAILED_OBJECTIVE],
+                             feasible=[True, True, False], status=["feasible", "feasible", "failed"]))
+    row = summary_table(runs).iloc[0]
+    assert row["n"] == 2 and row["mean"] == 11.0 and row["worst"] == 12.0 and row["failed"] == 1
+
+
+def test_paired_nmp_experiment_reaches_feasible_runs(tmp_path):
+    """A (smoke) run of the paired IOLQI experiment on nmp ends feasible with exact integrators."""
+    import io
+
+    import pandas as pd
+
+    from heurtune.experiment import run_experiment
+
+    out = run_experiment("cs_iolqi_qtp_paired", runs=1, smoke=True, out=tmp_path / "r", figures=False,
+                         progress_stream=io.StringIO())
+    runs = pd.read_parquet(out / "runs.parquet")
+    nmp = runs[runs["case"] == "nmp"].iloc[0]
+    assert nmp["status"] == "feasible" and nmp["feasible"]
+    assert nmp["range@nominal"] == ""
