@@ -158,8 +158,12 @@ class Problem(DecisionVectors):
     """Constrained tuning problem of one plant case.
 
     Minimise the objective (default: effort ``J = J1 + J2``, the integral of the squared
-    absolute pump voltages) subject to ``Mp_i < Mp``, ``ts_i < ts`` and ``ess_i < ess`` for both
-    lower tanks, under the tuning scenario.
+    absolute pump voltages; or ``Jdev``, IAE, ISE, ITAE, or a weighted sum of metrics) subject
+    to ``Mp_i < Mp``, ``ts_i < ts`` and ``ess_i < ess`` for both lower tanks, under the tuning
+    scenario. Stability is always required: a candidate that cannot be designed, whose loop is
+    unstable or whose simulation diverges is never feasible. Without performance constraints
+    (``constraints = {}``, the config's ``"none"``) a single ``stability`` constraint column
+    carries that (0 when simulated, the failure's violation otherwise).
 
     Attributes
     ----------
@@ -171,6 +175,11 @@ class Problem(DecisionVectors):
         ``Mp1, Mp2, ts1, ts2, ess1, ess2`` (those configured).
     scenarios : dict of str to Scenario
         The tuning scenario and its uncertainty variants (``nominal``, ``-30%``, ``+30%``).
+    weights : dict or None
+        Metric weights of ``objective = "weighted"``.
+    structure_warning : str or None
+        Why the controller structure cannot hold integral action on this plant (one line), or
+        None (see :func:`heurtune.objectives.controllers.integral_action_obstruction`).
     """
 
     scenario_type = Scenario
