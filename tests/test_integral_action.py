@@ -327,3 +327,18 @@ def test_paired_nmp_experiment_reaches_feasible_runs(tmp_path):
     nmp = runs[runs["case"] == "nmp"].iloc[0]
     assert nmp["status"] == "feasible" and nmp["feasible"]
     assert nmp["range@nominal"] == ""
+
+
+def test_ladr_anti_diagonal_swaps_the_regulated_lower_tanks():
+    from test_ladr import TABLE_4_7
+
+    A, B, _ = linearise(preset("nmp"))
+    diag = build_controller("ladr", TABLE_4_7["nmp"], A, B)
+    anti = build_controller("ladr", TABLE_4_7["nmp"], A, B, pairing="anti-diagonal")
+    # channel 1 (states 0..3) reads h1, h4 or h2, h4; channel 2 (4..7) reads h2, h3 or h1, h3
+    assert set(np.flatnonzero(diag.B[:4].any(axis=0))) == {0, 3}
+    assert set(np.flatnonzero(anti.B[:4].any(axis=0))) == {1, 3}
+    assert set(np.flatnonzero(anti.B[4:].any(axis=0))) == {0, 2}
+    np.testing.assert_array_equal(anti.A, diag.A)
+    loop = ClosedLoop(preset("nmp"), "ladr", pairing="anti-diagonal")
+    assert loop.stability_margin(anti) < 0
