@@ -9,11 +9,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from heurtune.io import atomic_path  # noqa: E402
+from heurtune.objectives.loop import RANGE_RTOL  # noqa: E402
 
 __all__ = ["plot_responses"]
 
-# A value on a limit (a clipped level, a saturated pump) is inside; see physical_range_flags.
-_RANGE_RTOL = 1e-9
 OUTSIDE = "outside physical range"
 
 
@@ -23,7 +22,7 @@ def _outside(values, lo, hi) -> bool:
     v = v[np.isfinite(v)]
     if not v.size:
         return False
-    tol = _RANGE_RTOL * max(abs(lo), abs(hi), 1.0)
+    tol = RANGE_RTOL * max(abs(lo), abs(hi), 1.0)
     return bool(v.min() < lo - tol or v.max() > hi + tol)
 
 

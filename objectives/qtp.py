@@ -166,9 +166,10 @@ class QTPParams:
 # Thesis Table 4.1 (A_i = 176.71, a1 = a2 = 2.54, a3 = a4 = 1.43) and Johansson (2000) P-/P+.
 #
 # Physical limits (used only with scenario.limits = "physical"):
-# - P-, P+: Johansson's lab rig, tanks 20 cm tall, pumps driven by 0..10 V.
+# - P-, P+: Johansson's lab rig, tanks 20 cm tall. Pump range 0..10 V: assumed (the usual
+#   analogue output range of such a rig; Johansson's operating points use about 3 V).
 # - min, nmp: the thesis gives neither a height nor a voltage range. The pumps get the same
-#   0..10 V as Johansson's rig. The thesis' A_i = 176.71 cm^2 is a 15 cm diameter tank, whereas
+#   0..10 V. The thesis' A_i = 176.71 cm^2 is a 15 cm diameter tank, whereas
 #   Johansson's 28-32 cm^2 tanks are about 6 cm wide and 20 cm tall; the same aspect ratio at
 #   15 cm diameter gives 50 cm. (Johansson's own 20 cm would not do: the nmp operating point
 #   has h3 = 22.9 cm, above such a rim.)
