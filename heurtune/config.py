@@ -1,7 +1,9 @@
 """Experiment configs: TOML files in ``experiments/``, validated with one-line errors.
 
-A config may ``extends = "other_name"``: the other config is loaded first and this file's
-tables are merged over it key by key (lists and scalars replace, tables merge).
+A config may ``extends = "other_name"`` (a shipped experiment) or ``extends = "other.toml"`` (a
+file, a relative path read from the folder of the config that names it): the other config is
+loaded first and this file's tables are merged over it key by key (lists and scalars replace,
+tables merge).
 """
 
 from __future__ import annotations
@@ -260,6 +262,9 @@ def load_config(name: str, _seen: tuple = ()) -> dict:
     parent = raw.pop("extends", None)
     base = None
     if parent is not None:
+        if parent.endswith(".toml") and not Path(parent).is_absolute():
+            # a relative path names a file beside the config that extends it
+            parent = str(path.parent / parent)
         chain = _seen + (path.resolve(),)
         if find_experiment(parent).resolve() in chain:
             raise ConfigError(f"{src}: extends: circular chain through {parent!r}")

@@ -78,3 +78,13 @@ def test_unknown_experiment_and_case():
         heurtune.load_experiment("nope")
     with pytest.raises(ConfigError, match="unknown case 'mid' for cs_folqi_qtp; allowed: min, nmp"):
         heurtune.load_experiment("cs_folqi_qtp").problem("mid")
+
+
+def test_relative_extends_path_resolves_beside_the_config(tmp_path, monkeypatch):
+    sub = tmp_path / "configs"
+    sub.mkdir()
+    (sub / "base.toml").write_text('extends = "cs_folqi_qtp"\nruns = 3\n')
+    (sub / "child.toml").write_text('extends = "base.toml"\nseed = 7\n')
+    monkeypatch.chdir(tmp_path)  # not the configs' folder
+    cfg = load_config(str(sub / "child.toml"))
+    assert cfg["runs"] == 3 and cfg["seed"] == 7 and cfg["controller"]["type"] == "folqi"
