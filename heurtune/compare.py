@@ -54,6 +54,7 @@ __all__ = [
     "REEVALUATION_COLUMNS",
     "load_runs",
     "summary_table",
+    "failed_runs",
     "pairwise_tests",
     "holm",
     "friedman_test",
@@ -185,6 +186,21 @@ def _samples(rows: pd.DataFrame, metric: str) -> dict[str, np.ndarray]:
     return out
 
 
+def failed_runs(runs: pd.DataFrame) -> pd.Series:
+    """Which runs failed (no stable, simulable candidate; their objective is a sentinel).
+
+    ``status == "failed"`` where the column exists; rows without a status (runs written before
+    it existed) count as failed when ``best_f`` is at the failure sentinel.
+    """
+    missing = runs["status"].isna() if "status" in runs else pd.Series(True, index=runs.index)
+    failed = runs["status"].eq("failed") if "status" in runs else pd.Series(False, index=runs.index)
+    if missing.any() and "best_f" in runs:
+        from heurtune.problem import FAILED_OBJECTIVE
+
+        failed |= missing & (runs["best_f"] >= FAILED_OBJECTIVE)
+    return failed
+
+
 def summary_table(runs: pd.DataFrame, metric: str = "best_f") -> pd.DataFrame:
     """Descriptive statistics of a metric per case and algorithm (thesis Table 5.3 style).
 
@@ -208,7 +224,7 @@ def summary_table(runs: pd.DataFrame, metric: str = "best_f") -> pd.DataFrame:
     _check_metric(runs, metric)
     rows = []
     for (case, alg), g in runs.groupby(["case", "algorithm"], sort=False):
-        failed = g["status"].eq("failed").to_numpy() if "status" in g else np.zeros(len(g), dtype=bool)
+        failed = failed_runs(g).to_numpy() if "status" in g else np.zeros(len(g), dtype=bool)
         v = g[metric].to_numpy(dtype=float)[~failed]
         v = v[~np.isnan(v)]
         row = {"case": case, "algorithm": alg, "n": int(v.size),

@@ -35,6 +35,7 @@ import shutil
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -46,7 +47,7 @@ from heurtune.engine import SearchSpace, run as run_optimiser
 from heurtune.errors import ConfigError
 from heurtune.evaluator import BACKENDS, Evaluator
 from heurtune.io import atomic_path, write_parquet
-from heurtune.problem import make_experiment
+from heurtune.problem import IntegralActionWarning, make_experiment
 
 __all__ = ["RunSpec", "plan", "execute", "problem_id", "run_status", "RUN_STATUSES", "run_experiment", "main"]
 
@@ -182,7 +183,6 @@ def execute(config: dict, spec: RunSpec, evaluator: Evaluator | None = None):
                wall_time_s=time.perf_counter() - t0, stop_reason=res.stop_reason,
                settings=json.dumps(spec.settings, sort_keys=True))
     row.update(zip(prob.names, map(float, res.x)))
-    row.update(run_status(prob, res.x))
     _add_report(row, prob, res.x)
     hist = res.history.assign(case=spec.case, algorithm=spec.algorithm, optimiser_index=spec.optimiser_index,
                               run=spec.run)
@@ -204,19 +204,22 @@ def run_status(prob, x) -> dict:
         failed candidate (``unstable``, ``diverged``, ``riccati_failed``, ...), else "".
     """
     ev = prob.evaluate(np.asarray(x, dtype=np.float64)[None, :])
-    reason = str(ev.reason[0])
-    status = "failed" if reason else ("feasible" if bool(ev.feasible[0]) else "infeasible")
+    return _status(ev.reason[0], ev.feasible[0])
+
+
+def _status(reason, feasible) -> dict:
+    reason = str(reason)
+    status = "failed" if reason else ("feasible" if bool(feasible) else "infeasible")
     return dict(status=status, failure=reason)
 
 
 def _add_report(row: dict, prob, x):
-    import warnings
-
-    from heurtune.problem import IntegralActionWarning
-
+    """The run's status (from its tuning scenario) and its metrics per scenario into ``row``."""
     with warnings.catch_warnings():  # said once, when the experiment starts
         warnings.simplefilter("ignore", IntegralActionWarning)
         table = prob.report(x)
+    tuning = table.loc[prob.tuning_scenario]
+    row.update(_status(tuning["reason"], tuning["feasible"]))
     for scenario, values in table.iterrows():
         for key, value in values.items():
             row[f"{key}@{scenario}"] = value
@@ -234,7 +237,6 @@ def _execute_baseline(prob, spec: RunSpec):
                wall_time_s=time.perf_counter() - t0, stop_reason="analytic design",
                settings=json.dumps({}, sort_keys=True))
     row.update(zip(prob.names, map(float, x)))
-    row.update(run_status(prob, x))
     _add_report(row, prob, x)
     hist = pd.DataFrame(dict(epoch=[0], n_evals=[1], best_f=[float(ev.f[0])], best_violation=[viol],
                              mean_f=[float(ev.f[0])], sd_f=[0.0], feasible_fraction=[float(ev.feasible[0])],
@@ -337,8 +339,8 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     else:
         with atomic_path(meta_path) as tmp:
             tmp.write_text(json.dumps(plan_key))
-    warnings_ = exp.structure_warnings() if hasattr(exp, "structure_warnings") else {}
-    for case, msg in warnings_.items():
+    structure_warnings = exp.structure_warnings() if hasattr(exp, "structure_warnings") else {}
+    for case, msg in structure_warnings.items():
         print(f"warning: {case}: {msg}", file=sys.stderr)
     done = _finished(parts)
     pending = [s for s in specs if s.part_name not in done]
@@ -349,7 +351,7 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
               f"{jobs} worker(s), output {out_dir}", file=progress_stream)
         _run_pending(config, pending, parts, bar, jobs=jobs, backend=backend, scheduler=scheduler)
     bar.close()
-    _gather(exp, specs, parts, out_dir, ids, config, plan_key, figures=figures)
+    _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, figures=figures)
     return out_dir
 
 
@@ -403,7 +405,7 @@ def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler):
         raise
 
 
-def _gather(exp, specs, parts, out_dir, ids, config, plan_key, *, figures):
+def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, *, figures):
     rows, hists = [], []
     for spec in specs:
         run_file = parts / f"{spec.part_name}.run.parquet"
@@ -420,9 +422,8 @@ def _gather(exp, specs, parts, out_dir, ids, config, plan_key, *, figures):
     history = history[lead + [c for c in history.columns if c not in lead]]
     write_parquet(runs, out_dir / "runs.parquet")
     write_parquet(history, out_dir / "history.parquet")
-    warnings_ = exp.structure_warnings() if hasattr(exp, "structure_warnings") else {}
     meta = dict(experiment=exp.name, config=config, plan=plan_key, root_seed=specs[0].root_seed,
-                structure_warnings=warnings_,
+                structure_warnings=structure_warnings,
                 seeds={s.part_name: dict(seed=s.root_seed, spawn_key=list(s.spawn_key)) for s in specs},
                 problem_ids=ids, versions=_versions(), git_commit=_git_commit(),
                 written=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
@@ -494,17 +495,6 @@ def _slug(text: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in text)
 
 
-def _failed(runs: pd.DataFrame) -> pd.Series:
-    """Which runs failed: ``status == "failed"``, or (parts written before the status column)
-    a best objective at the failure sentinel."""
-    from heurtune.problem import FAILED_OBJECTIVE
-
-    by_value = runs["best_f"] >= FAILED_OBJECTIVE
-    if "status" not in runs:
-        return by_value
-    return runs["status"].eq("failed") | (runs["status"].isna() & by_value)
-
-
 def print_summary(runs: pd.DataFrame, exp, stream=sys.stdout):
     """Per case and optimiser: best, mean, SD, median, worst objective, feasible runs, failed
     runs, mean convergence epoch, wall time and the best gains.
@@ -512,9 +502,11 @@ def print_summary(runs: pd.DataFrame, exp, stream=sys.stdout):
     Failed runs (``status == "failed"``: no stable, simulable candidate) are counted, not
     averaged: their ``best_f`` is a sentinel, so the statistics cover the other runs (NaN when
     every run failed)."""
+    from heurtune.compare import failed_runs
+
     rows = []
     for (case, _), grp in runs.groupby(["case", "optimiser_index"], sort=False):
-        failed = _failed(grp)
+        failed = failed_runs(grp)
         f = grp.loc[~failed, "best_f"]
         best = _best_runs(grp).iloc[0]
         names = exp.problem(case).names

@@ -520,16 +520,8 @@ class Experiment(ExperimentBase):
     def structure_warnings(self) -> dict:
         """``{case: one-line reason}`` for every case whose controller structure cannot hold
         integral action on its plant (see :func:`integral_action_obstruction`)."""
-        out = {}
-        for case in self.cases:
-            plant_case, kind = self._variant(case)
-            pairing = self.pairing_of(case)
-            A, B, C = linearise(self._plant(plant_case))
-            ki = tuple(self.bounds.get(k, (1.0, 1.0)) for k in ("Ki1", "Ki2"))
-            msg = integral_action_obstruction(kind, pairing, A, B, C, ki)
-            if msg:
-                out[case] = msg
-        return out
+        warnings_ = {case: self.problem(case).structure_warning for case in self.cases}
+        return {case: msg for case, msg in warnings_.items() if msg}
 
 
 def load_experiment(name: str) -> Experiment:
