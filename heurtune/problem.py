@@ -10,6 +10,7 @@
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 import pandas as pd
@@ -322,8 +323,6 @@ class Problem(DecisionVectors):
         (``structure_warning``), an :class:`IntegralActionWarning` says so.
         """
         if self.structure_warning:
-            import warnings
-
             warnings.warn(f"{self.case}: {self.structure_warning}", IntegralActionWarning, stacklevel=2)
         x = np.array([self.values(x)[n] for n in self.names])
         rows = []
@@ -423,7 +422,7 @@ class Experiment(ExperimentBase):
             self.scenarios = {k: Scenario(**sc, uncertainty=float(v)) for k, v in uncertainty.items()}
         except ConfigError as exc:
             raise ConfigError(f"{self.name}: {exc}") from None
-        for case in plant_cases:
+        for case in plant_cases:  # fail at load, not in every evaluation (any controller type)
             loop = ClosedLoop(self._plant(case), "iolqi")
             for scenario in self.scenarios.values():
                 try:
@@ -520,8 +519,8 @@ class Experiment(ExperimentBase):
     def structure_warnings(self) -> dict:
         """``{case: one-line reason}`` for every case whose controller structure cannot hold
         integral action on its plant (see :func:`integral_action_obstruction`)."""
-        warnings_ = {case: self.problem(case).structure_warning for case in self.cases}
-        return {case: msg for case, msg in warnings_.items() if msg}
+        found = {case: self.problem(case).structure_warning for case in self.cases}
+        return {case: msg for case, msg in found.items() if msg}
 
 
 def load_experiment(name: str) -> Experiment:
