@@ -24,13 +24,23 @@ __all__ = ["experiments_dir", "list_experiments", "find_experiment", "load_confi
 NUMBER = (int, float)
 PAIR = ("pair", NUMBER)
 
+# Each optimiser's settings are validated by the registry (they differ per optimiser); `cases`
+# restricts an optimiser to some of the experiment's cases (default: all).
+OPTIMISERS = ("list", {
+    "name": str, "settings": ("map", None), "max_epochs": int, "max_evals": int,
+    "max_time": NUMBER, "tol": NUMBER, "tol_window": int,
+    "constraint_handling": ("deb", "penalty"), "penalty": NUMBER, "bound_handling": ("clip", "reflect"),
+    "cases": ("list", str),
+})
+
 SCHEMA = {
     "description": str,
     "extends": str,
     "runs": int,
     "seed": int,
     "plant": {
-        "model": ("qtp", "tito", "two_tank_nonlinear"),
+        # "qtp_bond_graph": the thesis' chapter-6 bond-graph form (pressure states) of the QTP
+        "model": ("qtp", "qtp_bond_graph", "tito", "two_tank_nonlinear"),
         "cases": ("list", str),
         "custom": ("map", {
             "A": ("list", NUMBER), "a": ("list", NUMBER), "k": ("list", NUMBER),
@@ -70,12 +80,13 @@ SCHEMA = {
     },
     # Optimiser plugins outside algorithms/: .py paths or importable module names.
     "plugins": ("list", str),
-    # Each optimiser's settings are validated by the registry (they differ per optimiser).
-    "optimisers": ("list", {
-        "name": str, "settings": ("map", None), "max_epochs": int, "max_evals": int,
-        "max_time": NUMBER, "tol": NUMBER, "tol_window": int,
-        "constraint_handling": ("deb", "penalty"), "penalty": NUMBER, "bound_handling": ("clip", "reflect"),
-    }),
+    "optimisers": OPTIMISERS,
+    # Fixed controllers evaluated as runs of their own (one evaluation, no search), e.g. the
+    # thesis' printed gains: x = {name = value, ...} or printed = {table = "4.7", row = "min"}.
+    "baselines": ("list", {"name": str, "case": str, "x": ("map", NUMBER),
+                           "printed": {"table": str, "row": str}}),
+    # thesis_chapter = 4, 5 or 6: write that chapter's tables next to the printed values.
+    "report": {"thesis_chapter": int},
 }
 
 
@@ -119,7 +130,7 @@ TITO_SCHEMA = dict(_COMMON, **{
     "robustness": {"uncertainty": NUMBER, "variation": NUMBER, "pade_order": int, "w": PAIR},
 })
 
-SCHEMAS = {"qtp": SCHEMA, "tito": TITO_SCHEMA, "two_tank_nonlinear": TITO_SCHEMA}
+SCHEMAS = {"qtp": SCHEMA, "qtp_bond_graph": SCHEMA, "tito": TITO_SCHEMA, "two_tank_nonlinear": TITO_SCHEMA}
 
 
 def experiments_dir() -> Path:

@@ -106,15 +106,20 @@ def problem_id(exp, case: str) -> str:
             payload["weights"] = prob.weights
         if payload["scenario"].get("limits", "none") == "none":
             payload["scenario"].pop("limits", None)
+        if getattr(prob.loop, "plant_model", "qtp") != "qtp":
+            payload["plant"]["model"] = prob.loop.plant_model
     text = json.dumps(payload, sort_keys=True, default=list)
     return hashlib.sha256(text.encode()).hexdigest()[:12]
 
 
 def plan(exp, *, runs=None, max_epochs=None, seed=None, smoke=False) -> list:
     """All runs of an experiment, in a fixed order (case, optimiser, run), then one run per
-    case and analytic baseline (``controller.baselines`` of TITO experiments)."""
-    baselines = tuple(getattr(exp, "baselines", ()))
-    if not exp.optimisers and not baselines:
+    case and baseline: an analytic design (``controller.baselines`` of TITO experiments) or a
+    fixed controller (``[[baselines]]`` of QTP experiments, e.g. printed gains).
+
+    An optimiser entry with ``cases`` tunes only those cases; its index (and hence its runs'
+    seeds) is its place in the config all the same."""
+    if not exp.optimisers and not any(exp.baseline_names(c) for c in exp.cases):
         raise ConfigError(f"{exp.name}: no [[optimisers]] to run")
     n_runs = runs if runs is not None else exp.config.get("runs", 10)
     root = seed if seed is not None else exp.config.get("seed", 0)
@@ -122,7 +127,7 @@ def plan(exp, *, runs=None, max_epochs=None, seed=None, smoke=False) -> list:
         n_runs = min(n_runs, SMOKE_RUNS)
     specs = []
     for ci, case in enumerate(exp.cases):
-        for oi, opt in enumerate(exp.optimisers):
+        for oi, opt in exp.optimisers_of(case):
             name = opt["name"]
             settings = dataclasses.asdict(opt["settings"])
             budget = {k: opt[k] for k in ("max_epochs", "max_evals", "max_time", "tol", "tol_window",
@@ -139,7 +144,7 @@ def plan(exp, *, runs=None, max_epochs=None, seed=None, smoke=False) -> list:
                         settings[key] = min(settings[key], small)
             for r in range(n_runs):
                 specs.append(RunSpec(case, ci, name, oi, r, settings, budget, root))
-        for bi, name in enumerate(baselines):
+        for bi, name in enumerate(exp.baseline_names(case)):
             specs.append(RunSpec(case, ci, name, len(exp.optimisers) + bi, 0, {}, {}, root, baseline=True))
     return specs
 
@@ -456,6 +461,11 @@ def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warning
         tito_report.write_outputs(exp, runs, best, out_dir, figures=figures)
     if figures:
         _figures(exp, runs, history, best, out_dir)
+    chapter = config.get("report", {}).get("thesis_chapter")
+    if chapter is not None:  # the chapter's tables next to the printed values
+        from heurtune.thesis.tables import write_chapter
+
+        write_chapter(chapter, exp, out_dir, runs=runs, history=history, figures=figures)
     print_summary(runs, exp)
 
 

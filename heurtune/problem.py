@@ -50,6 +50,10 @@ WEIGHTED_METRICS = ("J", "Jdev", "IAE", "ISE", "ITAE", "TV")
 STABILITY_CONSTRAINT = "stability"
 
 
+# Thesis chapters whose tables the runner can write next to the printed values (heurtune.thesis).
+THESIS_CHAPTERS = (4, 5, 6)
+
+
 class IntegralActionWarning(UserWarning):
     """The configured controller structure cannot hold integral action on this plant."""
 
@@ -199,6 +203,7 @@ class Problem(DecisionVectors):
         self.scenarios = dict(scenarios)
         self.tuning_scenario = tuning_scenario
         self.structure_warning = structure_warning
+        self.baselines = {}  # name -> decision vector of a fixed controller (Experiment.problem)
         if objective == "weighted":
             if not weights:
                 raise ConfigError("problem.objective = 'weighted' needs problem.weights "
@@ -296,6 +301,20 @@ class Problem(DecisionVectors):
         ev = self.evaluate(X)
         return ev.f, ev.g
 
+    def baseline(self, name: str) -> np.ndarray:
+        """Decision vector of a fixed controller named in the config's ``[[baselines]]``.
+
+        Raises
+        ------
+        ConfigError
+            For a name the case has no baseline of.
+        """
+        try:
+            return self.baselines[name].copy()
+        except KeyError:
+            raise ConfigError(f"case {self.case!r}: unknown baseline {name!r}; "
+                              f"allowed: {', '.join(self.baselines) or 'none'}") from None
+
     def warm_up(self):
         """Compile or load the jitted kernels (call in the parent before starting workers)."""
         self.loop.warm_up()
@@ -366,7 +385,15 @@ class ExperimentBase:
                 settings = registry.make_settings(opt["name"], opt.get("settings", {}))
             except ConfigError as exc:
                 raise ConfigError(f"{where}: {exc}") from None
+            unknown = [c for c in opt.get("cases", []) if c not in self.cases]
+            if unknown:
+                raise ConfigError(f"{where}.cases: unknown case {unknown[0]!r}; allowed: {', '.join(self.cases)}")
             self.optimisers.append(dict(opt, settings=settings))
+
+    def optimisers_of(self, case: str) -> list:
+        """``(index, entry)`` of the ``[[optimisers]]`` that tune ``case`` (an entry's
+        ``cases`` restricts it; the index is the entry's place in the config)."""
+        return [(i, opt) for i, opt in enumerate(self.optimisers) if case in opt.get("cases", self.cases)]
 
     def controller_of(self, case: str) -> str:
         """The controller type of a case."""
@@ -389,6 +416,7 @@ class Experiment(ExperimentBase):
         self.config = config
         self.name = config["name"]
         plant = config.get("plant", {})
+        self.plant_model = plant.get("model", "qtp")
         plant_cases = tuple(plant.get("cases", ["min", "nmp"]))
         if not plant_cases:
             raise ConfigError(f"{self.name}: plant.cases must name at least one case")
@@ -468,9 +496,50 @@ class Experiment(ExperimentBase):
                 bounds[key] = (float(lo), float(hi))
         self.bounds = bounds
         self._load_optimisers(config)
+        self.baselines = self._fixed_controllers(config.get("baselines", []))
+        chapter = config.get("report", {}).get("thesis_chapter")
+        if chapter is not None and chapter not in THESIS_CHAPTERS:
+            raise ConfigError(f"{self.name}: report.thesis_chapter: got {chapter!r}; "
+                              f"allowed: {', '.join(map(str, THESIS_CHAPTERS))}")
 
     def __repr__(self):
         return f"Experiment({self.name!r}, cases={self.cases}, controllers={self.controllers})"
+
+    def _fixed_controllers(self, entries: list) -> dict:
+        """``{case: {name: x}}`` from the config's ``[[baselines]]`` (gains given as ``x`` or
+        looked up in the thesis' printed tables as ``printed = {table, row}``)."""
+        out = {}
+        for i, entry in enumerate(entries):
+            where = f"{self.name}: baselines[{i}]"
+            for key in ("name", "case"):
+                if key not in entry:
+                    raise ConfigError(f"{where}: missing key {key!r}")
+            case = entry["case"]
+            if case not in self.cases:
+                raise ConfigError(f"{where}.case: unknown case {case!r}; allowed: {', '.join(self.cases)}")
+            if ("x" in entry) == ("printed" in entry):
+                raise ConfigError(f"{where}: give the gains as x = {{...}} or printed = {{table, row}}, not both")
+            if "printed" in entry:
+                from heurtune.thesis.printed import printed_row
+
+                ref = entry["printed"]
+                if set(ref) != {"table", "row"}:
+                    raise ConfigError(f"{where}.printed: give table and row, got {sorted(ref)}")
+                values = printed_row(ref["table"], ref["row"])
+            else:
+                values = entry["x"]
+            names = decision_names(self.controller_of(case))
+            missing = [n for n in names if n not in values or values[n] is None]
+            if missing:
+                raise ConfigError(f"{where}: no value for {', '.join(missing)} (case {case!r} needs {', '.join(names)})")
+            if entry["name"] in out.get(case, {}):
+                raise ConfigError(f"{where}: baseline {entry['name']!r} given twice for case {case!r}")
+            out.setdefault(case, {})[entry["name"]] = np.array([float(values[n]) for n in names])
+        return out
+
+    def baseline_names(self, case: str) -> tuple:
+        """Names of the fixed controllers evaluated as runs of their own for ``case``."""
+        return tuple(self.baselines.get(case, {}))
 
     def _plant(self, case: str) -> QTPParams:
         if case in self._custom:
@@ -505,16 +574,19 @@ class Experiment(ExperimentBase):
         names several controllers)."""
         plant_case, kind = self._variant(case)
         pairing = self.pairing_of(case)
-        loop = ClosedLoop(self._plant(plant_case), kind, **self.controller_options, pairing=pairing)
+        model = {} if self.plant_model == "qtp" else {"plant_model": self.plant_model}
+        loop = ClosedLoop(self._plant(plant_case), kind, **self.controller_options, pairing=pairing, **model)
         names = decision_names(kind)
         lower = [self.bounds[n][0] for n in names]
         upper = [self.bounds[n][1] for n in names]
         ki = tuple(self.bounds.get(k, (1.0, 1.0)) for k in ("Ki1", "Ki2"))
         warning = integral_action_obstruction(kind, pairing, loop.A, loop.B, loop.C, ki)
-        return Problem(case, loop, names, lower, upper, objective=self.objective,
+        prob = Problem(case, loop, names, lower, upper, objective=self.objective,
                        constraints=self.constraints, settling_band=self.settling_band,
                        scenarios=self.scenarios, tuning_scenario=self.tuning_scenario,
                        weights=self.weights, structure_warning=warning)
+        prob.baselines = dict(self.baselines.get(case, {}))
+        return prob
 
     def structure_warnings(self) -> dict:
         """``{case: one-line reason}`` for every case whose controller structure cannot hold

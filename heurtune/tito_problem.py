@@ -632,6 +632,10 @@ class TITOExperiment(ExperimentBase):
         for case in cases:
             self._chain(case)  # validate plants and decouplers early
 
+    def baseline_names(self, case: str) -> tuple:
+        """Names of the analytic designs (``controller.baselines``) run for ``case``: all of them."""
+        return self.baselines
+
     def __repr__(self):
         return f"TITOExperiment({self.name!r}, cases={self.cases}, controllers={self.controllers})"
 
