@@ -46,13 +46,36 @@ Conventions common to the four methods
   merit if it improves on ``m(x)``. Otherwise the search failed: Newton and quasi-Newton fall
   back to a steepest-descent search from the same point (the quasi-Newton matrix is reset).
   A direction that is not a descent direction is replaced by steepest descent as well.
+* **Unit steps** (``line_search="unit"``: the step rule of the thesis' chapter 6, where
+  Newton-Raphson, DFP and BFGS take ``alpha_k = 1``, ``x_{k+1} = x_k + d_k``). The line-search
+  batch is the single trial ``P(x + d)`` with the method's direction ``d`` in box units (not
+  normalised, not capped by ``max_step``: the projection keeps it in the box), and it is
+  taken whatever its merit, uphill included, as the thesis does; the engine still keeps the
+  best-so-far. An iteration costs the derivative batch plus one evaluation (``2d + 1``; Newton-
+  Raphson ``d^2 + 3d + 2``). Quasi-Newton matrices are updated after every step exactly as with
+  Armijo steps, with the same curvature safeguard (update skipped when ``s^T y`` is not
+  clearly positive), so a step that went uphill along a direction of negative curvature leaves
+  ``H`` unchanged. Steepest descent: the thesis prescribes an exact line search
+  (``alpha_k = argmin phi``), which the Armijo batch approximates; its ``unit`` variant is the
+  literal ``alpha = 1`` on the gradient in box units, ``u_{k+1} = P(u_k - grad_u m)``, i.e. the
+  quasi-Newton step with ``H = I`` (the first DFP/BFGS step). Chosen over a step normalised to
+  one box width because that one would always end on a bound, while this one is the same
+  reading of ``alpha = 1`` as for the other three methods; it converges only where the
+  curvature in box units stays below 2 and otherwise oscillates or ends on bounds (use
+  ``armijo`` for real work). A direction that is not a descent direction is replaced by the
+  unit steepest-descent step. A trial with non-finite merit is not taken: the unit steepest-
+  descent step from the same point is tried next (the quasi-Newton matrix is reset), and if that
+  fails too the method counts as converged.
 * **Convergence and restarts.** Converged when the projected gradient in box units satisfies
-  ``max|g_i width_i| <= gtol * max(1, |m(x)|)``, or after two failed line searches in a row.
+  ``max|g_i width_i| <= gtol * max(1, |m(x)|)``, when an accepted step moves every coordinate
+  by less than ``xtol`` box widths (the thesis' ``|x_{k+1} - x_k| < tol``; default 0: off, and
+  without effect when ``restart=False``), or after two failed line searches in a row.
   With ``restart=True`` (default) the method then restarts from a uniform random point of the
   box (multistart, so the whole budget is used; the engine keeps the best-so-far, and the
   history's population statistics jump at a restart); with ``restart=False`` it keeps
-  polishing the same point with ever shorter steepest-descent steps. A start point with
-  non-finite merit is replaced by a random one at once (that iteration has no line search).
+  polishing the same point with ever shorter steepest-descent steps (Armijo searches, also
+  after unit steps, which from then on are no longer used). A start point with non-finite
+  merit is replaced by a random one at once (that iteration has no line search).
 """
 
 from __future__ import annotations
@@ -69,6 +92,7 @@ __all__ = ["GradientSettings", "GradientOptimizer", "gradient_stencil", "gradien
            "project", "QuasiNewtonOptimizer"]
 
 START_CHOICES = ("random", "center")
+LINE_SEARCH_CHOICES = ("armijo", "unit")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -95,6 +119,10 @@ class GradientSettings:
         "help": "converged when max|projected gradient * box width| <= gtol*max(1,|merit|)"})
     restart: bool = dataclasses.field(default=True, metadata={
         "help": "after convergence restart from a random point (else keep polishing)"})
+    line_search: str = dataclasses.field(default="armijo", metadata={
+        "help": "'armijo' (batched Armijo search) or 'unit' (the thesis' alpha_k = 1: one trial P(x + d), always taken)"})
+    xtol: float = dataclasses.field(default=0.0, metadata={
+        "help": "also converged when an accepted step moves no coordinate by xtol box widths or more (0: off)"})
 
     def __post_init__(self):
         if self.start not in START_CHOICES:
@@ -113,6 +141,11 @@ class GradientSettings:
             raise ValueError(f"max_step must be positive, got {self.max_step}")
         if not self.gtol >= 0:
             raise ValueError(f"gtol must be >= 0, got {self.gtol}")
+        if self.line_search not in LINE_SEARCH_CHOICES:
+            raise ValueError(f"line_search must be one of {', '.join(LINE_SEARCH_CHOICES)}, "
+                             f"got {self.line_search!r}")
+        if not self.xtol >= 0:
+            raise ValueError(f"xtol must be >= 0, got {self.xtol}")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -321,6 +354,8 @@ class GradientOptimizer(Optimizer):
         self._begin(x)
         self.sd_step = settings.max_step  # steepest-descent t_0, in box widths
         self.n_restarts = 0
+        # unit steps (thesis alpha_k = 1); switched off for good when restart=False polishing begins
+        self.unit = settings.line_search == "unit"
 
     # -- state ---------------------------------------------------------------------------------
 
@@ -430,6 +465,13 @@ class GradientOptimizer(Optimizer):
             d = np.where(free, self.direction(g, free), 0.0)
             if not (np.all(np.isfinite(d)) and g @ d < 0):
                 self.use_sd = True  # not a descent direction: fall back
+        if self.unit:  # the full step of the direction, alpha = 1, in box units (no normalisation)
+            if self.use_sd:
+                d = np.where(free, -g, 0.0)
+            self.steps = np.ones(1)
+            self.trials = project(self.x + d * self.scale, self.lower, self.upper)[None, :]
+            self.phase = "line_search"
+            return
         if self.use_sd:
             d = np.where(free, -g, 0.0)
             extent = float(np.max(np.abs(d)))
@@ -449,7 +491,40 @@ class GradientOptimizer(Optimizer):
         self.trials = project(self.x + self.steps[:, None] * step[None, :], self.lower, self.upper)
         self.phase = "line_search"
 
+    def _accept(self, X, f, v, m, i):
+        """Move to trial ``i``; True when that step is below ``xtol`` and the method restarts."""
+        step = np.max(np.abs(X[i] - self.x) / self.scale, initial=0.0)
+        self.prev_x, self.prev_g = self.x, self.grad
+        self.x = np.array(X[i], dtype=np.float64)
+        self.mx = float(m[i])
+        self._set_current(f[i], v[i])
+        self.grad = None
+        self.failures = 0
+        self.phase = "derivatives"
+        if step < self.settings.xtol and self.settings.restart:
+            self._converged()
+            return True
+        return False
+
+    def _tell_unit_step(self, X, f, v):
+        m = self._merit(f, v)
+        if np.isfinite(m[0]):  # taken even when it does not decrease the merit (thesis)
+            self._accept(X, f, v, m, 0)
+            return True
+        # non-finite merit: x and its gradient stay valid; try the unit steepest-descent step,
+        # and give up (restart or polish) when that fails too
+        self.failures += 1
+        if self.use_sd or self.failures >= 2:
+            self._converged()
+            return True
+        self.reset_model()
+        self.use_sd = True
+        self._plan_line_search()
+        return True
+
     def _tell_line_search(self, X, f, v):
+        if self.unit:
+            return self._tell_unit_step(X, f, v)
         s = self.settings
         m = self._merit(f, v)
         decrease = (X - self.x) @ self.grad
@@ -462,13 +537,7 @@ class GradientOptimizer(Optimizer):
                 self.sd_step = min(s.max_step, self.steps[i] / s.step_ratio)
             else:
                 self.qn_step = max(1.0, self.steps[i])
-            self.prev_x, self.prev_g = self.x, self.grad
-            self.x = np.array(X[i], dtype=np.float64)
-            self.mx = float(m[i])
-            self._set_current(f[i], v[i])
-            self.grad = None
-            self.failures = 0
-            self.phase = "derivatives"
+            self._accept(X, f, v, m, i)
             return True
         # failed: x and its gradient stay valid
         self.failures += 1
@@ -487,7 +556,9 @@ class GradientOptimizer(Optimizer):
         if self.settings.restart:
             self._restart()
             return
-        # keep polishing: shorter steepest-descent steps from the same point
+        # keep polishing: shorter steepest-descent steps from the same point (Armijo search,
+        # also after unit steps: repeating a unit step from the same point would change nothing)
+        self.unit = False
         self.use_sd = True
         self.sd_step = min(self.sd_step, self.settings.max_step) * self.settings.step_ratio
         self._plan_line_search()

@@ -1,4 +1,5 @@
-"""DFP quasi-Newton method with finite-difference gradients and a batched Armijo line search.
+"""DFP quasi-Newton method with finite-difference gradients and a batched Armijo line search
+(or the thesis' unit steps, ``line_search="unit"``).
 
 Inverse-Hessian update :func:`dfp_update` (Davidon 1959; Fletcher & Powell 1963; Nocedal &
 Wright 2006, eq. 6.15), skipped when the curvature condition ``s^T y > 0`` fails; ``H_0 = I``
@@ -23,6 +24,7 @@ class DFPSettings(GradientSettings):
 @register("dfp", settings=DFPSettings,
           source="Davidon (1959); Fletcher & Powell (1963); Nocedal & Wright (2006), sec. 6.1",
           description=("DFP quasi-Newton, "
-                       "FD gradient + batched Armijo line search (2d + K evaluations per iteration)"))
+                       "FD gradient + batched Armijo line search (2d + K evaluations per iteration), or the "
+                       "thesis' unit step x + d with line_search='unit' (2d + 1)"))
 class DFP(QuasiNewtonOptimizer):
     update = staticmethod(dfp_update)

@@ -1,4 +1,5 @@
-"""Newton-Raphson with finite-difference gradient and Hessian and a batched Armijo line search.
+"""Newton-Raphson with finite-difference gradient and Hessian and a batched Armijo line search
+(or the thesis' unit steps, ``line_search="unit"``).
 
 Each iteration evaluates one derivative batch: the gradient stencil (step ``fd_step``, 2d
 points) and the Hessian stencil (step ``hess_step``, ``d^2 + d + 1`` points, second-order
@@ -38,7 +39,8 @@ class NewtonRaphsonSettings(GradientSettings):
 @register("newton_raphson", settings=NewtonRaphsonSettings,
           source="Nocedal & Wright, Numerical Optimization (2006), sec. 3.3-3.4 (modified Newton)",
           description=("Newton-Raphson, FD gradient + Hessian (eigenvalue-modified) + batched Armijo "
-                       "line search (d^2 + 3d + 1 + K evaluations per iteration)"))
+                       "line search (d^2 + 3d + 1 + K evaluations per iteration), or the thesis' unit step "
+                       "x + d with line_search='unit' (d^2 + 3d + 2)"))
 class NewtonRaphson(GradientOptimizer):
     uses_hessian = True
 

@@ -1,4 +1,5 @@
-"""Steepest descent with finite-difference gradients and a batched Armijo line search.
+"""Steepest descent with finite-difference gradients and a batched Armijo line search
+(or the thesis' unit steps, ``line_search="unit"``).
 
 Direction ``-g`` on the free coordinates (projected gradient), normalised so that ``t = 1``
 moves the largest component by one box width; trial steps ``t_0 r^k`` with an adaptive ``t_0``
@@ -23,7 +24,8 @@ class SteepestDescentSettings(GradientSettings):
 @register("steepest_descent", settings=SteepestDescentSettings,
           source="Cauchy (1847); Nocedal & Wright, Numerical Optimization (2006), ch. 3",
           description=("Steepest descent, "
-                       "FD gradient + batched Armijo line search (2d + K evaluations per iteration)"))
+                       "FD gradient + batched Armijo line search (2d + K evaluations per iteration), or the "
+                       "full gradient step u - grad_u f in box units with line_search='unit' (2d + 1)"))
 class SteepestDescent(GradientOptimizer):
     steepest = True
 

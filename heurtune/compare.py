@@ -18,7 +18,11 @@ per plant case, the report gives
 * the winner, marked with an asterisk, only when it is significantly better (Holm-adjusted
   p < alpha) than every other algorithm of the case;
 * the best run of every algorithm re-evaluated per scenario (``Mp1 ... J`` columns read from
-  the ``<metric>@<scenario>`` columns of ``runs.parquet``).
+  the ``<metric>@<scenario>`` columns of ``runs.parquet``);
+* the loop margins of that best run per interaction loop (input i, output j): gain-crossover
+  frequency and phase margin (thesis Tables 4.11, 5.8-5.10), read from each folder's
+  ``margins.parquet`` as the experiment runner wrote it; a folder without that file (or with
+  margins not per input and output, as TITO experiments write) adds none.
 
 Lower metric values are better. Runs are comparable only if their ``problem_id`` (plant case,
 controller, scenarios, objective, constraints, bounds) matches: a case mixing problem ids is
@@ -61,6 +65,8 @@ __all__ = [
     "find_winners",
     "best_run_index",
     "reevaluation_table",
+    "load_margins",
+    "margins_table",
     "report",
     "run",
     "main",
@@ -69,6 +75,8 @@ __all__ = [
 FORMATS = ("md", "csv", "latex")
 REEVALUATION_COLUMNS = ("Mp1", "Mp2", "ts1", "ts2", "ess1", "ess2", "J1", "J2", "J")
 REQUIRED_COLUMNS = ("experiment", "case", "algorithm", "problem_id", "run")
+MARGIN_KEY_COLUMNS = ("experiment", "case", "algorithm", "input", "output", "gain_crossover_rad_s",
+                      "phase_margin_deg")
 _KEY = ["experiment", "case", "algorithm", "run"]
 
 
@@ -160,6 +168,83 @@ def load_runs(dirs) -> pd.DataFrame:
         runs.loc[ambiguous, "algorithm"] = (runs.loc[ambiguous, "algorithm"] + " ["
                                             + runs.loc[ambiguous, "experiment"] + "]")
     return runs
+
+
+def load_margins(dirs, runs: pd.DataFrame | None = None) -> pd.DataFrame:
+    """Read and merge the ``margins.parquet`` files of experiment output folders.
+
+    Parameters
+    ----------
+    dirs : iterable of str or Path
+        Experiment output folders (a path to a ``.parquet`` file stands for its folder).
+    runs : pandas.DataFrame, optional
+        Rows of :func:`load_runs` for the same folders: an algorithm that :func:`load_runs`
+        relabelled ``"name [experiment]"`` gets the same label here.
+
+    Returns
+    -------
+    pandas.DataFrame
+        All rows of the files found, in folder order, with a fresh index (empty, with the
+        columns ``MARGIN_KEY_COLUMNS``, when there are none). Folders without
+        ``margins.parquet``, and files that cannot be read or lack the columns ``experiment,
+        case, algorithm, input, output, gain_crossover_rad_s, phase_margin_deg`` (e.g. TITO
+        margins, which are per loop), are skipped without error.
+    """
+    frames = []
+    for d in dirs:
+        path = Path(d)
+        folder = path.parent if path.suffix == ".parquet" and not path.is_dir() else path
+        file = folder / "margins.parquet"
+        if not file.is_file():
+            continue
+        try:
+            df = pd.read_parquet(file)
+        except Exception:  # unreadable: the margins are an optional extra
+            continue
+        if all(c in df.columns for c in MARGIN_KEY_COLUMNS):
+            frames.append(df)
+    if not frames:
+        return pd.DataFrame(columns=list(MARGIN_KEY_COLUMNS))
+    m = pd.concat(frames, ignore_index=True, sort=False)
+    for col in ("experiment", "case", "algorithm"):
+        m[col] = m[col].astype(str)
+    if runs is not None and len(m):
+        labels = set(zip(runs["case"], runs["algorithm"]))
+        relabel = [(c, f"{a} [{e}]") in labels for e, c, a in zip(m["experiment"], m["case"], m["algorithm"])]
+        relabel = np.array(relabel, dtype=bool)
+        if relabel.any():
+            m.loc[relabel, "algorithm"] = m.loc[relabel, "algorithm"] + " [" + m.loc[relabel, "experiment"] + "]"
+    return m
+
+
+def margins_table(margins: pd.DataFrame) -> pd.DataFrame:
+    """Gain crossover and phase margin per (case, algorithm, input, output) (thesis Table 5.8 layout).
+
+    Parameters
+    ----------
+    margins : pandas.DataFrame
+        Rows of :func:`load_margins` (one per best run and interaction loop).
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``case, algorithm, run`` (when present), ``input, output``, ``gain crossover
+        (rad/s)`` (NaN: |L| never reaches 1) and ``phase margin (deg)`` (``inf`` then), rows
+        in file order, sorted by input and output within each (case, algorithm).
+    """
+    cols = ["case", "algorithm"] + (["run"] if "run" in margins.columns else []) + ["input", "output"]
+    out = margins[cols + ["gain_crossover_rad_s", "phase_margin_deg"]].copy()
+    out["input"] = out["input"].astype(int)
+    out["output"] = out["output"].astype(int)
+    if "run" in out:
+        out["run"] = out["run"].astype(int)
+    order = {}
+    for key in zip(out["case"], out["algorithm"]):
+        order.setdefault(key, len(order))
+    out["_o"] = [order[key] for key in zip(out["case"], out["algorithm"])]
+    out = out.sort_values(["_o", "input", "output"], kind="mergesort").drop(columns="_o")
+    return out.rename(columns={"gain_crossover_rad_s": "gain crossover (rad/s)",
+                               "phase_margin_deg": "phase margin (deg)"}).reset_index(drop=True)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -568,8 +653,9 @@ def _latex_table(df: pd.DataFrame, formats: dict, title: str, use_pandas: bool |
     return "\\begin{table}[htbp]\n\\centering\n" + f"\\caption{{{_tex(title)}}}\n" + body + "\\end{table}"
 
 
-def _blocks(runs: pd.DataFrame, metric: str, alpha: float):
+def _blocks(runs: pd.DataFrame, metric: str, alpha: float, margins: pd.DataFrame | None = None):
     """The report as a list of ('heading', level, text) / ('note', text) / ('table', title, df, formats)."""
+    marg = margins_table(margins) if margins is not None and len(margins) else pd.DataFrame()
     summary = summary_table(runs, metric)
     pairs = pairwise_tests(runs, metric, alpha)
     fried = friedman_test(runs, metric)
@@ -624,11 +710,19 @@ def _blocks(runs: pd.DataFrame, metric: str, alpha: float):
             t = rc.drop(columns="case").reset_index(drop=True)
             t["algorithm"] = [a + "*" if a == winner else a for a in t["algorithm"]]
             blocks.append(("table", f"Case {case}: best run of each algorithm per scenario", t, {}))
+
+        mc = marg[marg["case"] == case] if len(marg) else marg
+        if len(mc):
+            t = mc.drop(columns="case").reset_index(drop=True)
+            t["algorithm"] = [a + "*" if a == winner else a for a in t["algorithm"]]
+            blocks.append(("table", f"Case {case}: loop margins of each algorithm's best run (input i, output j)",
+                           t, {"gain crossover (rad/s)": 4, "phase margin (deg)": 4}))
     return blocks
 
 
-def report(runs: pd.DataFrame, metric: str = "best_f", alpha: float = 0.05, fmt: str = "md") -> str:
-    """Render the full comparison (summary, tests, winner, re-evaluation) for every case.
+def report(runs: pd.DataFrame, metric: str = "best_f", alpha: float = 0.05, fmt: str = "md",
+           margins: pd.DataFrame | None = None) -> str:
+    """Render the full comparison (summary, tests, winner, re-evaluation, margins) for every case.
 
     Parameters
     ----------
@@ -643,6 +737,9 @@ def report(runs: pd.DataFrame, metric: str = "best_f", alpha: float = 0.05, fmt:
         lines, headings and notes as ``# ...`` lines, numbers unrounded. ``latex``: starred
         sectioning commands and ``table`` environments with booktabs tabulars (needs
         ``\\usepackage{booktabs}``).
+    margins : pandas.DataFrame, optional
+        Rows of :func:`load_margins`; when given and not empty, each case ends with the table
+        of :func:`margins_table`.
 
     Returns
     -------
@@ -656,7 +753,7 @@ def report(runs: pd.DataFrame, metric: str = "best_f", alpha: float = 0.05, fmt:
         raise ConfigError(f"alpha must lie in (0, 1), got {alpha:g}")
     _check_metric(runs, metric)
     parts = []
-    for block in _blocks(runs, metric, alpha):
+    for block in _blocks(runs, metric, alpha, margins):
         kind = block[0]
         if fmt == "md":
             if kind == "heading":
@@ -726,7 +823,8 @@ def run(argv=None) -> int:
         if not 0 < args.alpha < 1:
             raise ConfigError(f"--alpha must lie in (0, 1), got {args.alpha:g}")
         runs = load_runs(args.dirs)
-        text = report(runs, metric=args.metric, alpha=args.alpha, fmt=args.format)
+        margins = load_margins(args.dirs, runs)
+        text = report(runs, metric=args.metric, alpha=args.alpha, fmt=args.format, margins=margins)
     except (ConfigError, _UsageError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

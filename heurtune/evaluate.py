@@ -13,7 +13,9 @@ physical range, and one line when the controller structure cannot hold integral 
 (e.g. ``ga_pi_ccts --case ccts --x "Kp1=..,Ki1=..,Kp2=..,Ki2=.."``): the objective, IAE, ISE,
 ITAE and settling time per loop, the loop margins and sensitivity peaks. Mistakes in the command
 (unknown experiment, case, scenario or variable, a missing variable, a value out of bounds) give
-a one-line error and exit code 2.
+a one-line error and exit code 2. ``--outside-bounds`` evaluates a controller whose values lie
+outside the experiment's bounds anyway (e.g. gains published for other bounds), exactly as given
+(never clipped), with one warning line per such variable on stderr.
 """
 
 from __future__ import annotations
@@ -44,7 +46,28 @@ def _parser() -> argparse.ArgumentParser:
                     help="scenario to evaluate (repeatable; default: all of the experiment's)")
     ap.add_argument("--out", help="write trajectories (scenario, t, h1..h4 or r1, r2, y1, y2, u1, u2) to this parquet file")
     ap.add_argument("--plot", help="draw levels and pump voltages to this PNG file")
+    ap.add_argument("--outside-bounds", action="store_true",
+                    help="evaluate values outside the experiment's bounds as given (one warning per variable)")
     return ap
+
+
+def bound_violations(prob, x) -> list:
+    """Variables of ``x`` outside the bounds of ``prob``.
+
+    Parameters
+    ----------
+    prob : heurtune.problem.DecisionVectors
+        Any problem with ``names``, ``lower`` and ``upper``.
+    x : (d,) array_like
+        Decision vector in the order of ``prob.names``.
+
+    Returns
+    -------
+    list of (str, float, float, float)
+        ``(name, value, lower, upper)`` per offending variable, in the order of ``prob.names``.
+    """
+    return [(name, float(v), float(lo), float(hi))
+            for name, v, lo, hi in zip(prob.names, x, prob.lower, prob.upper) if not lo <= v <= hi]
 
 
 def run(argv=None) -> int:
@@ -53,7 +76,13 @@ def run(argv=None) -> int:
     try:
         exp = load_experiment(args.experiment)
         prob = exp.problem(args.case)
-        x = prob.parse(args.x)
+        x = prob.parse(args.x, check_bounds=False)
+        outside = bound_violations(prob, x)
+        if outside and not args.outside_bounds:
+            name, v, lo, hi = outside[0]
+            raise ConfigError(f"{name}={v:g} is outside its bounds [{lo:g}, {hi:g}]"
+                              + (f" (and {len(outside) - 1} more)" if len(outside) > 1 else "")
+                              + "; pass --outside-bounds to evaluate it anyway")
         scenarios = args.scenario or list(prob.scenarios)
         for name in scenarios:
             prob.scenario(name)
@@ -72,6 +101,9 @@ def run(argv=None) -> int:
     except (ConfigError, ControllerDesignError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    for name, v, lo, hi in outside:
+        print(f"warning: {name} = {v:g} lies outside its bounds [{lo:g}, {hi:g}]; "
+              "evaluated anyway (--outside-bounds)", file=sys.stderr)
     if structure_warning:
         print(f"warning: {args.case}: {structure_warning}", file=sys.stderr)
     print(f"{exp.name} / case {args.case} / {prob.kind if tito else prob.loop.kind}")

@@ -15,13 +15,35 @@ this module:
 
       L(s) = -K(s) P(s)        (2 x 2)
 
-* **input i, output j** is the SISO element ``L_ji``: from a signal injected at the input of
-  pump ``i`` (with nothing injected at the other pump and the other loop *open*) to the
-  controller's command for pump ``j``. The diagonal elements ``L_11``, ``L_22`` are true
-  single-loop return ratios (each pump's loop with the other broken); the off-diagonal elements
-  are couplings, not loops: their "margins" are formal numbers (they may be negative or show
-  gain margins below 0 dB) and say nothing about stability on their own. They are reported
-  because the thesis tables list all four pairs.
+* :func:`return_ratio` gives that 2 x 2 ``L``. Its off-diagonal elements are couplings, not
+  loops (closing them alone closes nothing), so their "margins" are formal numbers (negative
+  phase margins, gain margins below 0 dB). They are not what the thesis tables need.
+
+* **Interaction loop "input i, output j"** (:func:`element_loop`, used by :func:`loop_margins`
+  for all four pairs): the loop through the controller's *element* from measured level ``j``
+  to pump ``i``, ``k_ij(s) = K(s)[i, j]``, with every other path of controller and plant left
+  connected. Breaking the loop at that element's output, the rest of the loop is the plant
+  from pump ``i`` to level ``j`` with the remaining controller ``K' = K - k_ij e_i e_j^T`` in
+  feedback, so
+
+      L_ij(s) = -k_ij(s) [(I - P(s) K'(s))^-1 P(s)]_{j, i}
+
+  Why this definition: (1) it is a true SISO loop for every pair, and closing it gives back
+  exactly the whole closed loop, so its Nyquist plot decides closed-loop stability (with the
+  open-loop RHP poles counted in ``open_loop_unstable_poles``) and its gain and phase margins
+  are the gain factor and the phase lag that element alone tolerates; (2) for a decentralised
+  (diagonal) controller and a diagonal pair it is the classical "loop ``i`` with the other loop
+  closed" (equivalent/effective open loop of decentralised control), and it extends that to the
+  full state-feedback FOLQI/IOLQI and to the cross paths; (3) the alternative with all other
+  paths *open* (``-k_ij P_ji``) drops the state feedback and the other pump, which are always
+  present, and its closure is no loop that exists. On the thesis' CS/FOLQI/min gains the pump
+  loops (1, 1) and (2, 2) cross over at 1.02 and 2.24 rad/s (thesis Table 5.8: 1.03 and 2.27),
+  with phase margins 20.3 and 21.5 deg; the cross elements (1, 2) and (2, 1) are only the
+  small state-feedback gains on the other level, and with the integral action of the other
+  pump closed their loop gains stay below 1e-3 and their phase never reaches -180 deg: no
+  gain or phase crossover, infinite margins, which here means that no phase lag and no gain
+  increase of a cross path alone can destabilise the loop. Like all margins they describe a
+  *stable* closed loop (check :func:`multivariable_margins` or the evaluation's reason).
 
 :func:`multivariable_margins` adds what does decide stability of the MIMO loop: the largest real
 part of the closed-loop eigenvalues, loop-at-a-time margins (one pump's loop broken, the other
@@ -44,13 +66,15 @@ import pandas as pd
 
 from heurtune.objectives.qtp import linearise, operating_point
 
-__all__ = ["loop_margins", "multivariable_margins", "siso_margins", "return_ratio",
-           "frequency_grid", "MultivariableMargins", "MARGIN_COLUMNS"]
+__all__ = ["loop_margins", "multivariable_margins", "siso_margins", "return_ratio", "element_loop",
+           "frequency_grid", "MultivariableMargins", "MARGIN_COLUMNS", "ELEMENT_LOOP"]
 
 POINTS_PER_DECADE = 200
 MARGIN_COLUMNS = ("input", "output", "gain_crossover_rad_s", "phase_margin_deg",
                   "phase_crossover_rad_s", "gain_margin_db", "n_gain_crossovers",
-                  "n_phase_crossovers")
+                  "n_phase_crossovers", "open_loop_unstable_poles", "definition")
+# value of the ``definition`` column: the loop of one controller element, the rest closed
+ELEMENT_LOOP = "element_loop"
 
 
 def frequency_grid(poles, *, decades_beyond: float = 2.0,
@@ -170,16 +194,80 @@ def return_ratio(problem, x, scenario="nominal"):
     return -K * P
 
 
-def loop_margins(problem, x, scenario="nominal", omega=None) -> pd.DataFrame:
-    """Margins of each element of the return ratio at the plant input (thesis Table 5.8).
+def element_loop(problem, x, input, output, scenario="nominal"):
+    """Loop transfer function of the controller element from level ``output`` to pump ``input``.
 
-    "Input i, output j" is our reading (the thesis does not define it): the SISO element
-    ``L_ji`` of ``L(s) = -K(s) P(s)``, from a signal injected at pump ``i``'s input to the
-    controller's command for pump ``j``, with the loop broken at both pump inputs (see the
-    module docstring). ``du = C_c z + D_c w`` already carries the feedback signs, hence the
-    minus: the margins are those of the negative-feedback loop ``1 + L``. Only the diagonal
-    elements are loops; the off-diagonal margins are formal (see
-    :func:`multivariable_margins` for the stability of the MIMO loop).
+    The controller ``du = K(s) w`` is split into the SISO element ``k = K[input, output]`` (from
+    the measured level ``y_output`` to pump ``input``'s command) and the rest ``K' = K - k e_i
+    e_j^T``, which stays connected. Cutting the element's output and injecting ``v`` there, the
+    signal returned by the element is ``r = k y_j`` with ``y = (I - P K')^-1 P e_i v``, so in the
+    negative-feedback convention of Bode and Nyquist margins (closed loop ``1 / (1 + L)``)
+
+        L_ij(s) = -k(s) [(I - P(s) K'(s))^-1 P(s)]_{j, i}
+
+    Closing it (``v = r``) gives back the whole closed loop, for every pair.
+
+    Parameters
+    ----------
+    problem : heurtune.Problem
+    x : array_like or dict
+        Tuning values (see ``problem.names``).
+    input, output : int
+        Pump (1 or 2) and measured level (1 or 2).
+    scenario : str or Scenario
+        Plant uncertainty factor taken from it (default nominal), as :func:`return_ratio`.
+
+    Returns
+    -------
+    control.StateSpace
+        SISO, states ``[plant (4), controller (nz), copy of the controller for the element (nz)]``
+        (not minimal: the copy's modes not reached by the element are cancelled).
+
+    Raises
+    ------
+    ValueError
+        When ``input`` or ``output`` is not 1 or 2.
+    """
+    import control
+
+    if input not in (1, 2) or output not in (1, 2):
+        raise ValueError(f"input and output must be 1 or 2, got input={input!r}, output={output!r}")
+    A, B, ctrl = _plant_and_controller(problem, x, scenario)
+    i, j = input - 1, output - 1
+    n, m = A.shape[0], B.shape[1]
+    nz = ctrl.n_states
+    Ac = np.asarray(ctrl.A, dtype=np.float64).reshape(nz, nz)
+    Bc = np.asarray(ctrl.B, dtype=np.float64).reshape(nz, n)
+    Cc = np.asarray(ctrl.C, dtype=np.float64).reshape(m, nz)
+    Dc = np.asarray(ctrl.D, dtype=np.float64)
+    ej = np.zeros(n)
+    ej[j] = 1.0
+    Dr = Dc.copy()
+    Dr[i, j] = 0.0  # the rest of the controller, static part
+    bi = B[:, i]
+    # x' = (A + B Dr) x + B Cc z - b_i (Cc_i z_e) + b_i v;  z' = Ac z + Bc x;
+    # z_e' = Ac z_e + Bc_j x_j;  element output r = Cc_i z_e + Dc_ij x_j;  L output -r
+    Ael = np.zeros((n + 2 * nz, n + 2 * nz))
+    Ael[:n, :n] = A + B @ Dr
+    Ael[:n, n:n + nz] = B @ Cc
+    Ael[:n, n + nz:] = -np.outer(bi, Cc[i])
+    Ael[n:n + nz, :n] = Bc
+    Ael[n:n + nz, n:n + nz] = Ac
+    Ael[n + nz:, :n] = np.outer(Bc[:, j], ej)
+    Ael[n + nz:, n + nz:] = Ac
+    Bel = np.concatenate([bi, np.zeros(2 * nz)])[:, None]
+    Cel = -np.concatenate([Dc[i, j] * ej, np.zeros(nz), Cc[i]])[None, :]
+    return control.ss(Ael, Bel, Cel, np.zeros((1, 1)))
+
+
+def loop_margins(problem, x, scenario="nominal", omega=None) -> pd.DataFrame:
+    """Margins of the four interaction loops "input i, output j" (thesis Tables 4.11, 5.8-5.10).
+
+    The loop of the pair (pump ``i``, level ``j``) is :func:`element_loop`: the controller's
+    element from level ``j`` to pump ``i``, with every other path of the controller and plant
+    connected (see the module docstring for why). Its gain margin is the factor by which that
+    element alone may grow, its phase margin the lag it tolerates, before the closed loop
+    becomes unstable (Nyquist, given ``open_loop_unstable_poles``).
 
     Parameters
     ----------
@@ -196,9 +284,12 @@ def loop_margins(problem, x, scenario="nominal", omega=None) -> pd.DataFrame:
     pandas.DataFrame
         One row per (input, output) in (1, 1), (1, 2), (2, 1), (2, 2) with the columns
         ``MARGIN_COLUMNS``: ``gain_crossover_rad_s``, ``phase_margin_deg`` (``inf`` and ``NaN``
-        crossover when |L| never crosses 1), ``phase_crossover_rad_s``, ``gain_margin_db``
-        (``inf`` and ``NaN`` crossover without a phase crossover), and the counts of
-        crossovers found.
+        crossover when |L| never reaches 1: no phase error of that element alone can
+        destabilise the loop), ``phase_crossover_rad_s``, ``gain_margin_db`` (``inf`` and
+        ``NaN`` crossover without a phase crossover), the counts of crossovers found,
+        ``open_loop_unstable_poles`` (poles of ``L`` with positive real part: the loop with
+        that element removed; the margins certify stability only when it is 0) and
+        ``definition`` (``"element_loop"``).
 
     Raises
     ------
@@ -207,14 +298,16 @@ def loop_margins(problem, x, scenario="nominal", omega=None) -> pd.DataFrame:
     """
     import control
 
-    L = return_ratio(problem, x, scenario)
-    if omega is None:
-        omega = frequency_grid(control.poles(L))
     rows = []
     for i in (1, 2):
         for j in (1, 2):
+            L = element_loop(problem, x, i, j, scenario)
+            poles = control.poles(L)
+            w = frequency_grid(poles) if omega is None else omega
             row = {"input": i, "output": j}
-            row.update(siso_margins(L[j - 1, i - 1], omega))
+            row.update(siso_margins(L, w))
+            row["open_loop_unstable_poles"] = int(np.sum(poles.real > 1e-9 * max(1.0, np.max(np.abs(poles)))))
+            row["definition"] = ELEMENT_LOOP
             rows.append(row)
     return pd.DataFrame(rows, columns=list(MARGIN_COLUMNS))
 

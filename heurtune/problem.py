@@ -138,9 +138,13 @@ class DecisionVectors:
             raise ConfigError(f"decision vector must have {self.dim} values ({', '.join(self.names)}), got {x.size}")
         return dict(zip(self.names, x.tolist()))
 
-    def parse(self, text: str) -> np.ndarray:
-        """Parse ``"NAME=VALUE,..."`` (e.g. ``"Q11=0.44,Q22=0.30,..."``) into a vector, rejecting unknown, missing and
-        out-of-bounds names with a one-line ConfigError."""
+    def parse(self, text: str, *, check_bounds: bool = True) -> np.ndarray:
+        """Parse ``"NAME=VALUE,..."`` (e.g. ``"Q11=0.44,Q22=0.30,..."``) into a vector.
+
+        Unknown, missing and non-numeric names give a one-line ConfigError, and so do values
+        outside ``[lower, upper]`` unless ``check_bounds=False`` (the values are then returned
+        as given, never clipped).
+        """
         values = {}
         for item in filter(None, (s.strip() for s in text.split(","))):
             key, sep, val = item.partition("=")
@@ -154,7 +158,7 @@ class DecisionVectors:
         vals = self.values(values)
         for i, name in enumerate(self.names):
             v = vals[name]
-            if not (self.lower[i] <= v <= self.upper[i]):
+            if check_bounds and not (self.lower[i] <= v <= self.upper[i]):
                 raise ConfigError(f"{name}={v:g} is outside its bounds [{self.lower[i]:g}, {self.upper[i]:g}]")
         return np.array([vals[n] for n in self.names])
 

@@ -263,7 +263,8 @@ def test_constraint_by_static_penalty(name):
     (dict(start="middle"), "start must be one of"), (dict(fd_step=0.0), "fd_step"),
     (dict(line_search_points=0), "line_search_points"), (dict(step_ratio=1.0), "step_ratio"),
     (dict(armijo=1.5), "armijo"), (dict(max_step=-1.0), "max_step"), (dict(gtol=-1.0), "gtol"),
-    (dict(extrapolation=8), "extrapolation"),
+    (dict(extrapolation=8), "extrapolation"), (dict(line_search="exact"), "line_search must be one of"),
+    (dict(xtol=-1.0), "xtol"),
 ])
 def test_settings_are_validated(bad, match):
     for name in METHODS:
@@ -278,3 +279,177 @@ def test_newton_settings_are_validated():
         registry.make_settings("newton_raphson", dict(eig_floor=2.0))
     with pytest.raises(heurtune.ConfigError, match="unknown setting 'hess_step'"):
         registry.make_settings("bfgs", dict(hess_step=1e-4))
+
+
+# --------------------------------------------------------------------------------------------
+# line_search="unit": the thesis' alpha_k = 1 (chapter 6)
+
+# Small quadratic for hand computations: box [0, 2] x [-1, 3] (widths 2, 4), curvature in box
+# units diag(w) A2 diag(w) = [[0.8, 0.4], [0.4, 1.6]], minimum C2 inside; the start is the
+# centre (1, 1). Every iterate computed below stays inside the box (no projection).
+A2 = np.array([[0.2, 0.05], [0.05, 0.1]])
+C2 = np.array([1.3, 0.2])
+LO2, HI2 = np.array([0.0, -1.0]), np.array([2.0, 3.0])
+W2 = HI2 - LO2
+
+
+def quad2(X):
+    D = X - C2
+    return 0.5 * np.einsum("ni,ij,nj->n", D, A2, D)
+
+
+def _recorded(fun):
+    batches = []
+
+    def rec(X):
+        batches.append(np.array(X, copy=True))
+        return fun(X)
+
+    return rec, batches
+
+
+def _hand_quasi_newton(update):
+    """x1, x2 of a unit-step quasi-Newton method on quad2, by hand in box units u = (x - lo)/w."""
+    x0 = 0.5 * (LO2 + HI2)
+    gu = lambda x: W2 * (A2 @ (x - C2))  # noqa: E731 - exact gradient in box units
+    H = np.eye(2)
+    x1 = x0 + W2 * (-H @ gu(x0))
+    s, y = (x1 - x0) / W2, gu(x1) - gu(x0)
+    rho = 1.0 / (s @ y)
+    if update == "bfgs":  # H+ = (I - rho s y') H (I - rho y s') + rho s s'
+        V = np.eye(2) - rho * np.outer(s, y)
+        H = V @ H @ V.T + rho * np.outer(s, s)
+    else:  # DFP: H+ = H - H y y' H / (y' H y) + s s' / (s' y)
+        H = H - np.outer(H @ y, H @ y) / (y @ H @ y) + rho * np.outer(s, s)
+    x2 = x1 + W2 * (-H @ gu(x1))
+    return x1, x2
+
+
+@pytest.mark.parametrize("name", ["bfgs", "dfp"])
+def test_unit_step_quasi_newton_iterates_match_a_hand_computation(name):
+    rec, batches = _recorded(quad2)
+    heurtune.minimize(rec, LO2, HI2, name, max_epochs=1, settings=dict(start="center", line_search="unit"))
+    assert [len(b) for b in batches[:4]] == [1 + 4, 1, 4, 1]
+    x1, x2 = _hand_quasi_newton(name)
+    assert np.all((x1 > LO2) & (x1 < HI2) & (x2 > LO2) & (x2 < HI2))  # no projection involved
+    # the finite-difference gradient is exact for a quadratic up to rounding (~1e-10 here)
+    np.testing.assert_allclose(batches[1][0], x1, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(batches[3][0], x2, rtol=0, atol=1e-8)
+    # pinned values of the hand computation (guards the test itself)
+    np.testing.assert_allclose(x1, [1.08, -0.04], atol=1e-12)
+    pinned_x2 = {"bfgs": [1.2427225204294183, 0.22061989264540927],
+                 "dfp": [1.2228987145596595, 0.22775646275852252]}
+    np.testing.assert_allclose(x2, pinned_x2[name], rtol=1e-12)
+
+
+def test_unit_step_bfgs_and_dfp_differ_only_by_the_update():
+    (b1, b2), (d1, d2) = _hand_quasi_newton("bfgs"), _hand_quasi_newton("dfp")
+    np.testing.assert_array_equal(b1, d1)  # same first step (H0 = I)
+    assert np.max(np.abs(b2 - d2)) > 1e-3  # different second step
+
+
+def test_unit_step_newton_raphson_solves_a_quadratic_in_one_iteration():
+    rec, batches = _recorded(quad)
+    res = heurtune.minimize(rec, QLO, QHI, "newton_raphson", max_epochs=0,
+                            settings=dict(start="center", line_search="unit"))
+    assert [len(b) for b in batches] == [1 + 8 + 21, 1]  # x0 + gradient + Hessian, one trial
+    # the full Newton step lands on C up to the finite-difference Hessian's error (entries within
+    # 5e-7 relative, condition 1000): measured |x1 - C| = 1.2e-5, f(x1) = 1.5e-10
+    np.testing.assert_allclose(batches[1][0], C, atol=5e-5)
+    assert res.f < 1e-9 and res.n_evals == 31
+    # well conditioned (quad2): measured |x1 - C2| < 1e-9
+    rec, batches = _recorded(quad2)
+    heurtune.minimize(rec, LO2, HI2, "newton_raphson", max_epochs=0, settings=dict(start="center", line_search="unit"))
+    np.testing.assert_allclose(batches[1][0], C2, atol=1e-8)
+
+
+@pytest.mark.parametrize("name, per_iteration", [("steepest_descent", 2 * 4 + 1), ("dfp", 2 * 4 + 1),
+                                                 ("bfgs", 2 * 4 + 1),
+                                                 ("newton_raphson", 2 * 4 + 4 ** 2 + 4 + 1 + 1)])
+def test_unit_step_evaluations_per_iteration(name, per_iteration):
+    # iteration = one derivative batch + one trial; the start point adds one evaluation
+    rec, batches = _recorded(quad)
+    res = heurtune.minimize(rec, QLO, QHI, name, max_epochs=5,  # gtol = 0: no convergence, no restart
+                            settings=dict(start="center", line_search="unit", gtol=0.0))
+    sizes = [len(b) for b in batches]
+    assert sizes[1::2] == [1] * 6
+    assert res.n_evals == 1 + 6 * per_iteration
+
+
+def test_unit_steepest_descent_is_the_full_gradient_step_in_box_units():
+    rec, batches = _recorded(quad2)
+    heurtune.minimize(rec, LO2, HI2, "steepest_descent", max_epochs=1,
+                      settings=dict(start="center", line_search="unit"))
+    x0 = 0.5 * (LO2 + HI2)
+    x1 = x0 - W2 * (W2 * (A2 @ (x0 - C2)))  # u1 = u0 - grad_u f(u0)
+    np.testing.assert_allclose(batches[1][0], x1, atol=1e-8)
+    np.testing.assert_allclose(batches[1][0], _hand_quasi_newton("bfgs")[0], atol=1e-8)  # = QN with H0 = I
+
+
+def test_unit_steepest_descent_converges_when_the_box_curvature_is_below_two():
+    # curvature in box units has eigenvalues 0.63 and 1.77 < 2: the fixed step contracts
+    res = heurtune.minimize(quad2, LO2, HI2, "steepest_descent", max_evals=2000,
+                            settings=dict(start="center", line_search="unit", restart=False))
+    assert res.f < 1e-14
+    np.testing.assert_allclose(res.x, C2, atol=1e-6)
+
+
+def test_unit_steps_are_taken_even_uphill_and_the_best_is_kept():
+    # box [-5, 5]^4 of quad: curvature up to 1000 * 100 in box units, so the unit steepest-descent
+    # step overshoots and the current merit rises; the engine keeps the best-so-far
+    res = heurtune.minimize(quad, QLO, QHI, "steepest_descent", max_epochs=4,
+                            settings=dict(start="center", line_search="unit", restart=False))
+    mean_f = res.history.mean_f.to_numpy()  # the current iterate
+    assert mean_f[0] > quad(np.zeros((1, 4)))[0]  # first step went uphill
+    best = res.history.best_f.to_numpy()  # best of all evaluations (start and stencils)
+    assert np.all(np.diff(best) <= 0) and best[-1] <= quad(np.zeros((1, 4)))[0]
+    assert np.all(mean_f > best)
+
+
+def _drive(opt, fun, n_batches):
+    sizes = []
+    for _ in range(n_batches):
+        X = opt.ask()
+        sizes.append(len(X))
+        f = fun(X)
+        opt.tell(X, f, np.zeros(len(X)))
+    return sizes
+
+
+def test_unit_step_xtol_counts_as_converged_and_restarts():
+    # Newton lands on C after one iteration; the second unit step moves < xtol: restart
+    opt = _make("newton_raphson", line_search="unit", xtol=1e-6, start="center")
+    opt.space.lower[:], opt.space.upper[:] = -1.0, 1.0
+    target = np.array([0.3, -0.2, 0.1, 0.5])
+    fun = lambda X: ((X - target) ** 2 * [1.0, 2.0, 3.0, 4.0]).sum(axis=1)  # noqa: E731
+    _drive(opt, fun, 4)  # derivatives + trial (lands on target), derivatives + trial (tiny)
+    assert opt.n_restarts == 1
+    opt = _make("newton_raphson", line_search="unit", start="center")  # xtol = 0: off
+    _drive(opt, fun, 4)
+    assert opt.n_restarts == 0
+
+
+def test_unit_step_with_non_finite_merit_falls_back_then_restarts():
+    # the Newton step from the centre lands where f is inf; the unit steepest-descent step
+    # too: the method restarts (restart=True) from a random point
+    opt = _make("newton_raphson", dim=2, line_search="unit", start="center")
+    fun = lambda X: np.where(np.abs(X[:, 0]) > 0.5, np.inf, ((X - 0.9) ** 2).sum(axis=1))  # noqa: E731
+    sizes = _drive(opt, fun, 3)
+    assert sizes == [1 + 4 + 7, 1, 1] and opt.n_restarts == 1
+
+
+@pytest.mark.parametrize("name", METHODS)
+def test_default_settings_are_unchanged(name):
+    # recorded before line_search/xtol were added (seed 5, 300 evaluations, random start)
+    pinned = {
+        "steepest_descent": (0.2924673368576982, [1.5406947331964878, 2.3748198087273185]),
+        "dfp": (0.08530144813946423, [1.2919623584630935, 1.6683958311510119]),
+        "bfgs": (3.947847863603137e-20, [0.9999999998013367, 0.9999999996030106]),
+        "newton_raphson": (3.9965731785391925e-20, [0.9999999998000857, 0.9999999996001675]),
+    }
+    res = heurtune.minimize(rosen, RLO, RHI, name, max_evals=300, seed=5)
+    f, x = pinned[name]
+    assert res.f == f and res.x.tolist() == x and res.n_evals == 300
+    explicit = heurtune.minimize(rosen, RLO, RHI, name, max_evals=300, seed=5,
+                                 settings=dict(line_search="armijo", xtol=0.0))
+    assert explicit.f == f and explicit.x.tolist() == x

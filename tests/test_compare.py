@@ -289,3 +289,98 @@ def test_module_entry_point(two_dirs):
     res = subprocess.run([sys.executable, "-m", "heurtune.compare", *two_dirs, "--format", "html"],
                          capture_output=True, text=True)
     assert res.returncode == 2 and res.stderr.startswith("error: unknown format")
+
+
+# ------------------------------------------------------------------------------------------------ margins
+
+def make_margins(experiment, algorithms, cases=("min", "nmp")):
+    """Rows shaped like margins.parquet (heurtune.margins.MARGIN_COLUMNS plus the run keys)."""
+    from heurtune.margins import ELEMENT_LOOP, MARGIN_COLUMNS
+
+    rows = []
+    for c, case in enumerate(cases):
+        for a, alg in enumerate(algorithms):
+            for i in (1, 2):
+                for j in (1, 2):
+                    cross = i != j
+                    row = dict(zip(MARGIN_COLUMNS, [i, j, np.nan if cross else 1.0 + i + 0.1 * a + c,
+                                                    np.inf if cross else 20.0 + i + a + 10 * c, np.nan, np.inf,
+                                                    0 if cross else 1, 0, 0, ELEMENT_LOOP]))
+                    rows.append(dict(experiment=experiment, case=case, algorithm=alg, run=3, **row))
+    # stored in the writer's order: (output, input) shuffled to check the sort
+    return pd.DataFrame(rows).iloc[::-1].reset_index(drop=True)
+
+
+@pytest.fixture
+def dirs_with_margins(two_dirs):
+    a, b = two_dirs  # a: cs and pso of e1 with margins; b: ga of e2 without margins.parquet
+    make_margins("e1", ["cs", "pso"]).to_parquet(f"{a}/margins.parquet", index=False)
+    return a, b
+
+
+def test_margins_table_layout(dirs_with_margins):
+    m = compare.load_margins(dirs_with_margins)
+    assert len(m) == 16 and set(m.algorithm) == {"cs", "pso"}  # ga's folder has none: skipped
+    t = compare.margins_table(m)
+    assert t.columns.tolist() == ["case", "algorithm", "run", "input", "output", "gain crossover (rad/s)",
+                                  "phase margin (deg)"]
+    first = t[(t.case == "min") & (t.algorithm == "cs")]
+    assert first[["input", "output"]].values.tolist() == [[1, 1], [1, 2], [2, 1], [2, 2]]
+    assert first["gain crossover (rad/s)"].tolist()[0::3] == [2.0, 3.0]
+    assert first["phase margin (deg)"].tolist() == [21.0, np.inf, np.inf, 22.0]
+
+
+def test_cli_prints_margins_in_every_format(dirs_with_margins, capsys):
+    assert run([*dirs_with_margins]) == 0
+    out = capsys.readouterr().out
+    assert "### Case min: loop margins of each algorithm's best run (input i, output j)" in out
+    assert "| cs* | 3 | 1 | 1 | 2 | 21 |" in out and "| cs* | 3 | 1 | 2 |  | inf |" in out
+    assert "| pso | 3 | 2 | 2 | 3.1 | 23 |" in out
+    assert "| cs | 3 | 2 | 2 | 4 | 32 |" in out  # nmp: no winner, no asterisk
+    assert run([*dirs_with_margins, "--format", "csv"]) == 0
+    text = capsys.readouterr().out
+    section = next(s for s in text.split("\n\n") if s.startswith("# Case nmp: loop margins"))
+    t = pd.read_csv(__import__("io").StringIO(section), comment="#")
+    ref = compare.margins_table(compare.load_margins(dirs_with_margins))
+    ref = ref[ref.case == "nmp"].drop(columns="case").reset_index(drop=True)
+    pd.testing.assert_frame_equal(t, ref, check_dtype=False)
+    assert run([*dirs_with_margins, "--format", "latex"]) == 0
+    out = capsys.readouterr().out
+    assert "loop margins of each algorithm's best run" in out and "phase margin (deg)" in out
+
+
+def test_margins_missing_or_foreign_are_skipped(two_dirs, tmp_path, capsys):
+    assert compare.load_margins(two_dirs).empty
+    # TITO experiments write per-loop margins (no input/output): not this table
+    pd.DataFrame({"experiment": ["e1"], "case": ["min"], "algorithm": ["cs"], "loop": [1],
+                  "gain_margin": [2.0], "phase_margin_deg": [45.0]}).to_parquet(f"{two_dirs[0]}/margins.parquet")
+    assert compare.load_margins(two_dirs).empty
+    assert run([*two_dirs]) == 0
+    assert "loop margins" not in capsys.readouterr().out
+
+
+def test_margins_follow_the_relabelled_algorithms(tmp_path):
+    runs = make_runs({"cs": [1.0, 2.0]})
+    a = write(tmp_path, "a", runs.assign(experiment="e1"))
+    b = write(tmp_path, "b", runs.assign(experiment="e2"))
+    make_margins("e1", ["cs"], cases=("min",)).to_parquet(a / "margins.parquet", index=False)
+    loaded = load_runs([a, b])
+    m = compare.load_margins([a, b], loaded)
+    assert set(m.algorithm) == {"cs [e1]"}
+    assert "| cs [e1] | 3 | 1 | 1 |" in report(loaded, margins=m)
+
+
+def test_margins_from_heurtune_margins(tmp_path):
+    # the real writer's schema: loop_margins of the thesis' CS/FOLQI/min gains
+    import heurtune
+    from heurtune.margins import loop_margins
+
+    prob = heurtune.load_experiment("cs_folqi_qtp").problem("min")
+    x = prob.parse("Q11=0.4431,Q22=0.3027,Q33=0.4434,Q44=1.5722,R11=4.2253,R22=2.5994,Ki1=1.7411,"
+                   "Ki2=7.1716,alpha1=0.9814,alpha2=0.8437")
+    m = loop_margins(prob, x).assign(experiment="exp", case="min", algorithm="cs", run=0)
+    d = write(tmp_path, "a", make_runs({"cs": [1.0]}))
+    m.to_parquet(d / "margins.parquet", index=False)
+    t = compare.margins_table(compare.load_margins([d]))
+    assert t["gain crossover (rad/s)"].round(3).tolist()[0::3] == [1.023, 2.244]
+    assert t["phase margin (deg)"].round(2).tolist() == [20.31, np.inf, np.inf, 21.52]

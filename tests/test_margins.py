@@ -1,9 +1,12 @@
 """Stability margins (heurtune.margins) against closed forms and an independent numpy computation.
 
-The independent computation evaluates the return ratio ``L(jw) = -K(jw) P(jw)`` straight from
-the state matrices on a dense log grid (2000 points per decade), finds |L| = 1 and arg L = -180
-deg by linear interpolation in log w, and reads the phase there. Its interpolation error is
-~(ln 10 / 2000)^2 ~ 1e-6 relative, far inside the tolerances used below.
+The independent computation evaluates the return ratio ``L(jw) = -K(jw) P(jw)`` and the
+element loops ``L_ij(jw) = -K_ij(jw) [(I - P K')^-1 P]_ji`` (``K'``: ``K`` with element (i, j)
+zeroed) straight from the state matrices by complex linear algebra, on a dense log grid (2000
+points per decade); it finds |L| = 1 and arg L = -180 deg by linear interpolation in log w and
+reads the phase there, and refines the gain crossovers with scipy's brentq on the exact
+|L(jw)| - 1. The interpolation error is ~(ln 10 / 2000)^2 ~ 1e-6 relative, brentq's ~1e-12,
+far inside the tolerances used below.
 """
 
 import math
@@ -13,8 +16,11 @@ import numpy as np
 import pytest
 
 import heurtune
-from heurtune.margins import (MARGIN_COLUMNS, frequency_grid, loop_margins, multivariable_margins,
-                              return_ratio, siso_margins)
+from scipy.optimize import brentq
+
+from heurtune.margins import (ELEMENT_LOOP, MARGIN_COLUMNS, element_loop, frequency_grid, loop_margins,
+                              multivariable_margins, return_ratio, siso_margins)
+from heurtune.objectives.qtp import linearise, operating_point
 
 THESIS_X = ("Q11=0.4431,Q22=0.3027,Q33=0.4434,Q44=1.5722,R11=4.2253,R22=2.5994,"
             "Ki1=1.7411,Ki2=7.1716,alpha1=0.9814,alpha2=0.8437")
@@ -45,12 +51,48 @@ def _frequency_response(A, B, C, D, w):
     return C @ np.linalg.solve(M, np.broadcast_to(B, (len(w),) + B.shape)) + D
 
 
-def _numpy_return_ratio(problem, x, w):
+def _plant(problem, factor):
+    if factor == 1.0:
+        return problem.loop.A, problem.loop.B
+    plant = problem.loop.plant.scaled(factor)
+    A, B, _ = linearise(plant, operating_point(plant))
+    return A, B
+
+
+def _numpy_PK(problem, x, w, factor=1.0):
     ctrl = problem.loop.controller(problem.values(x))
-    A, B = problem.loop.A, problem.loop.B
+    A, B = _plant(problem, factor)
     P = _frequency_response(A, B, np.eye(4), np.zeros((4, 2)), w)        # (nw, 4, 2)
     K = _frequency_response(ctrl.A, ctrl.B, ctrl.C, ctrl.D, w)           # (nw, 2, 4)
+    return P, K
+
+
+def _numpy_return_ratio(problem, x, w):
+    P, K = _numpy_PK(problem, x, w)
     return -K @ P                                                         # (nw, 2, 2)
+
+
+def _numpy_element_loop(problem, x, i, j, w, factor=1.0):
+    """-K_ij [(I - P K')^-1 P]_ji, K' = K without element (i, j) (i, j from 0)."""
+    P, K = _numpy_PK(problem, x, w, factor)
+    Kr = K.copy()
+    Kr[:, i, j] = 0.0
+    T = np.linalg.solve(np.eye(4) - P @ Kr, P)                            # (nw, 4, 2)
+    return -K[:, i, j] * T[:, j, i]
+
+
+def _brentq_gain_crossovers(problem, x, i, j, w, L, factor=1.0):
+    """Gain crossovers refined on the exact |L(jw)| = 1 and the phase margins there (deg)."""
+    def logmag(lw):
+        return np.log(np.abs(_numpy_element_loop(problem, x, i, j, np.array([math.exp(lw)]), factor)[0]))
+
+    out = []
+    lm = np.log(np.abs(L))
+    for k in np.flatnonzero(np.sign(lm[:-1]) != np.sign(lm[1:])):
+        wc = math.exp(brentq(logmag, math.log(w[k]), math.log(w[k + 1]), xtol=1e-14))
+        ph = math.degrees(np.angle(_numpy_element_loop(problem, x, i, j, np.array([wc]), factor)[0]))
+        out.append((wc, (ph % 360.0) - 180.0))
+    return out
 
 
 def _numpy_margins(L, w):
@@ -126,7 +168,11 @@ def test_frequency_grid_covers_poles():
 # -- the thesis' CS/FOLQI/min loop --------------------------------------------------------------
 def test_table_layout(table):
     assert list(table.columns) == list(MARGIN_COLUMNS)
+    assert MARGIN_COLUMNS[:8] == ("input", "output", "gain_crossover_rad_s", "phase_margin_deg",
+                                  "phase_crossover_rad_s", "gain_margin_db", "n_gain_crossovers",
+                                  "n_phase_crossovers")  # the schema before element loops, kept
     assert table[["input", "output"]].values.tolist() == [[1, 1], [1, 2], [2, 1], [2, 2]]
+    assert (table.definition == ELEMENT_LOOP).all()
 
 
 def test_return_ratio_matches_numpy(problem, x):
@@ -137,14 +183,19 @@ def test_return_ratio_matches_numpy(problem, x):
     np.testing.assert_allclose(got, ref, rtol=1e-9)
 
 
-def test_loop_margins_match_numpy(table, dense_L):
-    L = dense_L
+def _check_against_numpy(table, problem, x, factor=1.0):
     for row in table.itertuples():
-        gc, pm, pc, gm = _numpy_margins(L[:, row.output - 1, row.input - 1], DENSE)
+        i, j = row.input - 1, row.output - 1
+        L = _numpy_element_loop(problem, x, i, j, DENSE, factor)
+        gc, pm, pc, gm = _numpy_margins(L, DENSE)
         assert row.n_gain_crossovers == len(gc) and row.n_phase_crossovers == len(pc)
-        k = int(np.argmin(np.abs(pm)))
-        assert row.gain_crossover_rad_s == pytest.approx(gc[k], rel=1e-5)
-        assert row.phase_margin_deg == pytest.approx(pm[k], abs=1e-3)
+        if len(gc):
+            exact = _brentq_gain_crossovers(problem, x, i, j, DENSE, L, factor)
+            k = int(np.argmin(np.abs(pm)))
+            assert row.gain_crossover_rad_s == pytest.approx(exact[k][0], rel=1e-5)
+            assert row.phase_margin_deg == pytest.approx(exact[k][1], abs=1e-3)
+        else:
+            assert row.phase_margin_deg == math.inf and math.isnan(row.gain_crossover_rad_s)
         if len(pc):
             k = int(np.argmin(np.abs(gm)))
             assert row.phase_crossover_rad_s == pytest.approx(pc[k], rel=1e-5)
@@ -153,26 +204,82 @@ def test_loop_margins_match_numpy(table, dense_L):
             assert row.gain_margin_db == math.inf and math.isnan(row.phase_crossover_rad_s)
 
 
-def test_thesis_loops_have_infinite_gain_margin(table):
-    # Thesis Table 5.8: gain margins infinite; the pumps' own loops (diagonal elements) cross
-    # over near the thesis' 1.03-1.05 (pump 1) and 2.23-2.27 rad/s (pump 2).
-    diag = table[table.input == table.output].set_index("input")
-    assert (diag.gain_margin_db == math.inf).all()
-    assert diag.loc[1, "gain_crossover_rad_s"] == pytest.approx(1.05, rel=0.03)
-    assert diag.loc[2, "gain_crossover_rad_s"] == pytest.approx(2.25, rel=0.03)
-    assert (diag.phase_margin_deg > 0).all()
+def test_element_loops_match_numpy(problem, x, table):
+    _check_against_numpy(table, problem, x)
+    w = np.logspace(-4, 3, 15)
+    for i in (1, 2):
+        for j in (1, 2):
+            got = np.asarray(control.frequency_response(element_loop(problem, x, i, j), w).complex).ravel()
+            # measured: 1.3e-8 relative near the integrators; cross elements reach 1e-9 at low
+            # frequency, where cancellation leaves ~1e-15 absolute
+            np.testing.assert_allclose(got, _numpy_element_loop(problem, x, i - 1, j - 1, w), rtol=1e-7, atol=1e-13)
 
 
-def test_uncertainty_scales_the_loop_gain(problem, x, table):
-    # Scaling every A_i and a_i by f keeps the time constants and divides B by f, so
-    # L_f = L / f: same phase crossovers, gain margins up by 20 log10(f).
+# A stable tuning (min case) whose element loop (1, 2) has a phase crossover: exercises the
+# gain-margin path. Found by drawing random points of the box.
+PHASE_CROSSING_X = ("Q11=2.0415,Q22=0.0168,Q33=2.1449,Q44=0.0936,R11=3.6753,R22=0.9607,"
+                    "Ki1=8.6455,Ki2=5.4605,alpha1=0.6695,alpha2=0.9031")
+
+
+def test_element_loop_gain_margin_matches_numpy(problem):
+    x = problem.parse(PHASE_CROSSING_X)
+    assert multivariable_margins(problem, x).stable
+    t = loop_margins(problem, x)
+    assert t.n_phase_crossovers.tolist() == [0, 1, 0, 0]
+    assert t.gain_margin_db[1] > 100.0  # measured 106.5 dB at 2.39 rad/s
+    _check_against_numpy(t, problem, x)
+
+
+def test_closing_an_element_loop_closes_the_whole_loop(problem, x):
+    # every element loop, closed with 1 / (1 + L), has the closed-loop poles of the simulated
+    # loop, plus the controller's own modes (those of the copy that carries the element)
+    ctrl = problem.loop.controller(problem.values(x))
+    ref = np.concatenate([np.linalg.eigvals(ctrl.closed_loop_matrix(problem.loop.A, problem.loop.B)),
+                          np.linalg.eigvals(ctrl.A)])
+    for i in (1, 2):
+        for j in (1, 2):
+            closed = control.feedback(element_loop(problem, x, i, j), 1, sign=-1)
+            np.testing.assert_allclose(np.sort_complex(control.poles(closed)), np.sort_complex(ref),
+                                       rtol=1e-6, atol=1e-8)
+
+
+def test_thesis_loops(table):
+    # Thesis Table 5.8 (CS / FOLQI / min): gain margins infinite; pump 1 crosses over at
+    # 1.03-1.05 rad/s, pump 2 at 2.23-2.27 rad/s. Measured (element loops): 1.023 rad/s and
+    # 20.3 deg, 2.244 rad/s and 21.5 deg; the cross elements' loop gains stay below 1e-3.
+    assert (table.gain_margin_db == math.inf).all() and (table.open_loop_unstable_poles == 0).all()
+    t = table.set_index(["input", "output"])
+    assert t.loc[(1, 1), "gain_crossover_rad_s"] == pytest.approx(1.03, rel=0.02)
+    assert t.loc[(2, 2), "gain_crossover_rad_s"] == pytest.approx(2.27, rel=0.02)
+    assert t.loc[(1, 1), "phase_margin_deg"] == pytest.approx(20.31, abs=0.01)
+    assert t.loc[(2, 2), "phase_margin_deg"] == pytest.approx(21.52, abs=0.01)
+    for pair in ((1, 2), (2, 1)):
+        assert t.loc[pair, "phase_margin_deg"] == math.inf and t.loc[pair, "n_gain_crossovers"] == 0
+
+
+def test_cross_loops_are_weak(problem, x):
+    for i, j in ((0, 1), (1, 0)):
+        assert np.max(np.abs(_numpy_element_loop(problem, x, i, j, DENSE))) < 1e-3
+
+
+def test_uncertainty_scenario_matches_numpy(problem, x):
+    # the -30% plant (linearised at its own operating point; the controller stays nominal)
+    _check_against_numpy(loop_margins(problem, x, "-30%"), problem, x, 0.7)
+
+
+def test_uncertainty_scales_the_return_ratio(problem, x):
+    # Scaling every A_i and a_i by f keeps the time constants and divides B by f, so the
+    # return ratio at the plant input becomes L / f.
+    w = np.logspace(-4, 3, 15)
+    L = np.asarray(control.frequency_response(return_ratio(problem, x), w).complex)
     for name, f in (("-30%", 0.7), ("+30%", 1.3)):
-        t = loop_margins(problem, x, name)
-        off = t[t.input != t.output]
-        ref = table[table.input != table.output]
-        np.testing.assert_allclose(off.phase_crossover_rad_s, ref.phase_crossover_rad_s, rtol=1e-6)
-        np.testing.assert_allclose(off.gain_margin_db, ref.gain_margin_db + 20 * math.log10(f),
-                                   atol=1e-4)
+        Lf = np.asarray(control.frequency_response(return_ratio(problem, x, name), w).complex)
+        np.testing.assert_allclose(Lf, L / f, rtol=1e-8)
+
+
+def test_element_loop_rejects_bad_indices(problem, x):
+    with pytest.raises(ValueError, match="input and output must be 1 or 2"):
+        element_loop(problem, x, 0, 1)
 
 
 def test_multivariable_margins(problem, x, dense_L):
