@@ -383,10 +383,17 @@ def _modal_sum(z, ad, bd, lo, hi, w):
 
 
 @njit(cache=True, fastmath=_FAST)
-def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel, segments,
+def simulate_loop(c, level_per_state, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel, segments,
                   dt, n_steps, i_out_dist, out_dist, i_in_dist, in_dist, noise,
                   saturate, u_min, u_max, clip_levels, h_max, band_pct, metrics, y_rec, u_rec, h_rec):
     """Fixed-step closed loop: sampled linear controller, RK4 nonlinear plant, metrics.
+
+    The plant state ``x`` follows the square-root law of :func:`plant_coefficients` (levels
+    for the level model, pressures for the bond-graph model with the coefficients of
+    ``qtp_bond_graph.pressure_coefficients``); its levels are ``h = s x`` with
+    ``s = level_per_state`` (1 for levels, 1/(rho g) for pressures). Everything the loop
+    measures or reports (w, y, hmin, hmax, the divergence test) is in levels; the state, its
+    initial value, the record ``h_rec`` and the tank heights ``h_max`` are in state units.
 
     At each sample ``k`` (``t = k dt``) the controller reads the measured deviations
     ``w = [h1 + d1 - h1o, h2 + d2 - h2o, h3 - h3o, h4 - h4o] (+ noise)`` and outputs
@@ -409,7 +416,8 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
     Parameters
     ----------
     c : (10,) plant coefficients (see plant_coefficients)
-    h_init, h_op : (4,) initial and operating levels; u_op : (2,) operating voltages
+    level_per_state : float, level per unit of state, ``s`` above (1.0 for the level model)
+    h_init : (4,) initial state; h_op : (4,) operating levels; u_op : (2,) operating voltages
     ad, bd : (nd,) modal factors and input gains; state_input : (nd,) int64 in 0..3
     Ad : (nq, nq), Bd : (nq, 4) dense part; Cc : (2, nd + nq); Dc : (2, 4)
     state_channel : (nd + nq,) int64, pump each state belongs to
@@ -421,18 +429,20 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
     i_in_dist : int, first sample with the pump-voltage disturbance ``in_dist`` (2,)
     noise : (n_steps + 1, 4) measurement noise, or shape (0, 4) for none
     saturate : bool; u_min, u_max : float, limits of the applied voltages
-    clip_levels : bool; h_max : (4,) tank heights in cm (read only when ``clip_levels``)
+    clip_levels : bool; h_max : (4,) tank heights in state units (cm for the level model;
+        read only when ``clip_levels``)
     band_pct : float, settling band of the metrics, percent of the operating level
     metrics : (N_METRICS,) output, in the order of METRIC_NAMES; hmin, hmax cover the true
         levels and umin, umax the applied voltages (what ``u_rec`` records: after saturation,
         before the input disturbance) at samples 0..n_steps
     y_rec, u_rec : (n_steps + 1, 2) measured levels and applied voltages, or shape (0, 2)
-    h_rec : (n_steps + 1, 4) true levels, or shape (0, 4)
+    h_rec : (n_steps + 1, 4) true plant states (levels times ``1 / level_per_state``), or
+        shape (0, 4)
 
     Returns
     -------
     status : int
-        STATUS_OK, or STATUS_DIVERGED (|h1| + ... + |h4| reached LEVEL_LIMIT or became NaN;
+        STATUS_OK, or STATUS_DIVERGED (|h1| + ... + |h4| in levels reached LEVEL_LIMIT or became NaN;
         records after that are NaN and the metrics NaN).
     last : int
         Index of the last finite sample.
@@ -462,19 +472,21 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
     band1 = band_pct / 100.0 * h_op[0]
     band2 = band_pct / 100.0 * h_op[1]
     hm1, hm2, hm3, hm4 = (h_max[0], h_max[1], h_max[2], h_max[3]) if clip_levels else (0.0, 0.0, 0.0, 0.0)
+    # Divergence bound in state units (LEVEL_LIMIT itself for the level model).
+    state_limit = LEVEL_LIMIT / level_per_state
     h_lo = math.inf
     h_hi = -math.inf
     diverged_at = -1
     for k in range(n_steps + 1):
-        # Range of the true levels (not on the plant's critical path).
+        # Range of the true states, in levels at the end (not on the plant's critical path).
         h_lo = min(h_lo, min(min(h1, h2), min(h3, h4)))
         h_hi = max(h_hi, max(max(h1, h2), max(h3, h4)))
         d1 = out_dist[0] if k >= i_out_dist else 0.0
         d2 = out_dist[1] if k >= i_out_dist else 0.0
-        w0 = h1 + (d1 - h_op[0])
-        w1 = h2 + (d2 - h_op[1])
-        w2 = h3 - h_op[2]
-        w3 = h4 - h_op[3]
+        w0 = level_per_state * h1 + (d1 - h_op[0])
+        w1 = level_per_state * h2 + (d2 - h_op[1])
+        w2 = level_per_state * h3 - h_op[2]
+        w3 = level_per_state * h4 - h_op[3]
         if has_noise:
             w0 += noise[k, 0]
             w1 += noise[k, 1]
@@ -556,7 +568,7 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
         else:
             h1, h2, h3, h4 = _rk4_step(h1, h2, h3, h4, c[6] * u1, c[7] * u2, c[8] * u2, c[9] * u1, c, dt)
         # One comparison per step; NaN fails it, so it counts as divergence too.
-        if not (abs(h1) + abs(h2) + abs(h3) + abs(h4) < LEVEL_LIMIT):
+        if not (abs(h1) + abs(h2) + abs(h3) + abs(h4) < state_limit):
             diverged_at = k
             break
     if diverged_at < 0:
@@ -564,7 +576,7 @@ def simulate_loop(c, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, st
         _finish_output(n_steps, dt, i_out_dist, band2, h_op[1], so[1], metrics, 1)
         _finish_input(dt, u_op[0], si[0], metrics, 0)
         _finish_input(dt, u_op[1], si[1], metrics, 1)
-        _finish_range(h_lo, h_hi, si, metrics)
+        _finish_range(level_per_state * h_lo, level_per_state * h_hi, si, metrics)
         return STATUS_OK, n_steps
     # Kept out of the time loop so that it stays lean.
     for kk in range(diverged_at + 1, y_rec.shape[0]):

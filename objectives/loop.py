@@ -17,13 +17,18 @@ from heurtune.errors import ConfigError
 from heurtune.objectives import _kernels
 from heurtune.objectives.controllers import LinearController, build_controller
 from heurtune.objectives.qtp import QTPParams, linearise, operating_point
+from heurtune.objectives.qtp_bond_graph import BondGraphElements, pressure_coefficients
 
 _DGEEV = scipy.linalg.lapack.get_lapack_funcs("geev", dtype=np.float64)
 
-__all__ = ["Scenario", "ClosedLoop", "SimulationResult", "METRIC_NAMES", "LIMITS",
+__all__ = ["Scenario", "ClosedLoop", "SimulationResult", "METRIC_NAMES", "LIMITS", "PLANT_MODELS",
            "physical_range_flags"]
 
 METRIC_NAMES = _kernels.METRIC_NAMES
+
+# Allowed values of ClosedLoop's plant_model: the level model of heurtune.objectives.qtp, or the
+# pressure (bond-graph) formulation of heurtune.objectives.qtp_bond_graph.
+PLANT_MODELS = ("qtp", "qtp_bond_graph")
 
 # Allowed values of Scenario.limits: the thesis' unlimited model, or the plant's physical limits.
 LIMITS = ("none", "physical")
@@ -146,7 +151,9 @@ class Scenario:
 class SimulationResult:
     """A closed-loop run: ``metrics`` (in the order of METRIC_NAMES; NaN when diverged), the
     ``diverged`` flag, the operating point used and, when recorded, the sampled response ``y``
-    (n+1, 2) measured levels, ``u`` (n+1, 2) voltages and ``h`` (n+1, 4) true levels."""
+    (n+1, 2) measured levels, ``u`` (n+1, 2) voltages and ``h`` (n+1, 4) true levels (cm, for
+    either plant model). ``P`` (n+1, 4) holds the tank pressures in dyn/cm^2 when the plant
+    model is ``"qtp_bond_graph"`` and the levels were recorded; None otherwise."""
 
     t: np.ndarray | None
     y: np.ndarray | None
@@ -156,15 +163,19 @@ class SimulationResult:
     h_op: np.ndarray
     u_op: np.ndarray
     metrics: np.ndarray
+    P: np.ndarray | None = None
 
     def to_frame(self) -> pd.DataFrame:
-        """Columns t, h1..h4 (if recorded), y1, y2, u1, u2."""
+        """Columns t, h1..h4 (if recorded), P1..P4 (bond-graph model), y1, y2, u1, u2."""
         if self.y is None:
             raise ValueError("this run was not recorded (run(..., record=True))")
         cols = {"t": self.t}
         if self.h is not None:
             for i in range(4):
                 cols[f"h{i + 1}"] = self.h[:, i]
+        if self.P is not None:
+            for i in range(4):
+                cols[f"P{i + 1}"] = self.P[:, i]
         cols.update(y1=self.y[:, 0], y2=self.y[:, 1], u1=self.u[:, 0], u2=self.u[:, 1])
         return pd.DataFrame(cols)
 
@@ -181,16 +192,40 @@ class ClosedLoop:
         Fractional-integrator options (FOLQI).
     pairing : {"diagonal", "anti-diagonal"}
         Which error each pump integrates (see :func:`build_controller`).
+    plant_model : {"qtp", "qtp_bond_graph"}
+        The simulated plant: ``"qtp"`` integrates the four levels (cm); ``"qtp_bond_graph"``
+        integrates the four tank pressures P = rho g h (dyn/cm^2, water, see
+        :mod:`heurtune.objectives.qtp_bond_graph`) and its sensors read the levels P / (rho g).
+        The controller is designed on the level linearisation in both cases, so the two loops
+        agree up to rounding. Kept as :attr:`plant_model`, not in :attr:`options`.
+
+    Raises
+    ------
+    ConfigError
+        For an unknown ``plant_model``.
     """
 
     def __init__(self, plant: QTPParams, kind: str, *, oustaloup_order: int = 5,
-                 band: tuple = (1e-3, 1e3), realisation: str = "direct", pairing: str = "diagonal"):
+                 band: tuple = (1e-3, 1e3), realisation: str = "direct", pairing: str = "diagonal",
+                 plant_model: str = "qtp"):
+        if not isinstance(plant_model, str) or plant_model not in PLANT_MODELS:
+            raise ConfigError(f"plant.model must be one of {', '.join(map(repr, PLANT_MODELS))}, "
+                              f"got {plant_model!r}")
         self.plant = plant
         self.kind = kind
+        self.plant_model = plant_model
         self.options = dict(oustaloup_order=oustaloup_order, band=tuple(band), realisation=realisation,
                             pairing=pairing)
         self.op = operating_point(plant)
         self.A, self.B, self.C = linearise(plant, self.op)
+        # Plant state per level: the pressure model's state is rho g h (rho and g do not change
+        # with the uncertainty factor, which scales areas only).
+        if plant_model == "qtp_bond_graph":
+            self._rho_g = BondGraphElements.from_plant(plant).rho_g
+            self._level_per_state = 1.0 / self._rho_g
+        else:
+            self._rho_g = 1.0
+            self._level_per_state = 1.0
         self._plants = {}
         self._scenarios = {}
         self._limits = None
@@ -205,6 +240,10 @@ class ClosedLoop:
 
     def __setstate__(self, state):
         state.setdefault("_limits", None)
+        # Pickles from before the bond-graph model are level models.
+        state.setdefault("plant_model", "qtp")
+        state.setdefault("_rho_g", 1.0)
+        state.setdefault("_level_per_state", 1.0)
         self.__dict__.update(state)
 
     # -- design ---------------------------------------------------------------------------
@@ -235,7 +274,11 @@ class ClosedLoop:
     def _perturbed(self, factor: float):
         if factor not in self._plants:
             p = self.plant if factor == 1.0 else self.plant.scaled(factor)
-            self._plants[factor] = (_kernels.plant_coefficients(p.as_array()), operating_point(p).u)
+            if self.plant_model == "qtp_bond_graph":
+                coef = pressure_coefficients(BondGraphElements.from_plant(p))
+            else:
+                coef = _kernels.plant_coefficients(p.as_array())
+            self._plants[factor] = (coef, operating_point(p).u)
         return self._plants[factor]
 
     def check_scenario(self, scenario: Scenario) -> None:
@@ -279,11 +322,14 @@ class ClosedLoop:
             Keep the sampled y and u; ``False`` keeps only the metrics (what a tuning
             evaluation needs).
         record_levels : bool, optional
-            Keep the true levels h1..h4 as well; default: as ``record``.
+            Keep the true levels h1..h4 as well (and, for the bond-graph model, the pressures
+            P1..P4); default: as ``record``.
 
         Returns
         -------
         SimulationResult
+            ``h`` holds levels in cm for both plant models; ``P`` the pressures of the
+            bond-graph model.
 
         Raises
         ------
@@ -303,23 +349,30 @@ class ClosedLoop:
         out_dist, in_dist, noise = self._scenario_arrays(scenario)
         sat = scenario.saturation
         clip = scenario.limits == "physical"
+        pressure = self.plant_model == "qtp_bond_graph"
+        x_op = self.op.h * self._rho_g if pressure else self.op.h  # initial plant state
         if clip:
             h_max, u_lo, u_hi = self._physical_limits(u_op)
             sat = (u_lo, u_hi)
+            if pressure:
+                h_max = h_max * self._rho_g  # tank heights as pressures
         else:
             h_max = self.op.h  # not read by the kernel
         status, _ = _kernels.simulate_loop(
-            coef, self.op.h, self.op.h, u_op, dc.ad, dc.bd, dc.state_input, dc.Ad, dc.Bd, dc.Cc, dc.Dc,
-            dc.state_channel, dc.segments,
+            coef, self._level_per_state, x_op, self.op.h, u_op, dc.ad, dc.bd, dc.state_input,
+            dc.Ad, dc.Bd, dc.Cc, dc.Dc, dc.state_channel, dc.segments,
             scenario.dt, n, scenario.disturbance_index, out_dist,
             scenario.input_disturbance_index, in_dist,
             noise, sat is not None, sat[0] if sat else 0.0, sat[1] if sat else 0.0,
             clip, h_max, float(settling_band), metrics, y, u, h,
         )
         t = np.arange(n + 1) * scenario.dt if record or record_levels else None
+        P = None
+        if record_levels and pressure:
+            P, h = h, h * self._level_per_state  # the kernel records its state, the pressures
         return SimulationResult(t, y if record else None, u if record else None,
                                 h if record_levels else None, status != _kernels.STATUS_OK,
-                                self.op.h.copy(), u_op.copy(), metrics)
+                                self.op.h.copy(), u_op.copy(), metrics, P)
 
     def metrics(self, sim: SimulationResult, scenario: Scenario, settling_band: float) -> np.ndarray:
         """Metrics recomputed from a recorded run (:func:`loop_metrics`; NaN when diverged).
