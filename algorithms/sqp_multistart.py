@@ -1,6 +1,6 @@
 """Multistart SQP: ``scipy.optimize.minimize(method="SLSQP")`` from many starts in the box.
 
-Each local solve runs whole on a worker (``Evaluator.map``): it calls the user's objective
+Each local solve runs whole on a worker (``Evaluator.imap_unordered``): it calls the user's objective
 itself, one point at a time, evaluating f and g together once per point (a small cache serves
 SLSQP's separate requests for f, g and their finite-difference Jacobians, which use the same
 points). Constraints ``g(x) <= 0`` go to SLSQP as inequalities ``-g(x) >= 0``; the box as
@@ -24,6 +24,16 @@ so ``x``, ``f``, ``n_evals``, ``details`` and the history are identical for any 
 The point kept from a local solve is its best *evaluated* point under the run's comparator
 (Deb's rules or penalty), not necessarily SLSQP's last iterate. ``details`` (a DataFrame, one
 row per start): start, round, cap, x0, x, f, violation, nfev, nit, success, message.
+
+Resuming
+--------
+Each local solve is handed to the run's checkpoint (``ctx.checkpoint.save``) as soon as it
+ends, in whatever order the workers finish. The experiment runner backs the checkpoint with a
+file (``parts/<run>.starts.parquet``); outside it (``heurtune.minimize``) nothing is kept. A
+rerun draws the same start points and caps, takes the solves found in ``ctx.checkpoint.load()``
+instead of solving them again (their start point and cap must match) and feeds them to the run
+context exactly like fresh ones, so budgets, best, history and ``details`` equal an
+uninterrupted run's.
 """
 
 from __future__ import annotations
@@ -37,10 +47,15 @@ import numpy as np
 import pandas as pd
 
 from heurtune.engine import Driver, violation
+from heurtune.errors import ConfigError
 from heurtune.evaluator import normalise
 from heurtune.registry import register
 
 SAMPLING = ("lhs", "uniform")
+# A local solve is a dict: start, round, cap, x0, x, f, violation, g, nfev, nit, success,
+# message; the checkpoint saves all of it (g, the constraints at x, so that a resumed run's best
+# has them too), ``details`` all but g.
+DETAIL_COLUMNS = ["start", "round", "cap", "x0", "x", "f", "violation", "nfev", "nit", "success", "message"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -204,14 +219,15 @@ class SQPMultistart(Driver):
         try:
             self._run(ctx, records)
         finally:
-            self.details = pd.DataFrame(records, columns=["start", "round", "cap", "x0", "x", "f", "violation",
-                                                          "nfev", "nit", "success", "message"])
+            self.details = pd.DataFrame(records, columns=DETAIL_COLUMNS)
 
     def _run(self, ctx, records):
         s = self.settings
         task = _Task(ctx.evaluator.fun, ctx.evaluator.constraints, self.space.lower, self.space.upper,
                      self.compare, s.max_iter, s.ftol, s.fd_step)
         solve = functools.partial(_local_solve, task)
+        # Local solves finished by an earlier, interrupted attempt at this run, by start number.
+        finished = {int(r["start"]): r for r in ctx.checkpoint.load()}
         launched, round_no = 0, 0
         while True:
             left = ctx.remaining
@@ -226,10 +242,15 @@ class SQPMultistart(Driver):
                 k = min(k, left)
             X0 = self._sample(k)
             caps = [None] * k if left is None else even_caps(left, k)
-            results = ctx.evaluator.map(solve, [(launched + i, X0[i], caps[i]) for i in range(k)])
-            for res, cap in zip(results, caps):
-                res["round"], res["cap"] = round_no, cap
-                records.append(res)
+            items = [(launched + i, X0[i], caps[i]) for i in range(k)]
+            results = [_reuse(finished.get(item[0]), item, round_no) for item in items]
+            todo = [i for i in range(k) if results[i] is None]
+            for j, res in ctx.evaluator.imap_unordered(solve, [items[i] for i in todo]):
+                i = todo[j]
+                res["round"], res["cap"] = round_no, caps[i]
+                results[i] = finished[items[i][0]] = res
+                ctx.checkpoint.save([finished[n] for n in sorted(finished)])
+            records.extend(results)
             f = np.array([r["f"] for r in results])
             v = np.array([r["violation"] for r in results])
             X = np.array([r["x"] for r in results])
@@ -240,3 +261,21 @@ class SQPMultistart(Driver):
             round_no += 1
             if ctx.record_epoch(f, v):
                 return
+
+
+def _reuse(record, item, round_no):
+    """The saved record of start ``item = (start, x0, cap)``, or None when it was not solved.
+
+    A saved solve must come from the same start point and cap, else the checkpoint belongs to
+    another run (other settings, seed or problem) and using it would corrupt this one.
+    """
+    if record is None:
+        return None
+    start, x0, cap = item
+    saved_cap = record["cap"]
+    saved_cap = None if saved_cap is None or (isinstance(saved_cap, float) and np.isnan(saved_cap)) else int(saved_cap)
+    if not np.array_equal(np.asarray(record["x0"], dtype=np.float64), x0) or saved_cap != cap:
+        raise ConfigError(f"saved local solve {start} started from another point or cap: "
+                          "the checkpoint belongs to another run; start this run afresh")
+    return dict(record, start=start, round=round_no, cap=cap, x0=np.array(x0), x=np.asarray(record["x"], dtype=np.float64),
+                g=np.asarray(record["g"], dtype=np.float64).reshape(-1))

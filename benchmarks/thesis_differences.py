@@ -5,7 +5,7 @@ Usage::
 
     python benchmarks/thesis_differences.py [--part a|b|c|all]
 
-Parts (docs/thesis_differences.md quotes the output):
+Parts (docs/thesis.md, "Where heurtune and the printed tables differ", quotes the output):
 
 a. per-pump effort J1, J2 of the printed gains: windows and model variants against the printed
    values and split J2/J1 (Tables 4.8, 5.4);

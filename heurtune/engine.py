@@ -21,7 +21,7 @@ from heurtune import registry
 from heurtune.errors import ConfigError
 from heurtune.evaluator import Evaluator
 
-__all__ = ["SearchSpace", "Comparator", "Optimizer", "Driver", "RunContext", "Result", "minimize",
+__all__ = ["SearchSpace", "Comparator", "Optimizer", "Driver", "RunContext", "Checkpoint", "Result", "minimize",
            "run", "convergence_epoch", "CONSTRAINT_HANDLING", "BOUND_HANDLING"]
 
 CONSTRAINT_HANDLING = ("deb", "penalty")
@@ -206,12 +206,50 @@ def convergence_epoch(best_f, tol: float = DEFAULT_TOL) -> int:
     return int(bad[-1] + 1) if bad.size else 0
 
 
+class Checkpoint:
+    """Where a driver keeps the work units (e.g. local solves) it has finished, for resuming.
+
+    This base class keeps nothing: :meth:`load` returns no records and :meth:`save` does
+    nothing, which is what a run outside the experiment runner (:func:`minimize`) gets. The
+    experiment runner supplies one backed by a file, so that an interrupted run, started again
+    with the same seed, takes its finished units from there instead of redoing them.
+
+    A driver using it must stay deterministic: it recomputes everything it would have done
+    (random draws included) and replaces only the finished units' work by their records, then
+    replays them into the :class:`RunContext` exactly as if it had just done them.
+    """
+
+    def load(self) -> list:
+        """The records saved by an earlier, interrupted attempt at this run (a list of dicts).
+
+        Returns
+        -------
+        list of dict
+            Each record as given to :meth:`save` (arrays come back as float64 arrays).
+        """
+        return []
+
+    def save(self, records) -> None:
+        """Keep ``records`` (all finished units so far, a list of dicts), replacing earlier ones.
+
+        Parameters
+        ----------
+        records : list of dict
+            One dict per finished unit, in the driver's own format.
+        """
+
+
 class RunContext:
-    """The engine's services to an optimiser run: evaluation, budgets, best, history."""
+    """The engine's services to an optimiser run: evaluation, budgets, best, history.
+
+    ``checkpoint`` (a :class:`Checkpoint`) lets a driver resume an interrupted run; by default
+    it keeps nothing.
+    """
 
     def __init__(self, evaluator: Evaluator, space: SearchSpace, compare: Comparator, *,
-                 max_evals, max_epochs, max_time, tol, tol_window):
+                 max_evals, max_epochs, max_time, tol, tol_window, checkpoint: Checkpoint | None = None):
         self.evaluator = evaluator
+        self.checkpoint = checkpoint if checkpoint is not None else Checkpoint()
         self.space = space
         self.compare = compare
         self.max_evals = max_evals
@@ -334,8 +372,24 @@ def _population_loop(opt: Optimizer, ctx: RunContext) -> None:
 
 def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=None, seed=0,
         max_evals=None, max_epochs=None, max_time=None, tol=None, tol_window=DEFAULT_TOL_WINDOW,
-        constraint_handling="deb", penalty=1e6) -> Result:
-    """Run one optimisation with an open evaluator (see :func:`minimize` for the parameters)."""
+        constraint_handling="deb", penalty=1e6, checkpoint: Checkpoint | None = None) -> Result:
+    """Run one optimisation with an open evaluator.
+
+    Parameters
+    ----------
+    algorithm, evaluator, space :
+        A registered optimiser, an :class:`~heurtune.evaluator.Evaluator` and the box.
+    settings, seed, max_evals, max_epochs, max_time, tol, tol_window, constraint_handling, penalty :
+        As in :func:`minimize`.
+    checkpoint : Checkpoint, optional
+        Lets a driver (e.g. ``sqp_multistart``) save its finished local solves as it goes and,
+        on a rerun with the same seed, take them from there instead of solving them again; the
+        result is the same as an uninterrupted run's. Population optimisers ignore it.
+
+    Returns
+    -------
+    Result
+    """
     info = registry.get(algorithm)
     if settings is None or isinstance(settings, dict):
         settings = registry.make_settings(algorithm, settings)
@@ -354,7 +408,7 @@ def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=No
     seed_seq = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
     rng = np.random.default_rng(seed_seq)
     ctx = RunContext(evaluator, space, compare, max_evals=max_evals, max_epochs=max_epochs,
-                     max_time=max_time, tol=tol, tol_window=tol_window)
+                     max_time=max_time, tol=tol, tol_window=tol_window, checkpoint=checkpoint)
     opt = info.cls(space, settings, rng, compare)
     details = None
     if info.kind == "driver":

@@ -208,3 +208,38 @@ class Evaluator:
             return [fut.result() for fut in futures]
         with self._blas_one_thread():
             return [fn(item) for item in items]
+
+    def imap_unordered(self, fn, items):
+        """Run ``fn(item)`` for every item on the workers; yield ``(index, result)`` as each ends.
+
+        Results come in the order the workers finish them (in-process: in item order), so a
+        caller can save each one at once; what is computed does not depend on that order.
+        Items not yet started are cancelled if the caller stops early (e.g. on Ctrl-C).
+        """
+        items = list(items)
+        if self._parallel is None and self._client is None and (self.backend == "dask" or self.n_jobs > 1):
+            self.open()
+        if self._client is None and self._parallel is None:
+            for i, item in enumerate(items):
+                with self._blas_one_thread():
+                    result = fn(item)
+                yield i, result
+            return
+        if self._client is not None:
+            from distributed import as_completed
+
+            futures = self._client.map(_run_task, [fn] * len(items), items, pure=False)
+            index = {fut.key: i for i, fut in enumerate(futures)}
+            done = as_completed(futures)
+        else:
+            import concurrent.futures
+
+            futures = [self._parallel.submit(_run_task, fn, item) for item in items]
+            index = {fut: i for i, fut in enumerate(futures)}
+            done = concurrent.futures.as_completed(futures)
+        try:
+            for fut in done:
+                yield index[fut.key if self._client is not None else fut], fut.result()
+        finally:
+            for fut in futures:
+                fut.cancel()

@@ -43,7 +43,7 @@ import pandas as pd
 
 from heurtune import registry
 from heurtune.config import list_experiments, load_config
-from heurtune.engine import SearchSpace, run as run_optimiser
+from heurtune.engine import Checkpoint, SearchSpace, run as run_optimiser
 from heurtune.errors import ConfigError
 from heurtune.evaluator import BACKENDS, Evaluator
 from heurtune.io import atomic_path, write_parquet
@@ -160,10 +160,28 @@ def _problem(config: dict, case: str):
     return _PROBLEMS[key]
 
 
-def execute(config: dict, spec: RunSpec, evaluator: Evaluator | None = None):
+def execute(config: dict, spec: RunSpec, evaluator: Evaluator | None = None, *, parts=None):
     """Run one tuning run; returns its result row (dict) and history (DataFrame).
 
     Runs in any process: the optimiser plugins named by the config are loaded here too.
+
+    Parameters
+    ----------
+    config : dict
+        The resolved experiment config.
+    spec : RunSpec
+        The run.
+    evaluator : Evaluator, optional
+        An open evaluator to use (default: a new in-process one).
+    parts : path, optional
+        The experiment's ``parts/`` folder. Given, a driver's finished local solves are saved
+        as they end to ``parts/<run>.starts.parquet`` (for ``starts.parquet``), and a rerun of
+        an interrupted run takes them from there instead of solving them again.
+
+    Returns
+    -------
+    row : dict
+    history : pandas.DataFrame
     """
     for plugin in config.get("plugins", []):
         registry.load_plugin(plugin)
@@ -177,7 +195,10 @@ def execute(config: dict, spec: RunSpec, evaluator: Evaluator | None = None):
     own = evaluator is None
     ev = Evaluator(prob) if own else evaluator
     try:
-        res = run_optimiser(spec.algorithm, ev, space, settings=spec.settings, seed=seed, **budget)
+        checkpoint = None if parts is None else StartsFile(
+            Path(parts) / f"{spec.part_name}.starts.parquet", prob.names, _run_key(prob, spec))
+        res = run_optimiser(spec.algorithm, ev, space, settings=spec.settings, seed=seed,
+                            checkpoint=checkpoint, **budget)
     finally:
         if own:
             ev.close()
@@ -192,6 +213,79 @@ def execute(config: dict, spec: RunSpec, evaluator: Evaluator | None = None):
     hist = res.history.assign(case=spec.case, algorithm=spec.algorithm, optimiser_index=spec.optimiser_index,
                               run=spec.run)
     return row, hist
+
+
+def _run_key(prob, spec: RunSpec) -> str:
+    """A short hash of what a run's local solves depend on: problem, optimiser, budget, seed."""
+    from types import SimpleNamespace
+
+    problem = problem_id(SimpleNamespace(problem=lambda case: prob), spec.case)
+    payload = dict(problem=problem, algorithm=spec.algorithm, settings=spec.settings, budget=spec.budget,
+                   seed=spec.root_seed, spawn_key=list(spec.spawn_key))
+    return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+class StartsFile(Checkpoint):
+    """A run's finished local solves in one parquet file, rewritten atomically at each save.
+
+    One row per solve: ``start, round, cap, x0_<name>..., <name>..., f, violation, feasible,
+    nit, nfev, success, message``, then the constraint values at the kept point ``g_0, g_1,
+    ...`` and ``run_key`` (what the solves depend on, see :func:`_run_key`). The records are a
+    multistart driver's (``start, round, cap, x0, x, f, violation, g, nfev, nit, success,
+    message``); floats go through parquet unchanged, so a resumed run is bit-identical.
+
+    Parameters
+    ----------
+    path : path
+        ``parts/<run>.starts.parquet``.
+    names : sequence of str
+        The decision variables.
+    key : str
+        The run's key; a file written under another key is refused (the config changed).
+    """
+
+    def __init__(self, path, names, key: str):
+        self.path = Path(path)
+        self.names = list(names)
+        self.key = key
+
+    def load(self) -> list:
+        """The saved solves (a list of records); none when the file does not exist."""
+        if not self.path.exists():
+            return []
+        df = pd.read_parquet(self.path)
+        if len(df) and (df["run_key"] != self.key).any():
+            raise ConfigError(f"{self.path} holds local solves of another configuration of this run; "
+                              "use --fresh or another --out")
+        gcols = sorted((c for c in df.columns if c.startswith("g_") and c[2:].isdigit()), key=lambda c: int(c[2:]))
+        X0 = df[[f"x0_{n}" for n in self.names]].to_numpy(dtype=np.float64)
+        X = df[self.names].to_numpy(dtype=np.float64)
+        G = df[gcols].to_numpy(dtype=np.float64) if gcols else np.zeros((len(df), 0))
+        records = []
+        for i, r in enumerate(df.itertuples(index=False)):
+            records.append(dict(start=int(r.start), round=int(r.round), cap=None if pd.isna(r.cap) else int(r.cap),
+                                x0=X0[i], x=X[i], f=float(r.f), violation=float(r.violation), g=G[i],
+                                nfev=int(r.nfev), nit=int(r.nit), success=bool(r.success), message=str(r.message)))
+        return records
+
+    def save(self, records) -> None:
+        """Write ``records`` (every finished solve of the run) over the file, atomically."""
+        n = len(records)
+        X0 = np.array([r["x0"] for r in records], dtype=np.float64).reshape(n, len(self.names))
+        X = np.array([r["x"] for r in records], dtype=np.float64).reshape(n, len(self.names))
+        G = np.array([np.asarray(r["g"], dtype=np.float64).reshape(-1) for r in records]).reshape(n, -1)
+        cols = {"start": [int(r["start"]) for r in records], "round": [int(r["round"]) for r in records],
+                "cap": pd.array([r["cap"] for r in records], dtype="Int64")}
+        cols.update({f"x0_{name}": X0[:, j] for j, name in enumerate(self.names)})
+        cols.update({name: X[:, j] for j, name in enumerate(self.names)})
+        violation = np.array([r["violation"] for r in records], dtype=np.float64)
+        cols.update(f=np.array([r["f"] for r in records], dtype=np.float64), violation=violation,
+                    feasible=violation == 0, nit=[int(r["nit"]) for r in records],
+                    nfev=[int(r["nfev"]) for r in records], success=[bool(r["success"]) for r in records],
+                    message=[str(r["message"]) for r in records])
+        cols.update({f"g_{j}": G[:, j] for j in range(G.shape[1])})
+        cols["run_key"] = [self.key] * n
+        write_parquet(pd.DataFrame(cols), self.path)
 
 
 RUN_STATUSES = ("feasible", "infeasible", "failed")
@@ -374,7 +468,7 @@ def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler):
         for spec in pending:
             prob = _problem(config, spec.case)
             with Evaluator(prob, n_jobs=jobs) as ev:
-                row, hist = execute(config, spec, ev)
+                row, hist = execute(config, spec, ev, parts=parts)
             _persist(parts, spec, row, hist)
             bar.update(row)
         return
@@ -383,7 +477,7 @@ def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler):
 
         client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
         try:
-            futures = {client.submit(execute, config, spec, pure=False): spec for spec in pending}
+            futures = {client.submit(execute, config, spec, parts=parts, pure=False): spec for spec in pending}
             for fut in as_completed(futures):
                 row, hist = fut.result()
                 _persist(parts, futures[fut], row, hist)
@@ -397,7 +491,7 @@ def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler):
     # Warm the kernels here first: the workers then load them from the cache.
     _problem(config, pending[0].case).warm_up()
     executor = get_reusable_executor(max_workers=jobs)
-    futures = {executor.submit(execute, config, spec): spec for spec in pending}
+    futures = {executor.submit(execute, config, spec, parts=parts): spec for spec in pending}
     try:
         for fut in concurrent.futures.as_completed(futures):
             row, hist = fut.result()
@@ -427,6 +521,7 @@ def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warning
     history = history[lead + [c for c in history.columns if c not in lead]]
     write_parquet(runs, out_dir / "runs.parquet")
     write_parquet(history, out_dir / "history.parquet")
+    _gather_starts(exp, specs, parts, out_dir)
     meta = dict(experiment=exp.name, config=config, plan=plan_key, root_seed=specs[0].root_seed,
                 structure_warnings=structure_warnings,
                 seeds={s.part_name: dict(seed=s.root_seed, spawn_key=list(s.spawn_key)) for s in specs},
@@ -467,6 +562,27 @@ def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warning
 
         write_chapter(chapter, exp, out_dir, runs=runs, history=history, figures=figures)
     print_summary(runs, exp)
+
+
+def _gather_starts(exp, specs, parts, out_dir):
+    """``starts.parquet``: every local solve of the finished multistart runs (none: no file).
+
+    Columns: experiment, case, algorithm, optimiser_index, run, start, round, cap, x0_<name>
+    (start point), <name> (the point kept), f, violation, feasible, nit, nfev, success, message.
+    """
+    tables = []
+    for spec in specs:
+        path = parts / f"{spec.part_name}.starts.parquet"
+        if (parts / f"{spec.part_name}.run.parquet").exists() and path.exists():
+            t = pd.read_parquet(path)
+            t = t.drop(columns=[c for c in t.columns if c == "run_key" or (c.startswith("g_") and c[2:].isdigit())])
+            tables.append(t.assign(experiment=exp.name, case=spec.case, algorithm=spec.algorithm,
+                                   optimiser_index=spec.optimiser_index, run=spec.run))
+    if not tables:
+        return
+    starts = pd.concat(tables, ignore_index=True)
+    lead = ["experiment", "case", "algorithm", "optimiser_index", "run"]
+    write_parquet(starts[lead + [c for c in starts.columns if c not in lead]], out_dir / "starts.parquet")
 
 
 def _best_runs(runs: pd.DataFrame) -> pd.DataFrame:

@@ -234,3 +234,72 @@ def test_sqp_max_epochs_counts_batches():
     res = heurtune.minimize(_disk, [-2, -2], [2, 2], "sqp_multistart", seed=0, max_epochs=2,
                             settings=dict(starts=20, batch=3))
     assert res.stop_reason == "max_epochs" and len(res.details) == 9 and list(res.history.epoch) == [0, 1, 2]
+
+
+class _Snapshots(heurtune.engine.Checkpoint):
+    """An in-memory checkpoint: starts from ``records``, keeps every saved state."""
+
+    def __init__(self, records=()):
+        self.records = [dict(r) for r in records]
+        self.saves = []
+
+    def load(self):
+        return [dict(r) for r in self.records]
+
+    def save(self, records):
+        self.saves.append([dict(r) for r in records])
+
+
+def _sqp_run(fun, checkpoint, n_jobs=1, **kw):
+    from heurtune.engine import run
+    from heurtune.evaluator import Evaluator
+
+    space = SearchSpace(np.full(3, -1.0), np.full(3, 1.0))
+    with Evaluator(fun, n_jobs=n_jobs) as ev:
+        return run("sqp_multistart", ev, space, seed=5, checkpoint=checkpoint, **kw)
+
+
+def _wavy_fun():
+    def wavy(X):  # nested, so that it is pickled by value for the workers
+        f = ((X - 0.2) ** 2).sum(axis=1) + 0.1 * np.cos(5 * X).sum(axis=1)
+        return f, (X[:, 0] ** 2 - X[:, 1] - 0.5)[:, None]
+    return wavy
+
+
+@pytest.mark.parametrize("n_jobs", [1, 2])
+def test_sqp_resumes_from_its_checkpoint_without_resolving(n_jobs):
+    """Each finished start is saved at once; a rerun from a partial checkpoint solves only the
+    other starts and ends exactly like the uninterrupted run (caps of a budget included)."""
+    wavy = _wavy_fun()
+    kw = dict(max_evals=260, settings=dict(starts=7, max_iter=15, batch=3))
+    whole_ck = _Snapshots()
+    whole = _sqp_run(wavy, whole_ck, n_jobs, **kw)
+    saves = whole_ck.saves
+    assert [len(s) for s in saves] == list(range(1, len(whole.details) + 1))  # one save per start
+    assert [r["start"] for r in saves[-1]] == list(whole.details.start)
+    partial = saves[4]  # 5 starts saved: round 0 and two of round 1
+    calls = []
+
+    def counted(X):
+        calls.append(len(X))
+        return wavy(X)
+
+    resumed_ck = _Snapshots(partial)
+    resumed = _sqp_run(counted if n_jobs == 1 else wavy, resumed_ck, n_jobs, **kw)
+    if n_jobs == 1:
+        assert sum(calls) == whole.n_evals - sum(r["nfev"] for r in partial)
+    assert {r["start"] for r in resumed_ck.saves[0]} > {r["start"] for r in partial}
+    assert resumed.n_evals == whole.n_evals and resumed.f == whole.f and resumed.stop_reason == whole.stop_reason
+    np.testing.assert_array_equal(resumed.x, whole.x)
+    np.testing.assert_array_equal(resumed.g, whole.g)
+    pd.testing.assert_frame_equal(resumed.details, whole.details)
+    cols = ["epoch", "n_evals", "best_f", "best_violation", "mean_f", "sd_f", "feasible_fraction"]
+    pd.testing.assert_frame_equal(resumed.history[cols], whole.history[cols])
+
+
+def test_sqp_refuses_a_checkpoint_of_another_run():
+    ck, wavy = _Snapshots(), _wavy_fun()
+    _sqp_run(wavy, ck, settings=dict(starts=2, max_iter=5))
+    other = _Snapshots(ck.saves[-1])
+    with pytest.raises(heurtune.ConfigError, match="belongs to another run"):
+        _sqp_run(wavy, other, max_evals=50, settings=dict(starts=2, max_iter=5))  # caps differ
