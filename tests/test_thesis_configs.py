@@ -134,3 +134,30 @@ def test_optimiser_restricted_to_a_case_keeps_its_seed(tmp_path):
     keys_all = {(s.case, s.run): s.spawn_key for s in plan(everywhere)}
     for s in plan(some):
         assert keys_all[(s.case, s.run)] == s.spawn_key
+
+
+CHAPTER_TABLES = {
+    "thesis_ch4": ["4_2", "4_3", "4_4", "4_5", "4_6", "4_7", "4_8", "4_9", "4_10", "4_11", "4_12"],
+    "thesis_ch6": ["6_3", "6_4", "6_5"],
+}
+
+
+@pytest.mark.parametrize("name", sorted(CHAPTER_TABLES))
+def test_chapter_smoke_run_writes_its_tables(name, tmp_path):
+    # Chapter 5's end-to-end run is in test_thesis_tables.py.
+    out = tmp_path / name
+    assert run([name, "--smoke", "--runs", "1", "--out", str(out), "--no-figures"]) == 0
+    for table in CHAPTER_TABLES[name]:
+        md = (out / "tables" / f"table_{table}.md").read_text()
+        assert "printed" in md and "heurtune" in md
+        assert (out / "tables" / f"table_{table}.tex").read_text().count("\\begin{tabular}") >= 1
+    runs = pd.read_parquet(out / "runs.parquet")
+    if name == "thesis_ch4":
+        starts = pd.read_parquet(out / "starts.parquet")
+        assert set(starts["case"]) == {"min-folqi", "nmp-folqi", "min-iolqi", "nmp-iolqi"}
+        assert {"x0_Q11", "Q11", "f", "feasible", "nit", "nfev", "message"} <= set(starts.columns)
+        ladr = runs[runs["algorithm"] == "table_4_7"]
+        assert sorted(ladr["case"]) == ["min-ladr", "nmp-ladr"] and (ladr["n_evals"] == 1).all()
+    else:
+        assert not (out / "starts.parquet").exists()
+        assert set(runs["algorithm"]) == {"newton_raphson", "dfp", "steepest_descent", "bfgs"}
