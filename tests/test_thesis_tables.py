@@ -394,3 +394,13 @@ def test_write_chapter5_on_a_real_smoke_run(tmp_path):
     assert cells[3] == "4.3728" and cells[4] != ""  # printed and heurtune (printed gains simulated)
     assert "IOLQI / Non-minimum" in md  # the case not run: printed cells kept
     assert time.perf_counter() - t0 < 80
+
+
+def test_a_case_whose_runs_all_failed_has_empty_heurtune_cells_and_says_why():
+    from heurtune.thesis.tables import _Inputs
+
+    runs = pd.DataFrame([dict(case="nmp-iolqi", algorithm="sqp_multistart", run=0, best_f=1e10, feasible=False,
+                              violation=2e6, status="failed", failure="unstable", Q11=2.5)])
+    inp = _Inputs(None, runs, None, None, None)
+    assert inp.best("nmp-iolqi") is None
+    assert inp.notes == ["case nmp-iolqi: every run failed (unstable); heurtune cells empty"]

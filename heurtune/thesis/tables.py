@@ -237,7 +237,12 @@ class _Inputs:
         g = self.case_runs(case, algorithm)
         if g.empty or "best_f" not in g:
             return None
-        return g.loc[best_run_index(g)]
+        best = g.loc[best_run_index(g)]
+        if best.get("status") == "failed":  # no stable candidate: a failure, not gains to compare
+            self.notes.append(f"case {case}" + (f", {algorithm}" if algorithm else "")
+                              + f": every run failed ({best.get('failure', '')}); heurtune cells empty")
+            return None
+        return best
 
     def best_margins(self, case, algorithm=None) -> pd.DataFrame | None:
         b = self.best(case, algorithm)
@@ -499,7 +504,7 @@ def _gain_table(inp: _Inputs, chapter: int, table: str) -> ThesisTable:
         plant, ctrl = _split(case)
         hcase = _case(inp, plant, ctrl)
         best = inp.best(hcase, alg if chapter != 4 else None)
-        if best is None:
+        if best is None and inp.case_runs(hcase, alg if chapter != 4 else None).empty:
             notes.append(f"no run of {hcase}" + (f" by {alg}" if alg else "") + ": heurtune cells empty")
         keys = dict(controller=f"{CTRL_LABEL.get(ctrl, ctrl)} / {COND_LABEL.get(plant, plant)}")
         if alg:
