@@ -3,26 +3,36 @@
 Usage::
 
     python -m heurtune.compare DIR [DIR ...] [--format md|csv|latex] [--metric best_f]
-                               [--alpha 0.05] [--out FILE]
+                               [--alpha 0.05] [--out FILE] [--cd-diagram PNG]
 
 Each ``DIR`` is an experiment output folder holding ``runs.parquet`` (one row per case,
-algorithm and run; a path to a ``.parquet`` file is accepted too). The folders are merged and,
-per plant case, the report gives
+algorithm and run; a path to a ``.parquet`` file is accepted too). The folders are merged. Only
+successful runs (not failed, best candidate feasible: :func:`successful_runs`) enter the
+statistics; the others are counted. Per plant case the report gives
 
-* a summary of the metric per algorithm: number of runs, mean, standard deviation (ddof=1),
-  median, best (minimum), worst (maximum), mean convergence epoch, feasible rate and, with at
-  least three algorithms, the mean Friedman rank;
-* the Friedman test over runs paired by run index (at least three algorithms);
-* two-sided Wilcoxon rank-sum (Mann-Whitney U) tests between every pair of algorithms, with
-  p-values Holm-corrected within the case;
-* the winner, marked with an asterisk, only when it is significantly better (Holm-adjusted
-  p < alpha) than every other algorithm of the case;
+* a summary of the metric per algorithm: successful runs, mean, standard deviation (ddof=1),
+  median with its bootstrap confidence interval, best (minimum), worst (maximum), mean
+  convergence epoch, feasible rate, runs, failed and infeasible runs, success rate and the mean
+  rank in the pooled ranking of the case;
+* the Kruskal-Wallis test (the runs of different algorithms are independent samples: each run
+  has its own seed);
+* for every pair of algorithms: Dunn's post-hoc test and the two-sided Wilcoxon rank-sum
+  (Mann-Whitney U) test, each Holm-corrected within the case, and the Vargha-Delaney A12 effect
+  size with its bootstrap confidence interval and magnitude;
+* the winner, marked with an asterisk, only when it wins against every other algorithm of the
+  case: Holm-adjusted Dunn and rank-sum p < alpha and an effect at least small
+  (``|A12 - 0.5| >= 0.06``);
 * the best run of every algorithm re-evaluated per scenario (``Mp1 ... J`` columns read from
   the ``<metric>@<scenario>`` columns of ``runs.parquet``);
 * the loop margins of that best run per interaction loop (input i, output j): gain-crossover
   frequency and phase margin (thesis Tables 4.11, 5.8-5.10), read from each folder's
   ``margins.parquet`` as the experiment runner wrote it; a folder without that file (or with
   margins not per input and output, as TITO experiments write) adds none.
+
+Across cases, the Friedman test on the per-case medians (cases are the blocks) with Nemenyi's
+post-hoc test and critical difference, when at least 2 cases and 3 algorithms share them; the
+critical-difference diagram is written with ``--cd-diagram``. docs/statistics.md describes
+every statistic.
 
 Lower metric values are better. Runs are comparable only if their ``problem_id`` (plant case,
 controller, scenarios, objective, constraints, bounds) matches: a case mixing problem ids is
@@ -41,10 +51,12 @@ one-line ``error: ...`` on stderr and exit code 2. All steps are reusable from P
 from __future__ import annotations
 
 import argparse
+import inspect
 import io
 import itertools
 import sys
 import warnings
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -58,11 +70,26 @@ __all__ = [
     "REEVALUATION_COLUMNS",
     "load_runs",
     "summary_table",
+    "BOOTSTRAP_SEED",
+    "BOOTSTRAP_RESAMPLES",
+    "CI_LEVEL",
+    "A12_THRESHOLDS",
     "failed_runs",
+    "successful_runs",
+    "vargha_delaney_a12",
+    "effect_magnitude",
+    "bootstrap_ci",
+    "median_ci",
+    "a12_ci",
     "pairwise_tests",
     "holm",
-    "friedman_test",
+    "kruskal_test",
+    "dunn_test",
     "find_winners",
+    "FriedmanResult",
+    "critical_difference",
+    "friedman_across_cases",
+    "cd_diagram",
     "best_run_index",
     "reevaluation_table",
     "load_margins",
@@ -78,6 +105,14 @@ REQUIRED_COLUMNS = ("experiment", "case", "algorithm", "problem_id", "run")
 MARGIN_KEY_COLUMNS = ("experiment", "case", "algorithm", "input", "output", "gain_crossover_rad_s",
                       "phase_margin_deg")
 _KEY = ["experiment", "case", "algorithm", "run"]
+#: Seed of every bootstrap interval (a fresh ``numpy.random.default_rng(BOOTSTRAP_SEED)`` each).
+BOOTSTRAP_SEED = 20240611
+#: Bootstrap resamples per interval.
+BOOTSTRAP_RESAMPLES = 2000
+#: Confidence level of the percentile bootstrap intervals.
+CI_LEVEL = 0.95
+#: Vargha & Delaney (2000) magnitudes: ``|A12 - 0.5|`` at or above the threshold.
+A12_THRESHOLDS = (("small", 0.06), ("medium", 0.14), ("large", 0.21))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -263,10 +298,15 @@ def _check_metric(runs: pd.DataFrame, metric: str) -> None:
 
 
 def _samples(rows: pd.DataFrame, metric: str) -> dict[str, np.ndarray]:
-    """Finite metric values per algorithm, algorithms in order of appearance."""
+    """Metric values of the successful runs per algorithm, algorithms in order of appearance.
+
+    Failed and infeasible runs (see :func:`successful_runs`) and missing values are left out.
+    """
+    ok = successful_runs(rows).to_numpy()
     out = {}
-    for alg, g in rows.groupby("algorithm", sort=False):
-        v = g[metric].to_numpy(dtype=float)
+    for alg in pd.unique(rows["algorithm"]):
+        sel = (rows["algorithm"] == alg).to_numpy() & ok
+        v = rows.loc[sel, metric].to_numpy(dtype=float)
         out[alg] = v[~np.isnan(v)]
     return out
 
@@ -276,6 +316,16 @@ def failed_runs(runs: pd.DataFrame) -> pd.Series:
 
     ``status == "failed"`` where the column exists; rows without a status (runs written before
     it existed) count as failed when ``best_f`` is at the failure sentinel.
+
+    Parameters
+    ----------
+    runs : pandas.DataFrame
+        Rows of :func:`load_runs`.
+
+    Returns
+    -------
+    pandas.Series of bool
+        True for a failed run, aligned with ``runs``.
     """
     missing = runs["status"].isna() if "status" in runs else pd.Series(True, index=runs.index)
     failed = runs["status"].eq("failed") if "status" in runs else pd.Series(False, index=runs.index)
@@ -286,7 +336,195 @@ def failed_runs(runs: pd.DataFrame) -> pd.Series:
     return failed
 
 
-def summary_table(runs: pd.DataFrame, metric: str = "best_f") -> pd.DataFrame:
+def successful_runs(runs: pd.DataFrame) -> pd.Series:
+    """Which runs succeeded: not failed (:func:`failed_runs`) and with a feasible best candidate.
+
+    Feasibility is read from the ``feasible`` column of ``runs.parquet`` (the best candidate under
+    the tuning scenario meets every constraint); without that column, a ``status`` of
+    ``"infeasible"`` marks an infeasible run; without either, every run that did not fail counts.
+
+    Parameters
+    ----------
+    runs : pandas.DataFrame
+        Rows of :func:`load_runs`.
+
+    Returns
+    -------
+    pandas.Series of bool
+        True for a successful run, aligned with ``runs``. Only these runs enter the means,
+        medians and tests of this module.
+    """
+    ok = ~failed_runs(runs).astype(bool)
+    if "feasible" in runs:
+        ok &= runs["feasible"].astype("boolean").fillna(False).astype(bool)
+    elif "status" in runs:
+        ok &= ~runs["status"].eq("infeasible")
+    return ok
+
+
+# ---------------------------------------------------------------------------------- effect sizes
+
+def vargha_delaney_a12(a, b) -> float:
+    """Vargha-Delaney A12 for minimisation: P(a run of A is smaller than one of B), ties half.
+
+    ``A12 = (#{a_i < b_j} + 0.5 #{a_i == b_j}) / (n_a n_b)``; 0.5 means no effect, 1.0 that every
+    value of ``a`` is below every value of ``b`` (A better), 0.0 the opposite. It is computed from
+    the rank sum of ``a`` in the pooled sample (the Mann-Whitney U of ``b``).
+
+    Parameters
+    ----------
+    a, b : array_like
+        Two independent samples (lower is better). Missing values are not allowed.
+
+    Returns
+    -------
+    float
+        A12, or NaN if a sample is empty.
+
+    Examples
+    --------
+    >>> vargha_delaney_a12([1, 2, 3], [4, 5, 6])
+    1.0
+    >>> vargha_delaney_a12([1, 2], [2, 3])
+    0.875
+    """
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    if a.size == 0 or b.size == 0:
+        return float("nan")
+    return float(_a12(a, b))
+
+
+def _a12(a, b, axis=-1):
+    """A12 along ``axis`` (vectorised over leading axes, for :func:`scipy.stats.bootstrap`)."""
+    a = np.moveaxis(np.asarray(a, dtype=float), axis, -1)
+    b = np.moveaxis(np.asarray(b, dtype=float), axis, -1)
+    na, nb = a.shape[-1], b.shape[-1]
+    lead = np.broadcast_shapes(a.shape[:-1], b.shape[:-1])
+    pooled = np.concatenate([np.broadcast_to(a, lead + (na,)), np.broadcast_to(b, lead + (nb,))], axis=-1)
+    rank_sum_a = stats.rankdata(pooled, axis=-1)[..., :na].sum(axis=-1)
+    greater_a = rank_sum_a - na * (na + 1) / 2.0  # #{a > b} + 0.5 #{a == b}
+    return 1.0 - greater_a / (na * nb)
+
+
+def effect_magnitude(a12: float) -> str:
+    """Vargha-Delaney magnitude of an A12 value.
+
+    Parameters
+    ----------
+    a12 : float
+        Vargha-Delaney A12.
+
+    Returns
+    -------
+    str
+        ``"negligible"`` (``|A12 - 0.5| < 0.06``), ``"small"`` (< 0.14), ``"medium"`` (< 0.21),
+        ``"large"`` (>= 0.21); ``""`` for NaN.
+
+    Examples
+    --------
+    >>> effect_magnitude(0.56), effect_magnitude(0.3), effect_magnitude(0.5)
+    ('small', 'medium', 'negligible')
+    """
+    if a12 is None or np.isnan(a12):
+        return ""
+    d = abs(a12 - 0.5) + 1e-12  # A12 is a ratio of counts: 0.56 - 0.5 may round below 0.06
+    label = "negligible"
+    for name, threshold in A12_THRESHOLDS:
+        if d >= threshold:
+            label = name
+    return label
+
+
+def _rng_kw(seed: int) -> dict:
+    rng = np.random.default_rng(seed)
+    params = inspect.signature(stats.bootstrap).parameters
+    return {"rng": rng} if "rng" in params else {"random_state": rng}
+
+
+def bootstrap_ci(samples, statistic, *, seed: int = BOOTSTRAP_SEED, n_resamples: int = BOOTSTRAP_RESAMPLES,
+                 level: float = CI_LEVEL) -> tuple[float, float]:
+    """Percentile bootstrap confidence interval of a statistic of one or more independent samples.
+
+    A thin wrapper of :func:`scipy.stats.bootstrap` (``method="percentile"``, each sample
+    resampled with replacement on its own) with a fresh generator seeded with ``seed``, so
+    that the interval depends only on the data and the seed.
+
+    Parameters
+    ----------
+    samples : sequence of array_like
+        The samples, e.g. ``(x,)`` for a median or ``(a, b)`` for A12.
+    statistic : callable
+        ``statistic(*samples, axis=-1)``, vectorised along ``axis``.
+    seed : int
+        Seed of :func:`numpy.random.default_rng`.
+    n_resamples : int
+        Number of bootstrap resamples.
+    level : float
+        Confidence level.
+
+    Returns
+    -------
+    tuple of float
+        ``(low, high)``; NaN when a sample has fewer than two values.
+    """
+    samples = [np.asarray(s, dtype=float) for s in samples]
+    if any(s.size < 2 for s in samples):
+        return float("nan"), float("nan")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # degenerate distribution (all equal): fine here
+        res = stats.bootstrap(samples, statistic, n_resamples=n_resamples, confidence_level=level,
+                              method="percentile", vectorized=True, **_rng_kw(seed))
+    return float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+def _median(x, axis=-1):
+    return np.median(x, axis=axis)
+
+
+def median_ci(x, *, seed: int = BOOTSTRAP_SEED, n_resamples: int = BOOTSTRAP_RESAMPLES,
+              level: float = CI_LEVEL) -> tuple[float, float]:
+    """Percentile bootstrap confidence interval of the median (see :func:`bootstrap_ci`).
+
+    Parameters
+    ----------
+    x : array_like
+        One sample.
+    seed, n_resamples, level
+        As in :func:`bootstrap_ci`.
+
+    Returns
+    -------
+    tuple of float
+        ``(low, high)``, NaN for fewer than two values.
+    """
+    return bootstrap_ci((x,), _median, seed=seed, n_resamples=n_resamples, level=level)
+
+
+def a12_ci(a, b, *, seed: int = BOOTSTRAP_SEED, n_resamples: int = BOOTSTRAP_RESAMPLES,
+           level: float = CI_LEVEL) -> tuple[float, float]:
+    """Percentile bootstrap confidence interval of :func:`vargha_delaney_a12`.
+
+    The two samples are resampled independently (they are independent runs).
+
+    Parameters
+    ----------
+    a, b : array_like
+        Two independent samples.
+    seed, n_resamples, level
+        As in :func:`bootstrap_ci`.
+
+    Returns
+    -------
+    tuple of float
+        ``(low, high)``, NaN when a sample has fewer than two values.
+    """
+    return bootstrap_ci((a, b), _a12, seed=seed, n_resamples=n_resamples, level=level)
+
+
+# ---------------------------------------------------------------------------------- summary
+
+def summary_table(runs: pd.DataFrame, metric: str = "best_f", *, seed: int = BOOTSTRAP_SEED) -> pd.DataFrame:
     """Descriptive statistics of a metric per case and algorithm (thesis Table 5.3 style).
 
     Parameters
@@ -295,35 +533,44 @@ def summary_table(runs: pd.DataFrame, metric: str = "best_f") -> pd.DataFrame:
         Rows of :func:`load_runs` (columns ``case``, ``algorithm`` and ``metric`` at least).
     metric : str
         Column to summarise; lower is better. Missing values are ignored.
+    seed : int
+        Seed of the bootstrap confidence interval of the median.
 
     Returns
     -------
     pandas.DataFrame
         One row per (case, algorithm) in order of appearance, columns ``case, algorithm, n,
-        mean, sd, median, best, worst`` (``n`` counts non-missing values, ``sd`` uses
-        ddof=1, ``best``/``worst`` are the minimum/maximum), then ``mean_convergence_epoch``
-        if ``convergence_epoch`` exists and ``feasible_rate`` if ``feasible`` exists. Where
-        ``status`` exists, failed runs (no stable, simulable candidate: their objective is a
-        sentinel) are left out of the statistics and counted in a ``failed`` column.
+        mean, sd, median, median_ci_low, median_ci_high, best, worst`` over the successful runs
+        only (:func:`successful_runs`; ``n`` counts them where the metric is not missing,
+        ``sd`` uses ddof=1, ``best``/``worst`` are the minimum/maximum, the median's interval
+        is :func:`median_ci`), then ``mean_convergence_epoch`` if ``convergence_epoch`` exists
+        and ``feasible_rate`` if ``feasible`` exists (both over all runs), then ``runs`` (all
+        runs), ``failed`` (:func:`failed_runs`: their objective is a sentinel), ``infeasible``
+        (not failed, best candidate infeasible) and ``success_rate`` (successful / all runs).
     """
     _check_metric(runs, metric)
+    ok_all = successful_runs(runs)
+    failed_all = failed_runs(runs)
     rows = []
     for (case, alg), g in runs.groupby(["case", "algorithm"], sort=False):
-        failed = failed_runs(g).to_numpy() if "status" in g else np.zeros(len(g), dtype=bool)
-        v = g[metric].to_numpy(dtype=float)[~failed]
+        ok = ok_all.loc[g.index].to_numpy()
+        failed = failed_all.loc[g.index].to_numpy()
+        v = g[metric].to_numpy(dtype=float)[ok]
         v = v[~np.isnan(v)]
+        lo, hi = median_ci(v, seed=seed)
         row = {"case": case, "algorithm": alg, "n": int(v.size),
                "mean": v.mean() if v.size else np.nan,
                "sd": v.std(ddof=1) if v.size > 1 else np.nan,
                "median": np.median(v) if v.size else np.nan,
+               "median_ci_low": lo, "median_ci_high": hi,
                "best": v.min() if v.size else np.nan,
                "worst": v.max() if v.size else np.nan}
         if "convergence_epoch" in g:
             row["mean_convergence_epoch"] = float(g["convergence_epoch"].astype(float).mean())
         if "feasible" in g:
             row["feasible_rate"] = float(g["feasible"].astype(float).mean())
-        if "status" in g:
-            row["failed"] = int(failed.sum())
+        row.update(runs=len(g), failed=int(failed.sum()), infeasible=int((~failed & ~ok).sum()),
+                   success_rate=float(ok.mean()) if len(g) else np.nan)
         rows.append(row)
     return pd.DataFrame(rows)
 
@@ -333,7 +580,8 @@ def holm(pvalues) -> np.ndarray:
 
     The i-th smallest of m p-values is multiplied by ``m - i + 1``; adjusted values are made
     monotone (running maximum in ascending order of p) and capped at 1. Missing values stay
-    missing and do not count in ``m``.
+    missing and do not count in ``m``. (Same values as ``statsmodels``' ``multipletests(...,
+    method="holm")``, which does not accept missing values.)
 
     Parameters
     ----------
@@ -365,104 +613,16 @@ def holm(pvalues) -> np.ndarray:
     return out
 
 
-def pairwise_tests(runs: pd.DataFrame, metric: str = "best_f", alpha: float = 0.05) -> pd.DataFrame:
-    """Two-sided Wilcoxon rank-sum tests between every pair of algorithms, per case.
+# ---------------------------------------------------------------------------------- within a case
 
-    ``scipy.stats.mannwhitneyu(a, b, alternative="two-sided")`` (exact for small samples
-    without ties, otherwise normal approximation with continuity and tie correction). The
-    p-values of one case form one family and are Holm-corrected (:func:`holm`).
+def kruskal_test(runs: pd.DataFrame, metric: str = "best_f") -> pd.DataFrame:
+    """Kruskal-Wallis H test per case over the successful runs (independent samples).
 
-    Parameters
-    ----------
-    runs : pandas.DataFrame
-        Rows of :func:`load_runs`.
-    metric : str
-        Column compared; lower is better. Missing values are ignored.
-    alpha : float
-        Significance level applied to the Holm-adjusted p-values.
-
-    Returns
-    -------
-    pandas.DataFrame
-        One row per case and pair (algorithms in order of appearance), columns ``case,
-        algorithm_a, algorithm_b, n_a, n_b, median_a, median_b, U`` (statistic of a),
-        ``p, p_holm, significant`` (``p_holm < alpha``) and ``better``: the algorithm with the
-        lower median (ties broken by the rank-sum direction; empty if still tied). A pair with
-        an empty sample has p missing and is not significant.
-    """
-    _check_metric(runs, metric)
-    cols = ["case", "algorithm_a", "algorithm_b", "n_a", "n_b", "median_a", "median_b", "U", "p",
-            "p_holm", "significant", "better"]
-    out = []
-    for case, rows in runs.groupby("case", sort=False):
-        samples = _samples(rows, metric)
-        recs = []
-        for a, b in itertools.combinations(samples, 2):
-            x, y = samples[a], samples[b]
-            u = p = np.nan
-            if x.size and y.size:
-                res = stats.mannwhitneyu(x, y, alternative="two-sided")
-                u, p = float(res.statistic), float(res.pvalue)
-            med_a = float(np.median(x)) if x.size else np.nan
-            med_b = float(np.median(y)) if y.size else np.nan
-            if med_a < med_b:
-                better = a
-            elif med_b < med_a:
-                better = b
-            elif not np.isnan(u) and u != x.size * y.size / 2:
-                better = a if u < x.size * y.size / 2 else b
-            else:
-                better = ""
-            recs.append({"case": case, "algorithm_a": a, "algorithm_b": b, "n_a": int(x.size),
-                         "n_b": int(y.size), "median_a": med_a, "median_b": med_b, "U": u, "p": p,
-                         "better": better})
-        adj = holm([r["p"] for r in recs])
-        for r, pa in zip(recs, adj):
-            r["p_holm"] = float(pa)
-            r["significant"] = bool(pa < alpha)  # NaN compares False
-        out.extend(recs)
-    return pd.DataFrame(out, columns=cols)
-
-
-def find_winners(pairs: pd.DataFrame, alpha: float = 0.05) -> dict:
-    """The winner of each case: significantly better than every other algorithm, or None.
-
-    Parameters
-    ----------
-    pairs : pandas.DataFrame
-        Output of :func:`pairwise_tests`.
-    alpha : float
-        Significance level for the Holm-adjusted p-values.
-
-    Returns
-    -------
-    dict
-        ``{case: algorithm or None}`` for every case of ``pairs`` (cases with a single
-        algorithm have no pairs and do not appear). An algorithm wins only if, against every
-        other algorithm of the case, ``p_holm < alpha`` and it is the ``better`` one.
-    """
-    winners = {}
-    for case, g in pairs.groupby("case", sort=False):
-        algs = list(pd.unique(pd.concat([g["algorithm_a"], g["algorithm_b"]])))
-        won = g[(g["p_holm"] < alpha) & (g["better"] != "")]
-        winners[case] = None
-        for alg in algs:
-            beaten = won.loc[won["better"] == alg]
-            others = set(beaten["algorithm_a"]) | set(beaten["algorithm_b"])
-            others.discard(alg)
-            if others == set(algs) - {alg}:
-                winners[case] = alg
-                break
-    return winners
-
-
-def friedman_test(runs: pd.DataFrame, metric: str = "best_f") -> pd.DataFrame:
-    """Friedman test per case with at least three algorithms; runs paired by run index.
-
-    Blocks are the run indices present (with a value) for every algorithm of the case. Within
-    a block the algorithms are ranked (1 = lowest metric, ties averaged) and the ranks are
-    averaged over blocks. The statistic and p-value come from
-    ``scipy.stats.friedmanchisquare`` (tie-corrected).
+    The runs of different algorithms in a case are independent (each run has its own seed), so
+    the algorithms are compared as independent samples: ``scipy.stats.kruskal`` (chi-square
+    approximation, tie-corrected) on the successful runs (:func:`successful_runs`) of every
+    algorithm with at least one. Mean ranks are those of the pooled sample of the case
+    (1 = lowest metric, ties averaged), the ranks Dunn's test compares.
 
     Parameters
     ----------
@@ -474,41 +634,363 @@ def friedman_test(runs: pd.DataFrame, metric: str = "best_f") -> pd.DataFrame:
     Returns
     -------
     pandas.DataFrame
-        One row per (case, algorithm) with columns ``case, algorithm, mean_rank, n_blocks,
-        statistic, p`` (``statistic`` and ``p`` repeated on the rows of a case; missing when
-        no block is complete or every block is fully tied). Cases with fewer than three
-        algorithms are left out.
-
-    Raises
-    ------
-    ConfigError
-        An algorithm has several rows for the same run index in one case.
+        One row per (case, algorithm) with columns ``case, algorithm, n`` (successful runs
+        used), ``mean_rank, statistic`` (H), ``df`` (groups - 1) and ``p``; ``statistic``,
+        ``df`` and ``p`` repeat on the rows of a case and are missing when fewer than two
+        algorithms have a successful run or all values are equal. Algorithms without a
+        successful run have ``n = 0`` and no mean rank.
     """
     _check_metric(runs, metric)
     out = []
     for case, rows in runs.groupby("case", sort=False):
-        algs = list(pd.unique(rows["algorithm"]))
-        if len(algs) < 3:
-            continue
-        dup = rows.duplicated(["algorithm", "run"])
-        if dup.any():
-            r = rows.loc[dup].iloc[0]
-            raise ConfigError(f"case '{case}': algorithm '{r['algorithm']}' has several rows for run {r['run']}")
-        table = rows.pivot(index="run", columns="algorithm", values=metric)[algs].astype(float).dropna()
-        values = table.to_numpy()
-        n = values.shape[0]
+        samples = _samples(rows, metric)
+        used = {a: v for a, v in samples.items() if v.size}
         stat = p = np.nan
-        ranks = np.full(len(algs), np.nan)
-        if n:
-            ranks = stats.rankdata(values, axis=1).mean(axis=0)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # all blocks tied: 0/0
-                res = stats.friedmanchisquare(*values.T)
-            stat, p = float(res.statistic), float(res.pvalue)
-        for alg, rk in zip(algs, ranks):
-            out.append({"case": case, "algorithm": alg, "mean_rank": float(rk), "n_blocks": n,
-                        "statistic": stat, "p": p})
-    return pd.DataFrame(out, columns=["case", "algorithm", "mean_rank", "n_blocks", "statistic", "p"])
+        df = len(used) - 1 if len(used) >= 2 else np.nan
+        mean_rank = {}
+        if used:
+            pooled = np.concatenate(list(used.values()))
+            ranks = stats.rankdata(pooled)
+            start = 0
+            for a, v in used.items():
+                mean_rank[a] = float(ranks[start:start + v.size].mean())
+                start += v.size
+            if len(used) >= 2 and np.ptp(pooled) > 0:
+                res = stats.kruskal(*used.values())
+                stat, p = float(res.statistic), float(res.pvalue)
+        for a, v in samples.items():
+            out.append({"case": case, "algorithm": a, "n": int(v.size), "mean_rank": mean_rank.get(a, np.nan),
+                        "statistic": stat, "df": df, "p": p})
+    return pd.DataFrame(out, columns=["case", "algorithm", "n", "mean_rank", "statistic", "df", "p"])
+
+
+def dunn_test(runs: pd.DataFrame, metric: str = "best_f") -> pd.DataFrame:
+    """Dunn's post-hoc test between every pair of algorithms, per case, Holm-corrected.
+
+    Dunn (1964) compares the mean ranks of two groups in the pooled ranking of the case with a
+    normal approximation (tie-corrected); the p-values come from
+    ``scikit_posthocs.posthoc_dunn`` and the ones of a case form one family, adjusted with
+    :func:`holm`. Only successful runs are used.
+
+    Parameters
+    ----------
+    runs : pandas.DataFrame
+        Rows of :func:`load_runs`.
+    metric : str
+        Column compared; lower is better.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per case and pair (algorithms in order of appearance), columns ``case,
+        algorithm_a, algorithm_b, p, p_holm``; p is missing for a pair with an empty sample or
+        when all values of the case are equal.
+    """
+    import scikit_posthocs as sp
+
+    _check_metric(runs, metric)
+    out = []
+    for case, rows in runs.groupby("case", sort=False):
+        samples = _samples(rows, metric)
+        used = [a for a, v in samples.items() if v.size]
+        pooled = np.concatenate([samples[a] for a in used]) if used else np.empty(0)
+        matrix = None
+        if len(used) >= 2 and np.ptp(pooled) > 0:
+            long = pd.DataFrame({"value": pooled, "group": np.repeat(used, [samples[a].size for a in used])})
+            matrix = sp.posthoc_dunn(long, val_col="value", group_col="group", p_adjust=None)
+        recs = []
+        for a, b in itertools.combinations(samples, 2):
+            p = float(matrix.loc[a, b]) if matrix is not None and a in used and b in used else np.nan
+            recs.append({"case": case, "algorithm_a": a, "algorithm_b": b, "p": p})
+        for r, pa in zip(recs, holm([r["p"] for r in recs])):
+            r["p_holm"] = float(pa)
+        out.extend(recs)
+    return pd.DataFrame(out, columns=["case", "algorithm_a", "algorithm_b", "p", "p_holm"])
+
+
+def pairwise_tests(runs: pd.DataFrame, metric: str = "best_f", alpha: float = 0.05, *,
+                   seed: int = BOOTSTRAP_SEED) -> pd.DataFrame:
+    """Pairwise comparisons within each case: rank-sum and Dunn tests, A12 with its CI, win.
+
+    For every pair of algorithms of a case, over their successful runs
+    (:func:`successful_runs`):
+
+    * the two-sided Wilcoxon rank-sum test, ``scipy.stats.mannwhitneyu(a, b,
+      alternative="two-sided")`` (exact for small samples without ties, otherwise normal
+      approximation with continuity and tie correction), Holm-corrected within the case;
+    * Dunn's test (:func:`dunn_test`), the post-hoc of the Kruskal-Wallis test, Holm-corrected
+      within the case;
+    * Vargha-Delaney A12 (:func:`vargha_delaney_a12`, probability that a run of A is lower than
+      one of B) with its percentile bootstrap interval (:func:`a12_ci`) and magnitude
+      (:func:`effect_magnitude`).
+
+    A pair has a winner only when both Holm-adjusted p-values (Dunn and rank-sum) are below
+    ``alpha`` and the effect is at least small (``|A12 - 0.5| >= 0.06``). Requiring the rank-sum
+    test too guards against Dunn's normal approximation, which is anti-conservative for very
+    small groups (3 + 3 fully separated runs: Dunn p = 0.0495, exact rank-sum p = 0.1).
+
+    Parameters
+    ----------
+    runs : pandas.DataFrame
+        Rows of :func:`load_runs`.
+    metric : str
+        Column compared; lower is better. Missing values are ignored.
+    alpha : float
+        Significance level applied to the Holm-adjusted p-values.
+    seed : int
+        Seed of the bootstrap intervals.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per case and pair (algorithms in order of appearance), columns ``case,
+        algorithm_a, algorithm_b, n_a, n_b, median_a, median_b, U`` (Mann-Whitney statistic of
+        a), ``p, p_holm, significant`` (rank-sum test, ``p_holm < alpha``), ``p_dunn,
+        p_dunn_holm, a12, a12_low, a12_high, effect``, ``better`` (the algorithm favoured by
+        A12, i.e. by the rank-sum direction; empty if A12 = 0.5) and ``win`` (the better
+        algorithm if it wins by the rule above, else empty). A pair with an empty sample has
+        missing p-values and no winner.
+    """
+    _check_metric(runs, metric)
+    cols = ["case", "algorithm_a", "algorithm_b", "n_a", "n_b", "median_a", "median_b", "U", "p", "p_holm",
+            "significant", "p_dunn", "p_dunn_holm", "a12", "a12_low", "a12_high", "effect", "better", "win"]
+    dunn = dunn_test(runs, metric)
+    dunn_p = {(r.case, r.algorithm_a, r.algorithm_b): (r.p, r.p_holm) for r in dunn.itertuples()}
+    out = []
+    for case, rows in runs.groupby("case", sort=False):
+        samples = _samples(rows, metric)
+        recs = []
+        for a, b in itertools.combinations(samples, 2):
+            x, y = samples[a], samples[b]
+            u = p = np.nan
+            if x.size and y.size:
+                res = stats.mannwhitneyu(x, y, alternative="two-sided")
+                u, p = float(res.statistic), float(res.pvalue)
+            a12 = vargha_delaney_a12(x, y)
+            lo, hi = a12_ci(x, y, seed=seed)
+            better = "" if np.isnan(a12) or a12 == 0.5 else (a if a12 > 0.5 else b)
+            pd_raw, pd_holm = dunn_p[(case, a, b)]
+            recs.append({"case": case, "algorithm_a": a, "algorithm_b": b, "n_a": int(x.size),
+                         "n_b": int(y.size), "median_a": float(np.median(x)) if x.size else np.nan,
+                         "median_b": float(np.median(y)) if y.size else np.nan, "U": u, "p": p,
+                         "p_dunn": pd_raw, "p_dunn_holm": pd_holm, "a12": a12, "a12_low": lo, "a12_high": hi,
+                         "effect": effect_magnitude(a12), "better": better})
+        for r, pa in zip(recs, holm([r["p"] for r in recs])):
+            r["p_holm"] = float(pa)
+            r["significant"] = bool(pa < alpha)  # NaN compares False
+            wins = r["p_dunn_holm"] < alpha and r["p_holm"] < alpha and r["effect"] not in ("", "negligible")
+            r["win"] = r["better"] if wins else ""
+        out.extend(recs)
+    return pd.DataFrame(out, columns=cols)
+
+
+def find_winners(pairs: pd.DataFrame, alpha: float = 0.05) -> dict:
+    """The winner of each case: winning against every other algorithm, or None.
+
+    Parameters
+    ----------
+    pairs : pandas.DataFrame
+        Output of :func:`pairwise_tests`.
+    alpha : float
+        Significance level; used only for tables without a ``win`` column, where a pair is won
+        by its ``better`` algorithm when ``p_holm < alpha``.
+
+    Returns
+    -------
+    dict
+        ``{case: algorithm or None}`` for every case of ``pairs`` (cases with a single
+        algorithm have no pairs and do not appear). An algorithm wins the case only if it
+        wins (``win`` column: Holm-adjusted Dunn and rank-sum p < alpha and at least a small
+        A12 effect) its pair with every other algorithm of the case.
+    """
+    winners = {}
+    for case, g in pairs.groupby("case", sort=False):
+        algs = list(pd.unique(pd.concat([g["algorithm_a"], g["algorithm_b"]])))
+        if "win" in g:
+            won = g[g["win"] != ""]
+            who = won["win"]
+        else:
+            won = g[(g["p_holm"] < alpha) & (g["better"] != "")]
+            who = won["better"]
+        winners[case] = None
+        for alg in algs:
+            beaten = won.loc[who == alg]
+            others = set(beaten["algorithm_a"]) | set(beaten["algorithm_b"])
+            others.discard(alg)
+            if others == set(algs) - {alg}:
+                winners[case] = alg
+                break
+    return winners
+
+
+# ---------------------------------------------------------------------------------- across cases
+
+@dataclass
+class FriedmanResult:
+    """Friedman test on per-case medians with Nemenyi's post-hoc (see :func:`friedman_across_cases`).
+
+    Attributes
+    ----------
+    medians : pandas.DataFrame
+        Median of the successful runs, rows the cases used (blocks), columns the algorithms
+        compared (treatments).
+    mean_ranks : pandas.Series
+        Mean rank of each algorithm over the cases (1 = lowest median).
+    statistic, p : float
+        Friedman chi-square and its p-value (NaN when every case is fully tied).
+    nemenyi : pandas.DataFrame
+        Nemenyi p-values between every pair of algorithms.
+    cd : float
+        Critical difference of the mean ranks at ``alpha`` (:func:`critical_difference`).
+    alpha : float
+        The significance level used for ``cd``.
+    skipped : str
+        Why the test was not run (empty when it was run; the other fields are then empty).
+    left_out : list of str
+        Algorithms or cases left out because they lack a median somewhere.
+    """
+
+    medians: pd.DataFrame
+    mean_ranks: pd.Series
+    statistic: float = float("nan")
+    p: float = float("nan")
+    nemenyi: pd.DataFrame = field(default_factory=pd.DataFrame)
+    cd: float = float("nan")
+    alpha: float = 0.05
+    skipped: str = ""
+    left_out: list = field(default_factory=list)
+
+
+def critical_difference(k: int, n: int, alpha: float = 0.05) -> float:
+    """Nemenyi critical difference of mean ranks (Demsar 2006, eq. for CD).
+
+    ``CD = q_alpha sqrt(k (k + 1) / (6 n))`` with ``q_alpha`` the upper ``alpha`` quantile of
+    the studentized range of ``k`` groups with infinite degrees of freedom divided by sqrt(2)
+    (``scipy.stats.studentized_range``).
+
+    Parameters
+    ----------
+    k : int
+        Number of algorithms (at least 2).
+    n : int
+        Number of blocks (cases).
+    alpha : float
+        Significance level.
+
+    Returns
+    -------
+    float
+        Two algorithms whose mean ranks differ by at least CD differ significantly.
+    """
+    q = stats.studentized_range.ppf(1.0 - alpha, k, np.inf) / np.sqrt(2.0)
+    return float(q * np.sqrt(k * (k + 1) / (6.0 * n)))
+
+
+def friedman_across_cases(runs: pd.DataFrame, metric: str = "best_f", alpha: float = 0.05) -> FriedmanResult:
+    """Friedman test across cases on the per-case medians, with Nemenyi's post-hoc.
+
+    Cases are the blocks and algorithms the treatments: in every case the algorithms are
+    ranked by the median of their successful runs (1 = lowest, ties averaged). The statistic
+    and p-value come from ``scipy.stats.friedmanchisquare``, the pairwise p-values from
+    ``scikit_posthocs.posthoc_nemenyi_friedman``. Only algorithms with a median in every case
+    are compared (the others are listed in ``left_out``); the test needs at least 2 cases and
+    3 such algorithms, otherwise ``skipped`` says why.
+
+    Parameters
+    ----------
+    runs : pandas.DataFrame
+        Rows of :func:`load_runs`.
+    metric : str
+        Column compared; lower is better.
+    alpha : float
+        Significance level for the critical difference.
+
+    Returns
+    -------
+    FriedmanResult
+    """
+    import scikit_posthocs as sp
+
+    _check_metric(runs, metric)
+    med = {}
+    for case, rows in runs.groupby("case", sort=False):
+        med[case] = {a: (float(np.median(v)) if v.size else np.nan) for a, v in _samples(rows, metric).items()}
+    table = pd.DataFrame.from_dict(med, orient="index")
+    if table.empty:
+        return FriedmanResult(table, pd.Series(dtype=float), alpha=alpha, skipped="no runs")
+    shared = [a for a in table.columns if table[a].notna().all()]
+    left_out = [a for a in table.columns if a not in shared]
+    table = table[shared]
+    n_cases, k = table.shape
+    if n_cases < 2 or k < 3:
+        why = (f"needs at least 2 cases and 3 algorithms with a successful run in every case; "
+               f"have {n_cases} case(s) and {k} such algorithm(s)")
+        return FriedmanResult(table, pd.Series(dtype=float), alpha=alpha, skipped=why, left_out=left_out)
+    values = table.to_numpy(dtype=float)
+    ranks = pd.Series(stats.rankdata(values, axis=1).mean(axis=0), index=shared)
+    stat = p = np.nan
+    if np.ptp(values, axis=1).any():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            res = stats.friedmanchisquare(*values.T)
+        stat, p = float(res.statistic), float(res.pvalue)
+    nem = sp.posthoc_nemenyi_friedman(values)
+    nem.index = nem.columns = shared
+    return FriedmanResult(table, ranks, stat, p, nem, critical_difference(k, n_cases, alpha), alpha, "", left_out)
+
+
+def cd_diagram(result: FriedmanResult, path) -> Path:
+    """Draw the critical-difference diagram of a Friedman/Nemenyi result as a PNG.
+
+    Uses ``scikit_posthocs.critical_difference_diagram`` (mean ranks on the axis, algorithms
+    not significantly different by Nemenyi's test joined by a bar) on a matplotlib Agg figure,
+    with the critical difference drawn above the axis; the file is written atomically.
+
+    Parameters
+    ----------
+    result : FriedmanResult
+        Output of :func:`friedman_across_cases` that was not skipped.
+    path : str or Path
+        The PNG file to write (folders are created).
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ConfigError
+        The Friedman test was skipped, so there is no diagram to draw.
+    """
+    import scikit_posthocs as sp
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from heurtune.io import atomic_path
+
+    if result.skipped:
+        raise ConfigError(f"no critical-difference diagram: Friedman test skipped ({result.skipped})")
+    fig = Figure(figsize=(6.4, 0.6 + 0.35 * len(result.mean_ranks)))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    sp.critical_difference_diagram(result.mean_ranks, result.nemenyi, alpha=result.alpha, ax=ax)
+    if np.isfinite(result.cd):  # drawn here, above the tick labels (the library's bar overlaps them)
+        from matplotlib.transforms import blended_transform_factory, offset_copy
+
+        where = offset_copy(blended_transform_factory(ax.transData, ax.transAxes), fig=fig, y=26, units="points")
+        x0 = float(result.mean_ranks.min())
+        ax.plot([x0, x0 + result.cd], [1.0, 1.0], color="k", linewidth=2, transform=where, clip_on=False)
+        ax.text(x0 + result.cd / 2, 1.0, f"CD = {result.cd:.3g}", ha="center", va="bottom", transform=where)
+    ax.set_title(f"Mean ranks over {len(result.medians)} cases (Nemenyi, alpha = {result.alpha:g})",
+                 fontsize="small", pad=44)
+    path = Path(path)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format="png", dpi=150, bbox_inches="tight")
+    except OSError as exc:
+        raise ConfigError(f"cannot write {path}: {exc.strerror or exc}") from exc
+    return path
 
 
 def _scenario_columns(runs: pd.DataFrame):
@@ -601,7 +1083,7 @@ def _fmt(x, digits: int = 5) -> str:
 
 _TEX = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
         "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}",
-        "<": r"\textless{}", ">": r"\textgreater{}"}
+        "<": r"\textless{}", ">": r"\textgreater{}", "|": r"\textbar{}"}
 
 
 def _tex(s: str) -> str:
@@ -653,21 +1135,35 @@ def _latex_table(df: pd.DataFrame, formats: dict, title: str, use_pandas: bool |
     return "\\begin{table}[htbp]\n\\centering\n" + f"\\caption{{{_tex(title)}}}\n" + body + "\\end{table}"
 
 
-def _blocks(runs: pd.DataFrame, metric: str, alpha: float, margins: pd.DataFrame | None = None):
+def _methods_note(alpha: float) -> str:
+    th = ", ".join(f"{name} >= {t:g}" for name, t in A12_THRESHOLDS)
+    return (f"Only successful runs (not failed, best candidate feasible) enter the statistics; failed and "
+            f"infeasible runs are counted in the success rate. Within a case the runs of different algorithms "
+            f"are independent samples: Kruskal-Wallis test, Dunn's post-hoc test and two-sided Wilcoxon "
+            f"rank-sum (Mann-Whitney U) tests, both Holm-corrected within the case, alpha = {alpha:g}. "
+            f"Effect size: Vargha-Delaney A12 = P(a run of A is lower than one of B), ties count half, 0.5 = "
+            f"no effect; magnitude of |A12 - 0.5|: negligible below 0.06, {th}. A pair is won only when "
+            f"both Holm-adjusted p-values (Dunn, rank-sum) are < {alpha:g} and the effect is at least small. "
+            f"Intervals: {CI_LEVEL:.0%} percentile bootstrap, {BOOTSTRAP_RESAMPLES} resamples, "
+            f"seed {BOOTSTRAP_SEED}. Across cases: Friedman test on the per-case medians with Nemenyi's post-hoc test.")
+
+
+def _blocks(runs: pd.DataFrame, metric: str, alpha: float, margins: pd.DataFrame | None = None,
+            cd_path=None):
     """The report as a list of ('heading', level, text) / ('note', text) / ('table', title, df, formats)."""
     marg = margins_table(margins) if margins is not None and len(margins) else pd.DataFrame()
     summary = summary_table(runs, metric)
     pairs = pairwise_tests(runs, metric, alpha)
-    fried = friedman_test(runs, metric)
+    kw = kruskal_test(runs, metric)
     winners = find_winners(pairs, alpha)
     reeval = reevaluation_table(runs) if "best_f" in runs.columns else pd.DataFrame()
+    fried = friedman_across_cases(runs, metric, alpha)
 
     experiments = ", ".join(pd.unique(runs["experiment"])) if "experiment" in runs else ""
     blocks = [("heading", 1, f"Statistical comparison of {metric}"),
-              ("note", f"Experiments: {experiments}. Metric {metric}, lower is better. "
-                       f"Two-sided Wilcoxon rank-sum (Mann-Whitney U) tests, Holm-corrected within "
-                       f"each case, alpha = {alpha:g}; Friedman test over runs paired by run index.")]
-    p_fmt = {"p": 3, "p (Holm)": 3, "p_holm": 3}
+              ("note", f"Experiments: {experiments}. Metric {metric}, lower is better."),
+              ("note", _methods_note(alpha))]
+    p_fmt = {"p": 3, "p (Holm)": 3, "p Dunn": 3, "p Dunn (Holm)": 3, "A12": 3, "A12 low": 3, "A12 high": 3}
     for case in pd.unique(runs["case"]):
         rows = runs[runs["case"] == case]
         winner = winners.get(case)
@@ -676,34 +1172,48 @@ def _blocks(runs: pd.DataFrame, metric: str, alpha: float, margins: pd.DataFrame
             blocks.append(("note", f"problem_id {', '.join(pd.unique(rows['problem_id']))}"))
 
         s = summary[summary["case"] == case].drop(columns="case").reset_index(drop=True)
-        f = fried[fried["case"] == case]
-        if len(f):
-            s["mean rank"] = s["algorithm"].map(dict(zip(f["algorithm"], f["mean_rank"])))
+        k = kw[kw["case"] == case]
+        s["mean rank"] = s["algorithm"].map(dict(zip(k["algorithm"], k["mean_rank"])))
         s["algorithm"] = [a + "*" if a == winner else a for a in s["algorithm"]]
-        s = s.rename(columns={"sd": "SD", "mean_convergence_epoch": "conv. epoch",
-                              "feasible_rate": "feasible rate"})
-        blocks.append(("table", f"Case {case}: {metric} over runs", s, {"mean rank": 3, "feasible rate": 3}))
+        s = s.rename(columns={"sd": "SD", "median_ci_low": "median CI low", "median_ci_high": "median CI high",
+                              "mean_convergence_epoch": "conv. epoch", "feasible_rate": "feasible rate",
+                              "success_rate": "success rate"})
+        blocks.append(("table", f"Case {case}: {metric} over successful runs", s,
+                       {"mean rank": 3, "feasible rate": 3, "success rate": 3}))
 
         algs = pd.unique(rows["algorithm"])
         if winner is not None:
             blocks.append(("note", f"* {winner}: significantly better than every other algorithm of this "
-                                   f"case (Holm-adjusted Wilcoxon rank-sum p < {alpha:g})."))
+                                   f"case (Holm-adjusted Dunn and rank-sum p < {alpha:g}, A12 effect at least small)."))
         elif len(algs) > 1:
-            blocks.append(("note", f"No winner: no algorithm is significantly better than every other "
-                                   f"(Holm-adjusted Wilcoxon rank-sum p < {alpha:g})."))
+            blocks.append(("note", f"No winner: no algorithm wins against every other (Holm-adjusted Dunn "
+                                   f"and rank-sum p < {alpha:g}, A12 effect at least small)."))
         else:
             blocks.append(("note", "Only one algorithm: nothing to compare."))
-        if len(f):
-            r = f.iloc[0]
-            blocks.append(("note", f"Friedman test over {int(r['n_blocks'])} paired runs: "
-                                   f"chi2 = {_fmt(r['statistic'], 4) or 'n/a'}, p = {_fmt(r['p'], 3) or 'n/a'}."))
+        if len(algs) > 1 and len(k):
+            r = k.iloc[0]
+            n_ok, n_all = int(k["n"].sum()), int(len(rows))
+            used = int((k["n"] > 0).sum())
+            if np.isnan(r["statistic"]):
+                why = ("fewer than two algorithms with a successful run" if used < 2 else "all values are equal")
+                blocks.append(("note", f"Kruskal-Wallis test not computed: {why} ({n_ok} of {n_all} runs "
+                                       f"successful)."))
+            else:
+                blocks.append(("note", f"Kruskal-Wallis test over {n_ok} successful runs of {used} algorithms "
+                                       f"({n_all - n_ok} failed or infeasible runs left out): "
+                                       f"H = {_fmt(r['statistic'], 4)}, df = {int(r['df'])}, "
+                                       f"p = {_fmt(r['p'], 3)}."))
 
         pc = pairs[pairs["case"] == case]
         if len(pc):
-            t = pd.DataFrame({"A": pc["algorithm_a"], "B": pc["algorithm_b"], "median A": pc["median_a"],
-                              "median B": pc["median_b"], "U": pc["U"], "p": pc["p"], "p (Holm)": pc["p_holm"],
-                              "significant": pc["significant"], "better": pc["better"]}).reset_index(drop=True)
-            blocks.append(("table", f"Case {case}: pairwise Wilcoxon rank-sum tests", t, p_fmt))
+            t = pd.DataFrame({"A": pc["algorithm_a"], "B": pc["algorithm_b"], "n A": pc["n_a"], "n B": pc["n_b"],
+                              "median A": pc["median_a"], "median B": pc["median_b"], "U": pc["U"],
+                              "p": pc["p"], "p (Holm)": pc["p_holm"], "p Dunn": pc["p_dunn"],
+                              "p Dunn (Holm)": pc["p_dunn_holm"], "A12": pc["a12"], "A12 low": pc["a12_low"],
+                              "A12 high": pc["a12_high"], "effect": pc["effect"], "better": pc["better"],
+                              "win": pc["win"]}).reset_index(drop=True)
+            blocks.append(("table", f"Case {case}: pairwise tests (Wilcoxon rank-sum, Dunn) and A12 effect sizes",
+                           t, p_fmt))
 
         rc = reeval[reeval["case"] == case] if len(reeval) else reeval
         if len(rc):
@@ -717,12 +1227,40 @@ def _blocks(runs: pd.DataFrame, metric: str, alpha: float, margins: pd.DataFrame
             t["algorithm"] = [a + "*" if a == winner else a for a in t["algorithm"]]
             blocks.append(("table", f"Case {case}: loop margins of each algorithm's best run (input i, output j)",
                            t, {"gain crossover (rad/s)": 4, "phase margin (deg)": 4}))
+
+    blocks.append(("heading", 2, "Across cases"))
+    if fried.left_out:
+        blocks.append(("note", f"Left out (no successful run in some case): {', '.join(fried.left_out)}."))
+    if fried.skipped:
+        blocks.append(("note", f"Friedman test across cases skipped: {fried.skipped}."))
+        if cd_path is not None:
+            blocks.append(("note", f"No critical-difference diagram written to {cd_path}."))
+        return blocks
+    n_cases, k = fried.medians.shape
+    stat = _fmt(fried.statistic, 4) or "n/a"
+    blocks.append(("note", f"Friedman test on the medians of the successful runs, {n_cases} cases (blocks) x "
+                           f"{k} algorithms: chi2 = {stat}, df = {k - 1}, p = {_fmt(fried.p, 3) or 'n/a'}. "
+                           f"Nemenyi critical difference of mean ranks at alpha = {alpha:g}: "
+                           f"CD = {_fmt(fried.cd, 4)}."))
+    t = fried.medians.T.reset_index().rename(columns={"index": "algorithm"})
+    t.columns = [str(c) for c in t.columns]
+    t["mean rank"] = fried.mean_ranks.to_numpy()
+    blocks.append(("table", "Across cases: median per case and mean rank", t, {"mean rank": 3}))
+    nem = fried.nemenyi.reset_index().rename(columns={"index": "algorithm"})
+    nem.columns = [str(c) for c in nem.columns]
+    blocks.append(("table", "Across cases: Nemenyi p-values", nem, {str(c): 3 for c in fried.nemenyi.columns}))
+    if cd_path is not None:
+        cd_diagram(fried, cd_path)
+        blocks.append(("note", f"Critical-difference diagram written to {cd_path}."))
     return blocks
 
 
 def report(runs: pd.DataFrame, metric: str = "best_f", alpha: float = 0.05, fmt: str = "md",
-           margins: pd.DataFrame | None = None) -> str:
+           margins: pd.DataFrame | None = None, cd_path=None) -> str:
     """Render the full comparison (summary, tests, winner, re-evaluation, margins) for every case.
+
+    The report ends with the comparison across cases (:func:`friedman_across_cases`), or a note
+    saying why it was skipped.
 
     Parameters
     ----------
@@ -740,6 +1278,9 @@ def report(runs: pd.DataFrame, metric: str = "best_f", alpha: float = 0.05, fmt:
     margins : pandas.DataFrame, optional
         Rows of :func:`load_margins`; when given and not empty, each case ends with the table
         of :func:`margins_table`.
+    cd_path : str or Path, optional
+        Where to write the critical-difference diagram (:func:`cd_diagram`) when the Friedman
+        test across cases is run; nothing is written otherwise (the report says so).
 
     Returns
     -------
@@ -753,7 +1294,7 @@ def report(runs: pd.DataFrame, metric: str = "best_f", alpha: float = 0.05, fmt:
         raise ConfigError(f"alpha must lie in (0, 1), got {alpha:g}")
     _check_metric(runs, metric)
     parts = []
-    for block in _blocks(runs, metric, alpha, margins):
+    for block in _blocks(runs, metric, alpha, margins, cd_path):
         kind = block[0]
         if fmt == "md":
             if kind == "heading":
@@ -803,6 +1344,8 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--metric", default="best_f", help="column to compare, lower is better (default best_f)")
     ap.add_argument("--alpha", type=float, default=0.05, help="significance level (default 0.05)")
     ap.add_argument("--out", help="write the report to this file (atomically) instead of stdout")
+    ap.add_argument("--cd-diagram", metavar="PNG",
+                    help="write the critical-difference diagram across cases to this PNG file")
     return ap
 
 
@@ -824,7 +1367,8 @@ def run(argv=None) -> int:
             raise ConfigError(f"--alpha must lie in (0, 1), got {args.alpha:g}")
         runs = load_runs(args.dirs)
         margins = load_margins(args.dirs, runs)
-        text = report(runs, metric=args.metric, alpha=args.alpha, fmt=args.format, margins=margins)
+        text = report(runs, metric=args.metric, alpha=args.alpha, fmt=args.format, margins=margins,
+                      cd_path=args.cd_diagram)
     except (ConfigError, _UsageError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -1,4 +1,5 @@
-"""heurtune.compare: loading, statistics (Wilcoxon rank-sum + Holm, Friedman), winners, rendering, CLI."""
+"""heurtune.compare: loading, statistics (Kruskal-Wallis, Dunn, Wilcoxon rank-sum, Holm, A12, Friedman/Nemenyi
+across cases), winners, rendering, CLI."""
 
 import subprocess
 import sys
@@ -9,8 +10,8 @@ import pytest
 from scipy import stats
 
 from heurtune import compare
-from heurtune.compare import (find_winners, friedman_test, holm, load_runs, pairwise_tests, reevaluation_table,
-                              report, run, summary_table)
+from heurtune.compare import (find_winners, friedman_across_cases, holm, kruskal_test, load_runs, pairwise_tests,
+                              reevaluation_table, report, run, summary_table)
 from heurtune.errors import ConfigError
 
 SCENARIOS = ("nominal", "-30%", "+30%")
@@ -106,38 +107,17 @@ def test_winner_needs_to_beat_every_other_algorithm():
     assert find_winners(pairs) == {"min": None}
 
 
-def test_friedman_against_scipy_and_hand_ranks():
-    table = {"a": [1.0, 2.0, 1.0, 3.0], "b": [2.0, 1.0, 1.0, 1.0], "c": [3.0, 3.0, 2.0, 2.0]}
-    runs = make_runs(table)
-    # run 4 exists for a and b only, and c's run 1 is missing a value elsewhere: not a complete block
-    runs = pd.concat([runs, make_runs({"a": [0, 0, 0, 0, 9.0], "b": [0, 0, 0, 0, 9.0]}).query("run == 4")],
-                     ignore_index=True)
-    res = friedman_test(runs, "best_f")
-    ref = stats.friedmanchisquare(table["a"], table["b"], table["c"])
-    assert res.algorithm.tolist() == ["a", "b", "c"]
-    assert (res.n_blocks == 4).all()
-    assert res.statistic.iloc[0] == pytest.approx(ref.statistic)
-    assert res.p.iloc[0] == pytest.approx(ref.pvalue)
-    # block ranks: (1,2,3), (2,1,3), (1.5,1.5,3), (3,1,2)
-    assert res.mean_rank.tolist() == pytest.approx([7.5 / 4, 5.5 / 4, 11 / 4])
-
-    with_nan = runs.copy()
-    with_nan.loc[(with_nan.algorithm == "c") & (with_nan.run == 1), "best_f"] = np.nan
-    assert (friedman_test(with_nan, "best_f").n_blocks == 3).all()
-    # fewer than three algorithms: no Friedman row
-    assert friedman_test(runs[runs.algorithm != "c"], "best_f").empty
-
-
 def test_summary_table_values():
-    runs = make_runs({"cs": [1.0, 2.0, 4.0], "pso": [3.0, 3.0, 3.0]})
-    runs.loc[2, "feasible"] = False
+    runs = make_runs({"cs": [1.0, 2.0, 4.0, 0.5], "pso": [3.0, 3.0, 3.0]})
+    runs.loc[3, "feasible"] = False  # cs run 3: best candidate infeasible, not a success
     s = summary_table(runs, "best_f").set_index("algorithm")
-    assert s.loc["cs", "n"] == 3
+    assert s.loc["cs", "n"] == 3 and s.loc["cs", "runs"] == 4 and s.loc["cs", "infeasible"] == 1
+    assert s.loc["cs", "success_rate"] == pytest.approx(3 / 4) and s.loc["cs", "failed"] == 0
     assert s.loc["cs", "mean"] == pytest.approx(7 / 3)
     assert s.loc["cs", "sd"] == pytest.approx(np.std([1, 2, 4], ddof=1))
     assert (s.loc["cs", "median"], s.loc["cs", "best"], s.loc["cs", "worst"]) == (2.0, 1.0, 4.0)
-    assert s.loc["cs", "mean_convergence_epoch"] == pytest.approx(11.0)
-    assert s.loc["cs", "feasible_rate"] == pytest.approx(2 / 3)
+    assert s.loc["cs", "mean_convergence_epoch"] == pytest.approx(11.5)
+    assert s.loc["cs", "feasible_rate"] == pytest.approx(3 / 4)
     assert s.loc["pso", "sd"] == 0.0 and s.loc["pso", "feasible_rate"] == 1.0
     assert s.case.tolist() == ["min", "min"]
 
@@ -220,7 +200,7 @@ def test_unknown_or_non_numeric_metric_is_refused():
     with pytest.raises(ConfigError, match="not numeric"):
         pairwise_tests(runs, "stop_reason")
     with pytest.raises(ConfigError, match="not numeric"):
-        friedman_test(runs, "feasible@nominal")
+        kruskal_test(runs, "feasible@nominal")
 
 
 # ------------------------------------------------------------------------------------------------ CLI
@@ -238,7 +218,8 @@ def test_cli_markdown(two_dirs, capsys):
     out = capsys.readouterr().out
     assert "## Case min" in out and "## Case nmp" in out
     assert "| cs* |" in out and "\\* cs: significantly better" in out
-    assert "Friedman test over 10 paired runs" in out
+    assert "Kruskal-Wallis test over 30 successful runs of 3 algorithms (0 failed or infeasible" in out
+    assert "Friedman test on the medians of the successful runs, 2 cases (blocks) x 3 algorithms" in out
     for col in ("mean rank", "SD", "p (Holm)", "Mp1", "ts2", "J"):
         assert col in out
 
@@ -384,3 +365,215 @@ def test_margins_from_heurtune_margins(tmp_path):
     t = compare.margins_table(compare.load_margins([d]))
     assert t["gain crossover (rad/s)"].round(3).tolist()[0::3] == [1.023, 2.244]
     assert t["phase margin (deg)"].round(2).tolist() == [20.31, np.inf, np.inf, 21.52]
+
+
+# ------------------------------------------------------------------------------------------------ issue 11:
+# independent-sample tests within a case, Friedman/Nemenyi across cases, A12 effect sizes, success rates
+
+def test_holm_matches_statsmodels():
+    from statsmodels.stats.multitest import multipletests
+
+    p = [0.01, 0.04, 0.03, 0.005, 0.2, 0.0001]
+    assert holm(p) == pytest.approx(multipletests(p, method="holm")[1], rel=1e-12)
+
+
+def test_kruskal_wallis_against_scipy_on_successful_runs():
+    # ties across groups (3.0, 5.0); cs has a failed run (sentinel) and an infeasible run, both left out
+    values = {"cs": [1.0, 3.0, 2.0, 1e10, 0.1], "pso": [3.0, 5.0, 4.0, 6.0], "ga": [5.0, 7.0, 8.0]}
+    runs = make_runs(values).assign(status="feasible")
+    cs = runs.algorithm == "cs"
+    runs.loc[cs & (runs.run == 3), "status"] = "failed"
+    runs.loc[cs & (runs.run == 4), ["status", "feasible"]] = ["infeasible", False]
+    res = kruskal_test(runs, "best_f")
+    ok = {"cs": [1.0, 3.0, 2.0], "pso": values["pso"], "ga": values["ga"]}
+    ref = stats.kruskal(*ok.values())
+    assert res.algorithm.tolist() == ["cs", "pso", "ga"] and res.n.tolist() == [3, 4, 3]
+    assert res.statistic.iloc[0] == pytest.approx(ref.statistic, rel=1e-12)
+    assert res.p.iloc[0] == pytest.approx(ref.pvalue, rel=1e-12)
+    assert (res.df == 2).all()
+    # pooled ranks: 1->1, 2->2, 3,3->3.5, 4->5, 5,5->6.5, 6->8, 7->9, 8->10
+    assert res.mean_rank.tolist() == pytest.approx([(1 + 3.5 + 2) / 3, (3.5 + 6.5 + 5 + 8) / 4, (6.5 + 9 + 10) / 3])
+    text = report(runs, fmt="md")
+    assert "Kruskal-Wallis test over 10 successful runs of 3 algorithms (2 failed or infeasible runs left out)" in text
+    # all values equal: no test
+    flat = kruskal_test(make_runs({"a": [1.0, 1.0], "b": [1.0, 1.0]}), "best_f")
+    assert flat.statistic.isna().all() and flat.p.isna().all()
+
+
+def test_dunn_holm_against_hand_computation_and_scikit_posthocs():
+    import scikit_posthocs as sp
+
+    # scikit-posthocs' documented example for posthoc_dunn (its NaN dropped)
+    x = {"g1": [1, 2, 3, 5, 1], "g2": [12, 31, 54], "g3": [10, 12, 6, 74, 11]}
+    res = compare.dunn_test(make_runs(x), "best_f")
+    # by hand: pooled ranks g1 (1.5, 3, 4, 5, 1.5), g2 (9.5, 11, 12), g3 (7, 9.5, 6, 13, 8); N = 13, two ties of 2
+    mean_rank = {"g1": 15 / 5, "g2": 32.5 / 3, "g3": 43.5 / 5}
+    n = {"g1": 5, "g2": 3, "g3": 5}
+    var = 13 * 14 / 12 - (2 * (2**3 - 2)) / (12 * (13 - 1))  # N(N+1)/12 minus the tie correction
+    hand = [2 * stats.norm.sf(abs(mean_rank[a] - mean_rank[b]) / np.sqrt(var * (1 / n[a] + 1 / n[b])))
+            for a, b in (("g1", "g2"), ("g1", "g3"), ("g2", "g3"))]
+    assert hand == pytest.approx([0.00575, 0.0203, 0.452], abs=5e-4)  # z = 2.762, 2.321, 0.752
+    assert res[["algorithm_a", "algorithm_b"]].values.tolist() == [["g1", "g2"], ["g1", "g3"], ["g2", "g3"]]
+    assert res.p.to_numpy() == pytest.approx(hand, rel=1e-10)
+    # Holm by hand: sorted 0.00575 * 3, 0.0203 * 2, 0.452 * 1
+    assert res.p_holm.to_numpy() == pytest.approx([3 * hand[0], 2 * hand[1], hand[2]], rel=1e-10)
+    ref = sp.posthoc_dunn(list(x.values()), p_adjust="holm")
+    assert res.p_holm.to_numpy() == pytest.approx([ref.loc[1, 2], ref.loc[1, 3], ref.loc[2, 3]], rel=1e-10)
+
+
+def friedman_runs(matrix, algorithms=("a", "b", "c")):
+    """One case per row; each algorithm gets three runs whose median is the matrix entry."""
+    frames = []
+    for i, row in enumerate(matrix):
+        vals = {alg: [v - 1.0, v, v + 5.0] for alg, v in zip(algorithms, row)}
+        frames.append(make_runs(vals, case=f"c{i}", problem_id=f"p{i}"))
+    return pd.concat(frames, ignore_index=True)
+
+
+def test_friedman_and_nemenyi_across_cases():
+    import scikit_posthocs as sp
+
+    # scikit-posthocs' documented example for posthoc_nemenyi_friedman: rows are blocks (cases)
+    x = np.array([[31, 27, 24], [31, 28, 31], [45, 29, 46], [21, 18, 48], [42, 36, 46], [32, 17, 40]], dtype=float)
+    runs = friedman_runs(x)
+    # a fourth algorithm missing from case c5 is left out, not a reason to drop the case
+    runs = pd.concat([runs, make_runs({"d": [1.0]}, case="c0", problem_id="p0")], ignore_index=True)
+    res = friedman_across_cases(runs, "best_f")
+    assert res.skipped == "" and res.left_out == ["d"]
+    assert res.medians.to_numpy() == pytest.approx(x)
+    ref = stats.friedmanchisquare(*x.T)
+    assert res.statistic == pytest.approx(ref.statistic, rel=1e-12)
+    assert res.p == pytest.approx(ref.pvalue, rel=1e-12)
+    # block ranks by hand: (3,2,1), (2.5,1,2.5), then (2,1,3) four times
+    assert res.mean_ranks.to_numpy() == pytest.approx([13.5 / 6, 7 / 6, 15.5 / 6])
+    nem = sp.posthoc_nemenyi_friedman(x)
+    assert res.nemenyi.to_numpy() == pytest.approx(nem.to_numpy(), rel=1e-10)
+    # Nemenyi by hand: q = |R_i - R_j| / sqrt(k(k+1)/(6n)), p from the studentized range of q*sqrt(2)
+    q = abs(13.5 / 6 - 7 / 6) / np.sqrt(3 * 4 / 36)
+    assert res.nemenyi.loc["a", "b"] == pytest.approx(stats.studentized_range.sf(q * np.sqrt(2), 3, np.inf), rel=1e-8)
+    # critical difference: Demsar (2006) Table 5(a), q_0.05 = 2.343 for k = 3
+    assert res.cd == pytest.approx(2.343 * np.sqrt(3 * 4 / 36), abs=1e-3)
+
+
+def test_critical_difference_against_demsar_table():
+    # Demsar (2006) Table 5(a): two-tailed Nemenyi q_0.05 for k = 2..6 and q_0.10 for k = 3
+    for k, q in ((2, 1.960), (3, 2.343), (4, 2.569), (5, 2.728), (6, 2.850)):
+        assert compare.critical_difference(k, 1) == pytest.approx(q * np.sqrt(k * (k + 1) / 6), abs=2e-3)
+    assert compare.critical_difference(3, 1, alpha=0.10) == pytest.approx(2.052 * np.sqrt(2), abs=2e-3)
+
+
+def test_friedman_across_cases_is_skipped_with_a_reason():
+    one_case = friedman_runs([[1.0, 2.0, 3.0]])
+    res = friedman_across_cases(one_case, "best_f")
+    assert res.skipped.startswith("needs at least 2 cases and 3 algorithms") and "have 1 case(s)" in res.skipped
+    two_algs = friedman_runs([[1.0, 2.0], [2.0, 1.0]], algorithms=("a", "b"))
+    assert "have 2 case(s) and 2 such algorithm(s)" in friedman_across_cases(two_algs, "best_f").skipped
+    text = report(one_case, fmt="md")
+    assert "## Across cases" in text and "Friedman test across cases skipped: needs at least 2 cases" in text
+    with pytest.raises(ConfigError, match="no critical-difference diagram: Friedman test skipped"):
+        compare.cd_diagram(res, "never.png")
+
+
+def test_a12_known_values():
+    a12 = compare.vargha_delaney_a12
+    assert a12([1, 2, 3], [4, 5, 6]) == 1.0
+    assert a12([4, 5, 6], [1, 2, 3]) == 0.0
+    assert a12([1, 2, 3], [1, 2, 3]) == 0.5
+    # ties count half: pairs (1,2) (1,3) (2,3) lower, (2,2) tied -> 3.5 / 4
+    assert a12([1, 2], [2, 3]) == 0.875
+    assert a12([2, 2], [2, 2]) == 0.5
+    assert np.isnan(a12([], [1.0]))
+    # against brute force and scipy's U on samples with ties
+    rng = np.random.default_rng(7)
+    x, y = rng.integers(0, 6, 13).astype(float), rng.integers(0, 6, 9).astype(float)
+    brute = ((x[:, None] < y[None, :]).sum() + 0.5 * (x[:, None] == y[None, :]).sum()) / (x.size * y.size)
+    assert a12(x, y) == pytest.approx(brute, abs=1e-12)
+    assert a12(x, y) == pytest.approx(stats.mannwhitneyu(y, x).statistic / (x.size * y.size), abs=1e-12)
+    mag = compare.effect_magnitude
+    assert [mag(v) for v in (0.5, 0.559, 0.56, 0.44, 0.64, 0.36, 0.71, 0.29, 1.0, np.nan)] == [
+        "negligible", "negligible", "small", "small", "medium", "medium", "large", "large", "large", ""]
+    assert compare.A12_THRESHOLDS == (("small", 0.06), ("medium", 0.14), ("large", 0.21))
+
+
+def test_bootstrap_intervals_are_seeded_and_contain_the_estimate():
+    rng = np.random.default_rng(3)
+    a, b = rng.normal(0.0, 1.0, 15), rng.normal(0.7, 1.0, 12)
+    ci = compare.a12_ci(a, b)
+    assert ci == compare.a12_ci(a, b)  # same default seed, same interval
+    assert ci != compare.a12_ci(a, b, seed=compare.BOOTSTRAP_SEED + 1)
+    est = compare.vargha_delaney_a12(a, b)
+    assert ci[0] <= est <= ci[1] and 0.0 <= ci[0] < ci[1] <= 1.0
+    # the wrapper is scipy's percentile bootstrap with a fresh generator seeded with the seed
+    ref = stats.bootstrap((a, b), lambda x, y: compare.vargha_delaney_a12(x, y), n_resamples=2000,
+                          method="percentile", vectorized=False, paired=False,
+                          random_state=np.random.default_rng(compare.BOOTSTRAP_SEED))
+    assert ci == pytest.approx((ref.confidence_interval.low, ref.confidence_interval.high), abs=1e-12)
+    lo, hi = compare.median_ci(a)
+    assert lo <= np.median(a) <= hi and (lo, hi) == compare.median_ci(a)
+    assert compare.a12_ci([1, 2, 3], [4, 5, 6]) == (1.0, 1.0)  # every resample separates them
+    assert np.isnan(compare.median_ci([1.0])).all() and np.isnan(compare.a12_ci([1.0], [2.0, 3.0])).all()
+    s = summary_table(make_runs({"cs": a}), "best_f").iloc[0]
+    assert (s.median_ci_low, s.median_ci_high) == (lo, hi)
+
+
+def test_significant_but_negligible_difference_is_not_a_win():
+    base = np.arange(1000, dtype=float)
+    # a shift of 50 in 1000: A12 ~ 0.549 (negligible) yet p ~ 1e-4 with 1000 runs each
+    runs = make_runs({"a": base, "b": base + 50})
+    pair = pairwise_tests(runs, "best_f").iloc[0]
+    assert pair.p_dunn_holm < 0.05 and pair.significant
+    assert pair.a12 == pytest.approx(0.5 + 0.05 - 0.05**2 / 2, abs=1e-3) and pair.effect == "negligible"
+    assert pair.better == "a" and pair.win == ""
+    assert find_winners(pairwise_tests(runs, "best_f")) == {"min": None}
+    # a shift of 100: A12 ~ 0.595, small, and significant: a wins
+    runs = make_runs({"a": base, "b": base + 100})
+    pair = pairwise_tests(runs, "best_f").iloc[0]
+    assert pair.effect == "small" and pair.win == "a"
+    assert find_winners(pairwise_tests(runs, "best_f")) == {"min": "a"}
+    # three runs each, fully separated: a large effect, and Dunn's normal approximation gives p = 0.0495,
+    # but the exact rank-sum test cannot go below p = 0.1 with 3 + 3 runs: not significant, no win
+    small = pairwise_tests(make_runs({"a": [1.0, 2.0, 3.0], "b": [4.0, 5.0, 6.0]}), "best_f").iloc[0]
+    assert small.effect == "large" and small.p_dunn_holm == pytest.approx(0.0495, abs=1e-4)
+    assert small.p_holm == pytest.approx(0.1) and small.win == ""
+
+
+def test_failed_runs_are_excluded_and_counted():
+    runs = make_runs({"cs": [1.0, 2.0, 3.0, 1e10, 0.5], "pso": [4.0, 5.0, 6.0, 7.0, 8.0],
+                      "ga": [1e10, 1e10, 1e10]}).assign(status="feasible")
+    cs = runs.algorithm == "cs"
+    runs.loc[cs & (runs.run == 3), "status"] = "failed"
+    runs.loc[cs & (runs.run == 4), ["status", "feasible"]] = ["infeasible", False]
+    runs.loc[runs.algorithm == "ga", ["status", "feasible"]] = ["failed", False]
+    runs.loc[(runs.algorithm == "pso") & (runs.run == 4), ["status", "best_f"]] = [None, 1e10]  # old row: sentinel
+    assert compare.failed_runs(runs).sum() == 5 and compare.successful_runs(runs).sum() == 7
+    s = summary_table(runs, "best_f").set_index("algorithm")
+    assert s.loc["cs", ["n", "runs", "failed", "infeasible"]].tolist() == [3, 5, 1, 1]
+    assert s.loc["cs", "success_rate"] == pytest.approx(3 / 5)
+    assert s.loc["cs", "mean"] == pytest.approx(2.0) and s.loc["cs", "median"] == 2.0
+    assert s.loc["cs", "sd"] == pytest.approx(1.0) and s.loc["cs", "worst"] == 3.0
+    assert s.loc["pso", ["n", "failed"]].tolist() == [4, 1] and s.loc["pso", "mean"] == pytest.approx(5.5)
+    assert s.loc["ga", ["n", "failed", "success_rate"]].tolist() == [0, 3, 0.0] and np.isnan(s.loc["ga", "mean"])
+    pairs = pairwise_tests(runs, "best_f").set_index(["algorithm_a", "algorithm_b"])
+    assert pairs.loc[("cs", "pso"), ["n_a", "n_b"]].tolist() == [3, 4]
+    assert pairs.loc[("cs", "pso"), "p"] == pytest.approx(stats.mannwhitneyu([1, 2, 3], [4, 5, 6, 7]).pvalue)
+    assert np.isnan(pairs.loc[("cs", "ga"), "p_dunn"]) and pairs.loc[("cs", "ga"), "win"] == ""
+    kw = kruskal_test(runs, "best_f")
+    assert kw.n.tolist() == [3, 4, 0] and kw.df.iloc[0] == 1
+    text = report(runs, fmt="md")
+    assert "Kruskal-Wallis test over 7 successful runs of 2 algorithms (6 failed or infeasible runs left out)" in text
+    assert "1e+10" not in text.split("### Case min: pairwise")[0]  # no sentinel in the summary
+    assert "Left out (no successful run in some case): ga." in text
+
+
+def test_cli_writes_the_cd_diagram(two_dirs, tmp_path, capsys):
+    png = tmp_path / "figs" / "cd.png"
+    assert run([*two_dirs, "--cd-diagram", str(png)]) == 0
+    out = capsys.readouterr().out
+    assert f"Critical-difference diagram written to {png}." in out
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 1000
+    assert not list(png.parent.glob(".*"))  # written atomically
+    one = write(tmp_path, "one", friedman_runs([[1.0, 2.0, 3.0]]))
+    other = tmp_path / "other.png"
+    assert run([str(one), "--cd-diagram", str(other)]) == 0
+    assert f"No critical-difference diagram written to {other}." in capsys.readouterr().out
+    assert not other.exists()
