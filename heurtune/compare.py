@@ -847,7 +847,9 @@ class FriedmanResult:
     skipped : str
         Why the test was not run (empty when it was run; the other fields are then empty).
     left_out : list of str
-        Algorithms or cases left out because they lack a median somewhere.
+        Algorithms left out because they lack a median in some case.
+    cases_left_out : list of str
+        Cases left out because no algorithm has a successful run there.
     """
 
     medians: pd.DataFrame
@@ -859,6 +861,7 @@ class FriedmanResult:
     alpha: float = 0.05
     skipped: str = ""
     left_out: list = field(default_factory=list)
+    cases_left_out: list = field(default_factory=list)
 
 
 def critical_difference(k: int, n: int, alpha: float = 0.05) -> float:
@@ -918,6 +921,9 @@ def friedman_across_cases(runs: pd.DataFrame, metric: str = "best_f", alpha: flo
     table = pd.DataFrame.from_dict(med, orient="index")
     if table.empty:
         return FriedmanResult(table, pd.Series(dtype=float), alpha=alpha, skipped="no runs")
+    # A case where no algorithm succeeded ranks nothing: it leaves the blocks, not the algorithms.
+    cases_left_out = [c for c in table.index if table.loc[c].isna().all()]
+    table = table.drop(index=cases_left_out)
     shared = [a for a in table.columns if table[a].notna().all()]
     left_out = [a for a in table.columns if a not in shared]
     table = table[shared]
@@ -925,7 +931,8 @@ def friedman_across_cases(runs: pd.DataFrame, metric: str = "best_f", alpha: flo
     if n_cases < 2 or k < 3:
         why = (f"needs at least 2 cases and 3 algorithms with a successful run in every case; "
                f"have {n_cases} case(s) and {k} such algorithm(s)")
-        return FriedmanResult(table, pd.Series(dtype=float), alpha=alpha, skipped=why, left_out=left_out)
+        return FriedmanResult(table, pd.Series(dtype=float), alpha=alpha, skipped=why, left_out=left_out,
+                              cases_left_out=cases_left_out)
     values = table.to_numpy(dtype=float)
     ranks = pd.Series(stats.rankdata(values, axis=1).mean(axis=0), index=shared)
     stat = p = np.nan
@@ -936,7 +943,8 @@ def friedman_across_cases(runs: pd.DataFrame, metric: str = "best_f", alpha: flo
         stat, p = float(res.statistic), float(res.pvalue)
     nem = sp.posthoc_nemenyi_friedman(values)
     nem.index = nem.columns = shared
-    return FriedmanResult(table, ranks, stat, p, nem, critical_difference(k, n_cases, alpha), alpha, "", left_out)
+    return FriedmanResult(table, ranks, stat, p, nem, critical_difference(k, n_cases, alpha), alpha, "", left_out,
+                          cases_left_out)
 
 
 def cd_diagram(result: FriedmanResult, path) -> Path:
@@ -1229,6 +1237,8 @@ def _blocks(runs: pd.DataFrame, metric: str, alpha: float, margins: pd.DataFrame
                            t, {"gain crossover (rad/s)": 4, "phase margin (deg)": 4}))
 
     blocks.append(("heading", 2, "Across cases"))
+    if fried.cases_left_out:
+        blocks.append(("note", f"Cases left out (no algorithm has a successful run): {', '.join(fried.cases_left_out)}."))
     if fried.left_out:
         blocks.append(("note", f"Left out (no successful run in some case): {', '.join(fried.left_out)}."))
     if fried.skipped:

@@ -12,8 +12,9 @@ depends on nothing but the config and the root seed: not on the order, on the nu
 or on which runs were already done. Each finished run is written at once, atomically, to
 ``DIR/parts/``; re-running the same command skips finished runs (``--fresh`` starts over), so an
 interrupt loses at most the runs in flight. At the end the parts are gathered into
-``runs.parquet`` and ``history.parquet``, with ``meta.json`` (resolved config, seeds, package
-versions, git commit), ``margins.parquet`` and figures. TITO experiments also write
+``runs.parquet`` and ``history.parquet``, with ``summary.parquet`` (the printed summary as data),
+``meta.json`` (resolved config, seeds, package versions, git commit and whether the tree was
+dirty, platform and BLAS), ``margins.parquet`` and figures. TITO experiments also write
 ``design.parquet`` (decoupled loops' FOPDT fits, GPM design and its exact margins),
 ``robustness.parquet`` (spectral-radius and Kharitonov verdicts of each best design),
 ``performance.parquet`` / ``performance.md`` (IAE, ISE, ITAE per loop, papers' table layout)
@@ -49,7 +50,8 @@ from heurtune.evaluator import BACKENDS, Evaluator
 from heurtune.io import atomic_path, write_parquet
 from heurtune.problem import IntegralActionWarning, make_experiment
 
-__all__ = ["RunSpec", "plan", "execute", "problem_id", "run_status", "RUN_STATUSES", "run_experiment", "main"]
+__all__ = ["RunSpec", "plan", "execute", "problem_id", "run_status", "RUN_STATUSES", "run_experiment", "summary_table",
+           "main"]
 
 # Budgets of --smoke: the same problem, a quick check.
 SMOKE_RUNS = 2
@@ -344,13 +346,43 @@ def _execute_baseline(prob, spec: RunSpec):
     return row, hist
 
 
-def _git_commit() -> str:
+def _git(*args) -> str | None:
+    """Output of a git command run in the package's checkout; None outside one."""
     try:
-        out = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
+        out = subprocess.run(["git", *args], capture_output=True, text=True,
                              cwd=Path(__file__).resolve().parent, timeout=5)
-        return out.stdout.strip() if out.returncode == 0 else ""
+        return out.stdout.strip() if out.returncode == 0 else None
     except (OSError, subprocess.SubprocessError):
-        return ""
+        return None
+
+
+def _git_commit() -> str:
+    return _git("rev-parse", "HEAD") or ""
+
+
+def _git_dirty() -> bool | None:
+    """Whether the checkout has uncommitted changes to tracked files (None outside git)."""
+    status = _git("status", "--porcelain", "--untracked-files=no")
+    return None if status is None else bool(status)
+
+
+def _platform() -> dict:
+    """Where the experiment ran: OS, CPU, core count, and the BLAS libraries numpy loaded."""
+    import os
+    import platform
+
+    cpu = platform.processor() or ""
+    try:
+        with open("/proc/cpuinfo") as fh:
+            cpu = next((line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    from threadpoolctl import threadpool_info
+
+    blas = [{k: lib.get(k) for k in ("internal_api", "version", "threading_layer", "architecture", "num_threads")}
+            for lib in threadpool_info() if lib.get("user_api") == "blas"]
+    return dict(system=platform.platform(), machine=platform.machine(), cpu=cpu, cpu_count=os.cpu_count(),
+                blas=blas)
 
 
 def _versions() -> dict:
@@ -525,7 +557,8 @@ def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warning
     meta = dict(experiment=exp.name, config=config, plan=plan_key, root_seed=specs[0].root_seed,
                 structure_warnings=structure_warnings,
                 seeds={s.part_name: dict(seed=s.root_seed, spawn_key=list(s.spawn_key)) for s in specs},
-                problem_ids=ids, versions=_versions(), git_commit=_git_commit(),
+                problem_ids=ids, versions=_versions(), git_commit=_git_commit(), git_dirty=_git_dirty(),
+                platform=_platform(),
                 written=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
     with atomic_path(out_dir / "meta.json") as tmp:
         tmp.write_text(json.dumps(meta, indent=2, default=str))
@@ -556,6 +589,7 @@ def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warning
         tito_report.write_outputs(exp, runs, best, out_dir, figures=figures)
     if figures:
         _figures(exp, runs, history, best, out_dir)
+    write_parquet(summary_table(runs, exp), out_dir / "summary.parquet")
     chapter = config.get("report", {}).get("thesis_chapter")
     if chapter is not None:  # the chapter's tables next to the printed values
         from heurtune.thesis.tables import write_chapter
@@ -621,30 +655,46 @@ def _slug(text: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in text)
 
 
-def print_summary(runs: pd.DataFrame, exp, stream=sys.stdout):
-    """Per case and optimiser: best, mean, SD, median, worst objective, feasible runs, failed
-    runs, mean convergence epoch, wall time and the best gains.
+def summary_table(runs: pd.DataFrame, exp) -> pd.DataFrame:
+    """One row per (case, optimiser): the statistics of the printed summary, as data.
 
-    Failed runs (``status == "failed"``: no stable, simulable candidate) are counted, not
-    averaged: their ``best_f`` is a sentinel, so the statistics cover the other runs (NaN when
-    every run failed)."""
-    from heurtune.compare import failed_runs
+    Columns: case, algorithm, optimiser_index, runs, feasible (runs whose best candidate is
+    feasible), failed (no stable, simulable candidate), best, mean, sd, median, worst (of
+    ``best_f`` over the successful runs, :func:`heurtune.compare.successful_runs`: a failed
+    run's ``best_f`` is a sentinel and an infeasible run's answers another question, so both are
+    counted, not averaged; NaN when no run succeeded), conv_epoch and n_evals (means over all
+    runs), wall_s (summed), best_run, and the best run's gains (one column per variable).
+    """
+    from heurtune.compare import failed_runs, successful_runs
 
     rows = []
-    for (case, _), grp in runs.groupby(["case", "optimiser_index"], sort=False):
+    for (case, oi), grp in runs.groupby(["case", "optimiser_index"], sort=False):
         failed = failed_runs(grp)
-        f = grp.loc[~failed, "best_f"]
+        f = grp.loc[successful_runs(grp), "best_f"]
         best = _best_runs(grp).iloc[0]
-        names = exp.problem(case).names
-        rows.append({
-            "case": case, "algorithm": grp["algorithm"].iloc[0], "runs": len(grp),
+        row = {
+            "case": case, "algorithm": grp["algorithm"].iloc[0], "optimiser_index": int(oi), "runs": len(grp),
+            "feasible": int(grp["feasible"].sum()), "failed": int(failed.sum()),
             "best": f.min(), "mean": f.mean(), "sd": f.std(ddof=1) if len(f) > 1 else 0.0,
-            "median": f.median(), "worst": f.max(), "feasible": f"{int(grp['feasible'].sum())}/{len(grp)}",
-            "failed": int(failed.sum()),
-            "conv_epoch": grp["convergence_epoch"].mean(), "wall_s": grp["wall_time_s"].sum(),
-            "best gains": " ".join(f"{n}={best[n]:.4g}" for n in names),
-        })
-    table = pd.DataFrame(rows)
+            "median": f.median(), "worst": f.max(),
+            "conv_epoch": grp["convergence_epoch"].mean(), "n_evals": grp["n_evals"].mean(),
+            "wall_s": grp["wall_time_s"].sum(), "best_run": int(best["run"]),
+        }
+        row.update({n: float(best[n]) for n in exp.problem(case).names})
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def print_summary(runs: pd.DataFrame, exp, stream=sys.stdout):
+    """Per case and optimiser: best, mean, SD, median, worst objective over the successful runs,
+    feasible runs, failed runs, mean convergence epoch, wall time and the best gains
+    (:func:`summary_table`)."""
+    summary = summary_table(runs, exp)
+    table = summary[["case", "algorithm", "runs", "best", "mean", "sd", "median", "worst"]].assign(
+        feasible=[f"{a}/{b}" for a, b in zip(summary["feasible"], summary["runs"])], failed=summary["failed"],
+        conv_epoch=summary["conv_epoch"], wall_s=summary["wall_s"])
+    table["best gains"] = [" ".join(f"{n}={row[n]:.4g}" for n in exp.problem(row["case"]).names)
+                           for _, row in summary.iterrows()]
     with pd.option_context("display.width", 250, "display.max_columns", 20, "display.max_colwidth", 120,
                            "display.float_format", "{:.2f}".format):
         print(table.to_string(index=False), file=stream)

@@ -577,3 +577,16 @@ def test_cli_writes_the_cd_diagram(two_dirs, tmp_path, capsys):
     assert run([str(one), "--cd-diagram", str(other)]) == 0
     assert f"No critical-difference diagram written to {other}." in capsys.readouterr().out
     assert not other.exists()
+
+
+def test_a_case_where_every_algorithm_failed_leaves_the_friedman_blocks_not_the_algorithms():
+    x = np.array([[31, 27, 24], [31, 28, 31], [45, 29, 46]], dtype=float)
+    runs = friedman_runs(x)
+    dead = friedman_runs([[1.0, 2.0, 3.0]]).assign(case="dead", problem_id="pdead", status="failed",
+                                                  feasible=False, best_f=1e10)
+    res = friedman_across_cases(pd.concat([runs, dead], ignore_index=True), "best_f")
+    ref = friedman_across_cases(runs, "best_f")
+    assert res.skipped == "" and res.cases_left_out == ["dead"] and res.left_out == []
+    assert res.statistic == ref.statistic and res.p == ref.p
+    text = report(pd.concat([runs, dead], ignore_index=True), fmt="md")
+    assert "Cases left out (no algorithm has a successful run): dead." in text

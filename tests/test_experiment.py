@@ -161,3 +161,23 @@ def test_dask_backend_runs_whole_runs(smoke, tmp_path):
     a = pd.read_parquet(smoke / "runs.parquet").sort_values(["case", "run"]).reset_index(drop=True)
     b = pd.read_parquet(out / "runs.parquet").sort_values(["case", "run"]).reset_index(drop=True)
     pd.testing.assert_frame_equal(a[["case", "run", "best_f"] + GAINS], b[["case", "run", "best_f"] + GAINS])
+
+
+def test_summary_parquet_holds_the_printed_statistics_and_meta_says_where_it_ran(smoke):
+    runs = pd.read_parquet(smoke / "runs.parquet")
+    summary = pd.read_parquet(smoke / "summary.parquet")
+    assert list(summary["case"]) == ["min", "nmp"] and (summary["runs"] == 2).all()
+    for _, row in summary.iterrows():
+        grp = runs[(runs["case"] == row["case"]) & (runs["optimiser_index"] == row["optimiser_index"])]
+        ok = grp[(grp["status"] != "failed") & grp["feasible"]]["best_f"]
+        assert row["failed"] == (grp["status"] == "failed").sum() and row["feasible"] == grp["feasible"].sum()
+        if len(ok):
+            assert row["best"] == ok.min() and row["mean"] == pytest.approx(ok.mean())
+            assert row["median"] == pytest.approx(ok.median())
+        assert row["n_evals"] == grp["n_evals"].mean() and row["wall_s"] == pytest.approx(grp["wall_time_s"].sum())
+        best = grp[grp["run"] == row["best_run"]].iloc[0]
+        assert all(row[n] == best[n] for n in GAINS)
+    meta = json.loads((smoke / "meta.json").read_text())
+    assert meta["platform"]["cpu_count"] >= 1 and meta["platform"]["cpu"] and meta["platform"]["system"]
+    assert isinstance(meta["platform"]["blas"], list)
+    assert meta["git_dirty"] in (True, False, None)

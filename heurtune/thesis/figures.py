@@ -187,7 +187,7 @@ def _case(exp, plant, ctrl):
 
 def _design(exp, runs, case, algorithm=None):
     b = _best(runs, case, algorithm)
-    if b is None:
+    if b is None or b.get("status") == "failed":  # no stable candidate: nothing to draw
         return None
     prob = exp.problem(case)
     if not all(n in b for n in prob.names):

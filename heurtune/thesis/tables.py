@@ -662,7 +662,7 @@ def _margin_table(inp: _Inputs, chapter: int, table: str) -> ThesisTable:
 
 
 def _convergence_table(inp: _Inputs) -> ThesisTable:
-    from heurtune.compare import failed_runs
+    from heurtune.compare import successful_runs
 
     raw = _raw("5.3")
     rows = []
@@ -673,11 +673,14 @@ def _convergence_table(inp: _Inputs) -> ThesisTable:
         hcase = _case(inp, plant, ctrl)
         g = inp.case_runs(hcase, alg)
         ce = mean = sd = math.nan
-        if len(g):
-            ce = float(g["convergence_epoch"].astype(float).mean()) if "convergence_epoch" in g else math.nan
-            f = g.loc[~failed_runs(g), "best_f"].astype(float) if "best_f" in g else pd.Series(dtype=float)
-            mean = float(f.mean()) if len(f) else math.nan
+        ok = g[successful_runs(g)] if len(g) and "best_f" in g else g.iloc[:0]
+        if len(ok):
+            ce = float(ok["convergence_epoch"].astype(float).mean()) if "convergence_epoch" in ok else math.nan
+            f = ok["best_f"].astype(float)
+            mean = float(f.mean())
             sd = float(f.std(ddof=1)) if len(f) > 1 else math.nan
+        elif len(g):
+            notes.append(f"{hcase} by {alg}: no successful run (all failed or infeasible): heurtune cells empty")
         else:
             notes.append(f"no run of {hcase} by {alg}: heurtune cells empty")
         disp, vals = _keys(algorithm=ALG_LABEL.get(alg, alg),
@@ -688,8 +691,8 @@ def _convergence_table(inp: _Inputs) -> ThesisTable:
         _triple((disp, vals), "J_mean", "mean J", r["J_mean"], mean)
         _triple((disp, vals), "J_sd", "SD J", r["J_sd"], sd)
         rows.append((disp, vals))
-    meaning = ("heurtune: mean convergence epoch over its runs; mean and SD (ddof=1) of the final objective over the "
-               "runs that found a simulable candidate (absolute J; the printed unit is not stated)")
+    meaning = ("heurtune: mean convergence epoch, mean and SD (ddof=1) of the final objective over its successful "
+               "runs (not failed, feasible; absolute J; the printed unit is not stated); 'runs' counts all runs")
     return ThesisTable("5.3", _title("5.3"), meaning, [_part("Printed vs heurtune", rows)], notes)
 
 
