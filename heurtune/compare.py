@@ -36,9 +36,12 @@ every statistic.
 
 Lower metric values are better. Runs are comparable only if their ``problem_id`` (plant case,
 controller, scenarios, objective, constraints, bounds) matches: a case mixing problem ids is
-refused, and so is a run (experiment, case, algorithm, run) found twice. When the same algorithm
-name comes from several experiments in one case, its rows are labelled ``"name [experiment]"``
-so that the variants are compared rather than pooled.
+refused, and so is a run (experiment, case, algorithm, run) found twice in one folder, or one
+folder given twice. Each folder is a *variant*: when the same algorithm name comes from several
+folders in one case, its rows are labelled ``"name [experiment]"`` if the experiment names tell
+the folders apart, otherwise ``"name [label]"`` with the folder name as label, or the one given
+by ``--label NAME=DIR`` (``load_runs(dirs, labels={NAME: DIR})``); the variants are compared,
+never pooled.
 
 Mistakes (no folders, a missing ``runs.parquet``, an unknown format or metric column) give a
 one-line ``error: ...`` on stderr and exit code 2. All steps are reusable from Python::
@@ -135,39 +138,107 @@ def _read_one(d) -> pd.DataFrame:
     return df
 
 
-def load_runs(dirs) -> pd.DataFrame:
+def _folder(d) -> Path:
+    """The experiment folder that ``d`` stands for (a ``.parquet`` path stands for its folder)."""
+    path = Path(d)
+    return path.parent if path.suffix == ".parquet" and not path.is_dir() else path
+
+
+def _source_key(d) -> str:
+    """Resolved folder path of ``d``: the identity of a variant across load_runs/load_margins."""
+    return str(_folder(d).resolve())
+
+
+def _variant_labels(dirs, labels) -> tuple[list[str], set[str]]:
+    """Label of each folder in ``dirs`` and the set of labels the caller gave explicitly.
+
+    Explicit labels (``labels``: label -> folder) are validated; the other folders are
+    labelled by their name, extended by parent folders (``seed1/exp``) where names clash.
+    """
+    keys = [_source_key(d) for d in dirs]
+    seen = {}
+    for d, key in zip(dirs, keys):
+        if key in seen:
+            raise ConfigError(f"the same folder is given twice: {seen[key]} and {d}")
+        seen[key] = d
+    given = {}
+    for name, d in (labels or {}).items():
+        name = str(name)
+        if not name.strip() or "[" in name or "]" in name:
+            raise ConfigError(f"label '{name}' for {d} must be non-empty and free of '[' and ']'")
+        key = _source_key(d)
+        if key not in seen:
+            raise ConfigError(f"label '{name}': {d} is not among the folders compared")
+        if key in given:
+            raise ConfigError(f"folder {d} has two labels: '{given[key]}' and '{name}'")
+        given[key] = name
+    if len(set(given.values())) < len(given):  # only reachable with str()-equal keys
+        raise ConfigError("two labels are the same after conversion to text")
+    out = [given.get(key) for key in keys]
+    depth = {i: 1 for i, lab in enumerate(out) if lab is None}
+    while depth:
+        for i, k in depth.items():
+            parts = Path(keys[i]).parts
+            out[i] = "/".join(parts[-k:]) if len(parts) > 1 else keys[i]
+        clash = {i for i in depth if out[i] in given.values()
+                 or sum(out[j] == out[i] for j in range(len(out))) > 1}
+        grow = {i for i in clash if depth[i] < len(Path(keys[i]).parts) - 1}
+        if clash and not grow:
+            i = min(clash)
+            raise ConfigError(f"cannot label {dirs[i]} by its folder name ('{out[i]}' is taken); "
+                              f"name it with --label NAME=DIR")
+        depth = {i: depth[i] + 1 for i in grow}
+    return out, set(given.values())
+
+
+def load_runs(dirs, *, labels: dict | None = None) -> pd.DataFrame:
     """Read and merge the ``runs.parquet`` files of experiment output folders.
+
+    Every folder is a *variant*: folders of the same experiment run with other settings or
+    seeds are compared side by side instead of being refused.
 
     Parameters
     ----------
     dirs : iterable of str or Path
         Experiment output folders, each containing ``runs.parquet`` (a path to a ``.parquet``
-        file is accepted as well).
+        file is accepted as well and stands for its folder).
+    labels : dict, optional
+        Variant label -> folder (one of ``dirs``). A folder without a label here is labelled by
+        its name, or by its name with as many parent folders as needed to tell it apart from
+        the others (``seed1/exp``).
 
     Returns
     -------
     pandas.DataFrame
         All rows, in folder order, with a fresh index. ``experiment``, ``case``,
         ``algorithm`` and ``problem_id`` are strings and ``run`` is an integer. If one
-        algorithm name occurs in several experiments of the same case, those rows get the
-        algorithm label ``"name [experiment]"``.
+        algorithm name of a case comes from several folders, its rows are relabelled: by
+        experiment, ``"name [experiment]"``, when the experiment names tell the folders apart
+        and none of them has an explicit label; otherwise by variant, ``"name [label]"``.
+        ``attrs["algorithm_labels"]`` maps (resolved folder, experiment, case, algorithm) to
+        the label used, so that :func:`load_margins` can follow it.
 
     Raises
     ------
     ConfigError
-        No folder given; a folder without ``runs.parquet``; a file missing the columns
-        ``experiment, case, algorithm, problem_id, run``; a case whose rows have different
-        ``problem_id`` (not comparable); a run (experiment, case, algorithm, run) present
-        more than once.
+        No folder given; the same folder given twice (after resolving the paths); a label
+        that is empty, names a folder not in ``dirs`` or gives a folder a second label; a
+        folder without ``runs.parquet``; a file missing the columns ``experiment, case,
+        algorithm, problem_id, run``; a case whose rows have different ``problem_id`` (not
+        comparable); a run (experiment, case, algorithm, run) present more than once in one
+        folder.
     """
     dirs = list(dirs)
     if not dirs:
         raise ConfigError("no experiment directories given")
-    frames, sources = [], []
-    for d in dirs:
+    names, explicit = _variant_labels(dirs, labels)
+    frames, sources, keys, variants = [], [], [], []
+    for d, name in zip(dirs, names):
         df = _read_one(d)
         frames.append(df)
         sources.extend([str(d)] * len(df))
+        keys.extend([_source_key(d)] * len(df))
+        variants.extend([name] * len(df))
     runs = pd.concat(frames, ignore_index=True, sort=False)
     for col in ("experiment", "case", "algorithm", "problem_id"):
         runs[col] = runs[col].astype(str)
@@ -176,32 +247,47 @@ def load_runs(dirs) -> pd.DataFrame:
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"column 'run' must hold integers ({exc})") from exc
     source = pd.Series(sources, index=runs.index)
+    key = pd.Series(keys, index=runs.index)
+    variant = pd.Series(variants, index=runs.index)
 
     for case, rows in runs.groupby("case", sort=False):
         ids = pd.unique(rows["problem_id"])
         if len(ids) > 1:
             parts = []
             for pid in ids:
-                exps = ", ".join(pd.unique(rows.loc[rows["problem_id"] == pid, "experiment"]))
-                parts.append(f"{pid} ({exps})")
+                same = rows["problem_id"] == pid
+                exps = ", ".join(pd.unique(rows.loc[same, "experiment"]))
+                where = ", ".join(pd.unique(source[same.index[same]]))
+                parts.append(f"{pid} ({exps}) in {where}")
             raise ConfigError(f"case '{case}': runs are not comparable, problem_id differs: "
                               + "; ".join(parts))
 
-    dup = runs.duplicated(_KEY, keep=False)
+    dup = runs.assign(_key=key).duplicated(_KEY + ["_key"], keep=False)
     if dup.any():
         first = runs.loc[dup].iloc[0]
-        same = (runs[_KEY] == first[_KEY]).all(axis=1)
-        where = " and ".join(pd.unique(source[same]))
-        n_dup = int(runs.duplicated(_KEY, keep="first").sum())
+        n_dup = int(runs.assign(_key=key).duplicated(_KEY + ["_key"], keep="first").sum())
         more = f" ({n_dup - 1} more duplicate(s))" if n_dup > 1 else ""
         raise ConfigError(f"duplicate run: experiment '{first['experiment']}', case '{first['case']}', "
-                          f"algorithm '{first['algorithm']}', run {first['run']} in {where}{more}")
+                          f"algorithm '{first['algorithm']}', run {first['run']} in "
+                          f"{source[dup.index[dup][0]]}{more}")
 
-    n_exp = runs.groupby(["case", "algorithm"])["experiment"].transform("nunique")
-    ambiguous = n_exp > 1
-    if ambiguous.any():
-        runs.loc[ambiguous, "algorithm"] = (runs.loc[ambiguous, "algorithm"] + " ["
-                                            + runs.loc[ambiguous, "experiment"] + "]")
+    original = runs["algorithm"].copy()
+    for _, idx in runs.groupby(["case", "algorithm"], sort=False).groups.items():
+        n_src, n_exp = key[idx].nunique(), runs.loc[idx, "experiment"].nunique()
+        if n_src == 1 and n_exp == 1:
+            continue
+        pairs = runs.loc[idx, "experiment"] + "\0" + key[idx]
+        by_experiment = pairs.nunique() == n_exp and not set(variant[idx]) & explicit
+        if by_experiment:
+            tag = runs.loc[idx, "experiment"]
+        elif pairs.nunique() == n_src:  # one experiment per folder
+            tag = variant[idx]
+        else:  # a folder holding several experiments of this algorithm
+            tag = variant[idx] + ": " + runs.loc[idx, "experiment"]
+        runs.loc[idx, "algorithm"] = original[idx] + " [" + tag + "]"
+    mapping = pd.DataFrame({"k": key, "e": runs["experiment"], "c": runs["case"], "a": original,
+                            "l": runs["algorithm"]}).drop_duplicates(["k", "e", "c", "a"])
+    runs.attrs["algorithm_labels"] = {(k, e, c, a): lab for k, e, c, a, lab in mapping.itertuples(index=False)}
     return runs
 
 
@@ -214,7 +300,9 @@ def load_margins(dirs, runs: pd.DataFrame | None = None) -> pd.DataFrame:
         Experiment output folders (a path to a ``.parquet`` file stands for its folder).
     runs : pandas.DataFrame, optional
         Rows of :func:`load_runs` for the same folders: an algorithm that :func:`load_runs`
-        relabelled ``"name [experiment]"`` gets the same label here.
+        relabelled (``"name [experiment]"`` or ``"name [variant]"``) gets the same label here,
+        read from ``runs.attrs["algorithm_labels"]`` (without it, only ``"name [experiment]"``
+        is followed).
 
     Returns
     -------
@@ -227,9 +315,7 @@ def load_margins(dirs, runs: pd.DataFrame | None = None) -> pd.DataFrame:
     """
     frames = []
     for d in dirs:
-        path = Path(d)
-        folder = path.parent if path.suffix == ".parquet" and not path.is_dir() else path
-        file = folder / "margins.parquet"
+        file = _folder(d) / "margins.parquet"
         if not file.is_file():
             continue
         try:
@@ -237,19 +323,23 @@ def load_margins(dirs, runs: pd.DataFrame | None = None) -> pd.DataFrame:
         except Exception:  # unreadable: the margins are an optional extra
             continue
         if all(c in df.columns for c in MARGIN_KEY_COLUMNS):
-            frames.append(df)
+            frames.append(df.assign(_source=_source_key(d)))
     if not frames:
         return pd.DataFrame(columns=list(MARGIN_KEY_COLUMNS))
     m = pd.concat(frames, ignore_index=True, sort=False)
     for col in ("experiment", "case", "algorithm"):
         m[col] = m[col].astype(str)
-    if runs is not None and len(m):
+    known = runs.attrs.get("algorithm_labels") if runs is not None else None
+    if known and len(m):
+        m["algorithm"] = [known.get((k, e, c, a), a)
+                          for k, e, c, a in zip(m["_source"], m["experiment"], m["case"], m["algorithm"])]
+    elif runs is not None and len(m):  # rows without the labels of load_runs: follow "name [experiment]"
         labels = set(zip(runs["case"], runs["algorithm"]))
         relabel = [(c, f"{a} [{e}]") in labels for e, c, a in zip(m["experiment"], m["case"], m["algorithm"])]
         relabel = np.array(relabel, dtype=bool)
         if relabel.any():
             m.loc[relabel, "algorithm"] = m.loc[relabel, "algorithm"] + " [" + m.loc[relabel, "experiment"] + "]"
-    return m
+    return m.drop(columns="_source")
 
 
 def margins_table(margins: pd.DataFrame) -> pd.DataFrame:
@@ -1356,7 +1446,24 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--out", help="write the report to this file (atomically) instead of stdout")
     ap.add_argument("--cd-diagram", metavar="PNG",
                     help="write the critical-difference diagram across cases to this PNG file")
+    ap.add_argument("--label", action="append", default=[], metavar="NAME=DIR",
+                    help="name the variant in DIR (one of the folders) NAME instead of the folder name; "
+                         "repeatable")
     return ap
+
+
+def _parse_labels(items) -> dict:
+    """``["NAME=DIR", ...]`` -> ``{NAME: DIR}``; a missing ``=`` or a repeated NAME is an error."""
+    out = {}
+    for item in items:
+        name, sep, d = item.partition("=")
+        name = name.strip()
+        if not sep or not name or not d:
+            raise ConfigError(f"--label '{item}' must have the form NAME=DIR")
+        if name in out:
+            raise ConfigError(f"--label name '{name}' is given twice ({out[name]} and {d})")
+        out[name] = d
+    return out
 
 
 def run(argv=None) -> int:
@@ -1375,7 +1482,7 @@ def run(argv=None) -> int:
             raise ConfigError(f"unknown format '{args.format}' (choose from {', '.join(FORMATS)})")
         if not 0 < args.alpha < 1:
             raise ConfigError(f"--alpha must lie in (0, 1), got {args.alpha:g}")
-        runs = load_runs(args.dirs)
+        runs = load_runs(args.dirs, labels=_parse_labels(args.label))
         margins = load_margins(args.dirs, runs)
         text = report(runs, metric=args.metric, alpha=args.alpha, fmt=args.format, margins=margins,
                       cd_path=args.cd_diagram)

@@ -181,16 +181,84 @@ def test_missing_file_and_duplicates_are_refused(tmp_path):
         load_runs([empty])
     with pytest.raises(ConfigError, match="no experiment directories"):
         load_runs([])
-    a = write(tmp_path, "a", make_runs({"cs": [1, 2]}))
-    b = write(tmp_path, "b", make_runs({"cs": [1, 2]}))
+    twice = write(tmp_path, "twice", pd.concat([make_runs({"cs": [1, 2]})] * 2, ignore_index=True))
     with pytest.raises(ConfigError, match=r"duplicate run: experiment 'exp', case 'min', algorithm 'cs', run 0 "
-                                          r"in .*a and .*b \(1 more"):
-        load_runs([a, b])
+                                          r"in .*twice \(1 more"):
+        load_runs([twice])
     bad = tmp_path / "bad"
     bad.mkdir()
     make_runs({"cs": [1]}).drop(columns="problem_id").to_parquet(bad / "runs.parquet")
     with pytest.raises(ConfigError, match="missing column.*problem_id"):
         load_runs([bad])
+
+
+def seed_variants(tmp_path):
+    """Two folders of the same experiment (smoke-like), run with different seeds."""
+    root = tmp_path / "results"
+    root.mkdir()
+    dirs = []
+    for seed in (1, 2):
+        rng = np.random.default_rng(seed)
+        runs = pd.concat([make_runs({"cs": rng.normal(1, 0.1, 5), "pso": rng.normal(2, 0.1, 5)},
+                                    experiment="smoke", case=case, problem_id=f"pid-{case}", seed=seed)
+                          for case in ("min", "nmp")], ignore_index=True)
+        dirs.append(write(root, f"seed{seed}", runs))
+    return dirs
+
+
+def test_same_experiment_in_two_folders_is_compared_as_variants(tmp_path):
+    a, b = seed_variants(tmp_path)
+    runs = load_runs([a, b])
+    assert list(pd.unique(runs.algorithm)) == ["cs [seed1]", "pso [seed1]", "cs [seed2]", "pso [seed2]"]
+    assert len(runs) == 40 and (runs.groupby(["case", "algorithm"]).size() == 5).all()
+    # explicit labels win; a folder without one keeps its name
+    runs = load_runs([a, str(b / "runs.parquet")], labels={"tuned": b})
+    assert list(pd.unique(runs.algorithm)) == ["cs [seed1]", "pso [seed1]", "cs [tuned]", "pso [tuned]"]
+    # an explicit label is used even where the experiment names would tell the folders apart
+    c = write(tmp_path, "c", make_runs({"cs": [1, 2]}, experiment="other", problem_id="pid-min"))
+    assert set(load_runs([a, c]).query("case == 'min'").algorithm) == {"cs [smoke]", "pso", "cs [other]"}
+    assert set(load_runs([a, c], labels={"A": a}).query("case == 'min'").algorithm) == {"cs [A]", "pso", "cs [c]"}
+    assert set(load_runs([a, c]).query("case == 'nmp'").algorithm) == {"cs", "pso"}  # one source there
+
+
+def test_variant_folder_names_that_clash_take_their_parent(tmp_path):
+    runs = make_runs({"cs": [1, 2]})
+    (tmp_path / "x").mkdir()
+    (tmp_path / "y").mkdir()
+    a, b = write(tmp_path / "x", "exp", runs), write(tmp_path / "y", "exp", runs)
+    assert set(load_runs([a, b]).algorithm) == {"cs [x/exp]", "cs [y/exp]"}
+    assert set(load_runs([a, b], labels={"exp": a}).algorithm) == {"cs [exp]", "cs [y/exp]"}
+
+
+def test_variant_margins_follow_the_folder_labels(tmp_path):
+    a, b = seed_variants(tmp_path)
+    make_margins("smoke", ["cs"], cases=("min",)).to_parquet(b / "margins.parquet", index=False)
+    loaded = load_runs([a, b], labels={"new": b})
+    assert set(compare.load_margins([a, b], loaded).algorithm) == {"cs [new]"}
+
+
+def test_same_folder_twice_and_bad_labels_are_refused(tmp_path):
+    a, b = seed_variants(tmp_path)
+    for dirs in ([a, a], [a, str(b), str(b / ".." / "seed2")], [a, a / "runs.parquet"]):
+        with pytest.raises(ConfigError, match=r"^the same folder is given twice: \S*seed\d and \S*seed\d\S*$"):
+            load_runs(dirs)
+    with pytest.raises(ConfigError, match=r"label 'x': .*elsewhere is not among the folders compared"):
+        load_runs([a, b], labels={"x": tmp_path / "elsewhere"})
+    with pytest.raises(ConfigError, match=r"folder .*seed1 has two labels: 'x' and 'y'"):
+        load_runs([a, b], labels={"x": a, "y": a})
+    with pytest.raises(ConfigError, match=r"label 'a\]' .* free of"):
+        load_runs([a, b], labels={"a]": a})
+
+
+def test_variants_with_different_problems_are_refused(tmp_path):
+    a, b = seed_variants(tmp_path)
+    other = pd.read_parquet(b / "runs.parquet").assign(problem_id=lambda df: df.problem_id + "-changed")
+    other.to_parquet(b / "runs.parquet", index=False)
+    with pytest.raises(ConfigError) as err:
+        load_runs([a, b])
+    msg = str(err.value)
+    assert "\n" not in msg and msg.startswith("case 'min': runs are not comparable, problem_id differs: ")
+    assert "pid-min (smoke) in " in msg and "pid-min-changed (smoke) in " in msg and "seed2" in msg
 
 
 def test_unknown_or_non_numeric_metric_is_refused():
@@ -263,6 +331,32 @@ def test_cli_errors(two_dirs, tmp_path, capsys, args, message):
     captured = capsys.readouterr()
     assert captured.out == ""
     assert captured.err.startswith("error: ") and captured.err.count("\n") == 1
+    assert message in captured.err
+
+
+def test_cli_compares_variants_with_labels(tmp_path, capsys):
+    a, b = seed_variants(tmp_path)
+    assert run([str(a), str(b)]) == 0
+    out = capsys.readouterr().out
+    assert "| cs [seed1]" in out and "| pso [seed2]" in out
+    assert run([str(a), str(b), "--label", f"old={a}", "--label", f"new={b}", "--format", "csv"]) == 0
+    out = capsys.readouterr().out
+    assert "cs [old]" in out and "pso [new]" in out and "seed1" not in out
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--label", "nope"], "error: --label 'nope' must have the form NAME=DIR"),
+    (["--label", "=x"], "error: --label '=x' must have the form NAME=DIR"),
+    (["--label", "x={missing}"], "is not among the folders compared"),
+    (["--label", "x={a}", "--label", "x={b}"], "error: --label name 'x' is given twice"),
+    (["{a}"], "error: the same folder is given twice"),
+])
+def test_cli_label_errors(tmp_path, capsys, extra, message):
+    a, b = seed_variants(tmp_path)
+    args = [str(a), str(b)] + [x.format(a=a, b=b, missing=tmp_path / "missing") for x in extra]
+    assert run(args) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.startswith("error: ") and captured.err.count("\n") == 1
     assert message in captured.err
 
 
