@@ -658,8 +658,9 @@ def _slug(text: str) -> str:
 def summary_table(runs: pd.DataFrame, exp) -> pd.DataFrame:
     """One row per (case, optimiser): the statistics of the printed summary, as data.
 
-    Columns: case, algorithm, optimiser_index, runs, feasible (runs whose best candidate is
-    feasible), failed (no stable, simulable candidate), best, mean, sd, median, worst (of
+    Columns: case, algorithm, optimiser_index, runs, successes (runs that did not fail and whose
+    best candidate is feasible), feasible (runs whose best candidate is feasible), failed (no
+    stable, simulable candidate), best, mean, sd, median, worst (of
     ``best_f`` over the successful runs, :func:`heurtune.compare.successful_runs`: a failed
     run's ``best_f`` is a sentinel and an infeasible run's answers another question, so both are
     counted, not averaged; NaN when no run succeeded), conv_epoch and n_evals (means over all
@@ -674,6 +675,7 @@ def summary_table(runs: pd.DataFrame, exp) -> pd.DataFrame:
         best = _best_runs(grp).iloc[0]
         row = {
             "case": case, "algorithm": grp["algorithm"].iloc[0], "optimiser_index": int(oi), "runs": len(grp),
+            "successes": int(successful_runs(grp).sum()),
             "feasible": int(grp["feasible"].sum()), "failed": int(failed.sum()),
             "best": f.min(), "mean": f.mean(), "sd": f.std(ddof=1) if len(f) > 1 else 0.0,
             "median": f.median(), "worst": f.max(),
