@@ -94,8 +94,11 @@ __all__ = [
     "friedman_across_cases",
     "cd_diagram",
     "best_run_index",
+    "best_runs",
     "reevaluation_table",
     "load_margins",
+    "load_histories",
+    "parse_labels",
     "margins_table",
     "report",
     "run",
@@ -138,7 +141,7 @@ def _read_one(d) -> pd.DataFrame:
     return df
 
 
-def _folder(d) -> Path:
+def experiment_folder(d) -> Path:
     """The experiment folder that ``d`` stands for (a ``.parquet`` path stands for its folder)."""
     path = Path(d)
     return path.parent if path.suffix == ".parquet" and not path.is_dir() else path
@@ -146,7 +149,7 @@ def _folder(d) -> Path:
 
 def _source_key(d) -> str:
     """Resolved folder path of ``d``: the identity of a variant across load_runs/load_margins."""
-    return str(_folder(d).resolve())
+    return str(experiment_folder(d).resolve())
 
 
 def _variant_labels(dirs, labels) -> tuple[list[str], set[str]]:
@@ -313,19 +316,36 @@ def load_margins(dirs, runs: pd.DataFrame | None = None) -> pd.DataFrame:
         case, algorithm, input, output, gain_crossover_rad_s, phase_margin_deg`` (e.g. TITO
         margins, which are per loop), are skipped without error.
     """
+    return _load_labelled(dirs, runs, "margins.parquet", MARGIN_KEY_COLUMNS)
+
+
+def load_histories(dirs, runs: pd.DataFrame | None = None) -> pd.DataFrame:
+    """Read and merge the ``history.parquet`` files of experiment output folders, with the
+    algorithms labelled as :func:`load_runs` labelled them (see :func:`load_margins`).
+
+    Returns
+    -------
+    pandas.DataFrame
+        All rows of the readable files (empty when there are none).
+    """
+    return _load_labelled(dirs, runs, "history.parquet", ("experiment", "case", "algorithm"))
+
+
+def _load_labelled(dirs, runs, filename: str, required) -> pd.DataFrame:
+    """``filename`` of each folder, merged, algorithms relabelled to match ``runs``."""
     frames = []
     for d in dirs:
-        file = _folder(d) / "margins.parquet"
+        file = experiment_folder(d) / filename
         if not file.is_file():
             continue
         try:
             df = pd.read_parquet(file)
-        except Exception:  # unreadable: the margins are an optional extra
+        except Exception:  # unreadable: these files are an optional extra
             continue
-        if all(c in df.columns for c in MARGIN_KEY_COLUMNS):
+        if all(c in df.columns for c in required):
             frames.append(df.assign(_source=_source_key(d)))
     if not frames:
-        return pd.DataFrame(columns=list(MARGIN_KEY_COLUMNS))
+        return pd.DataFrame(columns=list(required))
     m = pd.concat(frames, ignore_index=True, sort=False)
     for col in ("experiment", "case", "algorithm"):
         m[col] = m[col].astype(str)
@@ -1101,6 +1121,13 @@ def _scenario_columns(runs: pd.DataFrame):
     return found
 
 
+def best_runs(runs: pd.DataFrame) -> pd.DataFrame:
+    """Per case and optimiser (``optimiser_index``, else ``algorithm``), its best run as
+    :func:`best_run_index` picks it, in order of appearance."""
+    keys = ["case", "optimiser_index"] if "optimiser_index" in runs.columns else ["case", "algorithm"]
+    return runs.loc[[best_run_index(g) for _, g in runs.groupby(keys, sort=False)]]
+
+
 def best_run_index(g: pd.DataFrame):
     """Index of the best run: lowest best_f among feasible runs, else lowest violation."""
     feasible = g["feasible"].fillna(False).astype(bool) if "feasible" in g else pd.Series(True, index=g.index)
@@ -1428,17 +1455,19 @@ def report(runs: pd.DataFrame, metric: str = "best_f", alpha: float = 0.05, fmt:
 # Command line
 # ----------------------------------------------------------------------------------------------
 
-class _UsageError(Exception):
-    pass
+class UsageError(Exception):
+    """A command-line mistake, reported as one line (exit code 2)."""
 
 
-class _Parser(argparse.ArgumentParser):
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors raise :class:`UsageError` instead of printing usage."""
+
     def error(self, message):  # one line instead of usage + message
-        raise _UsageError(message)
+        raise UsageError(message)
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = _Parser(prog="python -m heurtune.compare", description=__doc__.split("\n")[0])
+    ap = OneLineParser(prog="python -m heurtune.compare", description=__doc__.split("\n")[0])
     ap.add_argument("dirs", nargs="*", metavar="DIR", help="experiment output folder containing runs.parquet")
     ap.add_argument("--format", default="md", help="output format: md (default), csv or latex")
     ap.add_argument("--metric", default="best_f", help="column to compare, lower is better (default best_f)")
@@ -1452,7 +1481,7 @@ def _parser() -> argparse.ArgumentParser:
     return ap
 
 
-def _parse_labels(items) -> dict:
+def parse_labels(items) -> dict:
     """``["NAME=DIR", ...]`` -> ``{NAME: DIR}``; a missing ``=`` or a repeated NAME is an error."""
     out = {}
     for item in items:
@@ -1482,11 +1511,11 @@ def run(argv=None) -> int:
             raise ConfigError(f"unknown format '{args.format}' (choose from {', '.join(FORMATS)})")
         if not 0 < args.alpha < 1:
             raise ConfigError(f"--alpha must lie in (0, 1), got {args.alpha:g}")
-        runs = load_runs(args.dirs, labels=_parse_labels(args.label))
+        runs = load_runs(args.dirs, labels=parse_labels(args.label))
         margins = load_margins(args.dirs, runs)
         text = report(runs, metric=args.metric, alpha=args.alpha, fmt=args.format, margins=margins,
                       cd_path=args.cd_diagram)
-    except (ConfigError, _UsageError) as exc:
+    except (ConfigError, UsageError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     if args.out:

@@ -89,7 +89,11 @@ class RunSpec:
 
 def problem_id(exp, case: str) -> str:
     """A short hash of everything that defines a case's tuning problem (for comparisons)."""
-    prob = exp.problem(case)
+    return problem_fingerprint(exp.problem(case))
+
+
+def problem_fingerprint(prob) -> str:
+    """The :func:`problem_id` of a tuning problem object."""
     if hasattr(prob, "identity"):
         payload = prob.identity()
     else:
@@ -219,10 +223,7 @@ def execute(config: dict, spec: RunSpec, evaluator: Evaluator | None = None, *, 
 
 def _run_key(prob, spec: RunSpec) -> str:
     """A short hash of what a run's local solves depend on: problem, optimiser, budget, seed."""
-    from types import SimpleNamespace
-
-    problem = problem_id(SimpleNamespace(problem=lambda case: prob), spec.case)
-    payload = dict(problem=problem, algorithm=spec.algorithm, settings=spec.settings, budget=spec.budget,
+    payload = dict(problem=problem_fingerprint(prob), algorithm=spec.algorithm, settings=spec.settings, budget=spec.budget,
                    seed=spec.root_seed, spawn_key=list(spec.spawn_key))
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
@@ -621,9 +622,9 @@ def _gather_starts(exp, specs, parts, out_dir):
 
 def _best_runs(runs: pd.DataFrame) -> pd.DataFrame:
     """Per case and optimiser, the best run (as heurtune.compare picks it)."""
-    from heurtune.compare import best_run_index
+    from heurtune.compare import best_runs
 
-    return runs.loc[[best_run_index(g) for _, g in runs.groupby(["case", "optimiser_index"], sort=False)]]
+    return best_runs(runs)
 
 
 def _figures(exp, runs, history, best, out_dir):

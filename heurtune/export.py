@@ -43,6 +43,7 @@ import numpy as np
 import pandas as pd
 
 from heurtune.anytime import feasible_best
+from heurtune.compare import best_runs
 from heurtune.errors import ConfigError
 
 __all__ = ["load_results", "ioh_lines", "write_ioh", "export_ioh", "matlab_name", "write_mat", "export_mat",
@@ -81,14 +82,6 @@ def _experiment(meta: dict):
     for plugin in config.get("plugins", []):
         registry.load_plugin(plugin)
     return make_experiment(config)
-
-
-def best_runs(runs: pd.DataFrame) -> pd.DataFrame:
-    """Per case and optimiser, the best run (lowest feasible ``best_f``, else lowest violation)."""
-    from heurtune.compare import best_run_index
-
-    keys = [k for k in ("case", "optimiser_index") if k in runs.columns] or ["case", "algorithm"]
-    return runs.loc[[best_run_index(g) for _, g in runs.groupby(keys, sort=False)]]
 
 
 def _optimisers(df: pd.DataFrame) -> list:

@@ -85,47 +85,18 @@ def _slug(text: str) -> str:
 # Inputs
 # ----------------------------------------------------------------------------------------------
 
-def _folder(d) -> Path:
-    path = Path(d)
-    return path.parent if path.suffix == ".parquet" and not path.is_dir() else path
-
-
 def _read_meta(dirs) -> dict:
     """``{experiment name: (folder, meta dict)}`` of the folders with a readable ``meta.json``."""
     metas = {}
     for d in dirs:
-        file = _folder(d) / "meta.json"
+        file = compare.experiment_folder(d) / "meta.json"
         try:
             meta = json.loads(file.read_text(encoding="utf-8"))
         except (OSError, ValueError):
             continue
         if isinstance(meta, dict) and "experiment" in meta:
-            metas.setdefault(str(meta["experiment"]), (_folder(d), meta))
+            metas.setdefault(str(meta["experiment"]), (compare.experiment_folder(d), meta))
     return metas
-
-
-def _read_history(dirs, runs: pd.DataFrame) -> pd.DataFrame:
-    """Merged ``history.parquet`` files, algorithms relabelled as :func:`compare.load_runs` did."""
-    frames = []
-    for d in dirs:
-        file = _folder(d) / "history.parquet"
-        if file.is_file():
-            try:
-                frames.append(pd.read_parquet(file))
-            except Exception:  # an unreadable history only costs the history figures
-                continue
-    if not frames:
-        return pd.DataFrame()
-    h = pd.concat(frames, ignore_index=True, sort=False)
-    if {"experiment", "case", "algorithm"} <= set(h.columns):
-        for col in ("experiment", "case", "algorithm"):
-            h[col] = h[col].astype(str)
-        labels = set(zip(runs["case"], runs["algorithm"]))
-        relabel = np.array([(c, f"{a} [{e}]") in labels
-                            for e, c, a in zip(h["experiment"], h["case"], h["algorithm"])], dtype=bool)
-        if relabel.any():
-            h.loc[relabel, "algorithm"] = h.loc[relabel, "algorithm"] + " [" + h.loc[relabel, "experiment"] + "]"
-    return h
 
 
 # ----------------------------------------------------------------------------------------------
@@ -337,7 +308,8 @@ def render_html(runs: pd.DataFrame, *, dirs=(), history: pd.DataFrame | None = N
             + "\n".join(body) + "\n</body>\n</html>\n")
 
 
-def build_report(dirs, out, *, metric: str = "best_f", alpha: float = 0.05, responses: bool = True) -> Path:
+def build_report(dirs, out, *, metric: str = "best_f", alpha: float = 0.05, responses: bool = True,
+                 labels: dict | None = None) -> Path:
     """Read experiment folders and write ``out/index.html``.
 
     Parameters
@@ -353,6 +325,9 @@ def build_report(dirs, out, *, metric: str = "best_f", alpha: float = 0.05, resp
         Significance level, in (0, 1).
     responses : bool
         Draw the response figure of each algorithm's best controller.
+    labels : dict, optional
+        ``{label: folder}`` for folders of one experiment compared as variants (as
+        :func:`heurtune.compare.load_runs`); default: the folder names.
 
     Returns
     -------
@@ -370,9 +345,9 @@ def build_report(dirs, out, *, metric: str = "best_f", alpha: float = 0.05, resp
     dirs = list(dirs)
     if not 0 < alpha < 1:
         raise ConfigError(f"alpha must lie in (0, 1), got {alpha:g}")
-    runs = compare.load_runs(dirs)
+    runs = compare.load_runs(dirs, labels=labels)
     compare._check_metric(runs, metric)
-    page = render_html(runs, dirs=dirs, history=_read_history(dirs, runs), margins=compare.load_margins(dirs, runs),
+    page = render_html(runs, dirs=dirs, history=compare.load_histories(dirs, runs), margins=compare.load_margins(dirs, runs),
                        metas=_read_meta(dirs), metric=metric, alpha=alpha, responses=responses)
     path = Path(out) / "index.html"
     try:
@@ -387,22 +362,16 @@ def build_report(dirs, out, *, metric: str = "best_f", alpha: float = 0.05, resp
 # Command line
 # ----------------------------------------------------------------------------------------------
 
-class _UsageError(Exception):
-    pass
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message):  # one line, no usage block
-        raise _UsageError(message)
-
 
 def _parser() -> argparse.ArgumentParser:
-    ap = _Parser(prog="python -m heurtune.report", description=__doc__.split("\n")[0])
+    ap = compare.OneLineParser(prog="python -m heurtune.report", description=__doc__.split("\n")[0])
     ap.add_argument("dirs", nargs="*", metavar="DIR", help="experiment results folder (with runs.parquet)")
     ap.add_argument("--out", help="output folder; the report is OUT/index.html")
     ap.add_argument("--metric", default="best_f", help="column compared, lower is better (default best_f)")
     ap.add_argument("--alpha", type=float, default=0.05, help="significance level (default 0.05)")
     ap.add_argument("--no-responses", action="store_true", help="skip the response figures (no simulation)")
+    ap.add_argument("--label", action="append", default=[], metavar="NAME=DIR",
+                    help="label of a folder's runs when folders of one experiment are compared as variants")
     return ap
 
 
@@ -424,8 +393,8 @@ def run(argv=None) -> int:
             if not Path(d).exists():
                 raise ConfigError(f"{d}: no such folder")
         path = build_report(args.dirs, args.out, metric=args.metric, alpha=args.alpha,
-                            responses=not args.no_responses)
-    except (ConfigError, _UsageError) as exc:
+                            responses=not args.no_responses, labels=compare.parse_labels(args.label))
+    except (ConfigError, compare.UsageError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(f"report written to {path}")
