@@ -139,3 +139,10 @@ def test_usage_errors_exit_2(argv, capsys, tmp_path):
 def test_folder_without_runs_is_exit_2(tmp_path, capsys):
     assert report.run([str(tmp_path), "--out", str(tmp_path / "o")]) == 2
     assert "no runs.parquet" in capsys.readouterr().err
+
+
+def test_labels_name_variants_of_one_experiment(smoke_report, tmp_path, capsys):
+    cs = smoke_report[1][0]
+    assert report.run([str(cs), str(cs), "--out", str(tmp_path / "r")]) == 2  # the same folder twice
+    assert report.run([str(cs), "--out", str(tmp_path / "r"), "--label", "noequals"]) == 2
+    assert "NAME=DIR" in capsys.readouterr().err
