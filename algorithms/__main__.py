@@ -6,7 +6,7 @@ the page in the repository is what this prints).
 
 import sys
 
-from heurtune import registry
+from heurtune.core import registry
 
 if "--markdown" in sys.argv[1:]:
     print(registry.reference_markdown(), end="")

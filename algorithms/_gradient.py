@@ -84,7 +84,7 @@ import dataclasses
 
 import numpy as np
 
-from heurtune.engine import Optimizer
+from heurtune.core.engine import Optimizer
 
 __all__ = ["GradientSettings", "GradientOptimizer", "gradient_stencil", "gradient_from_stencil",
            "hessian_stencil", "hessian_from_stencil", "finite_difference_gradient",

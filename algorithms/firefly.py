@@ -44,8 +44,8 @@ import dataclasses
 
 import numpy as np
 
-from heurtune.engine import Optimizer
-from heurtune.registry import register
+from heurtune.core.engine import Optimizer
+from heurtune.core.registry import register
 
 
 @dataclasses.dataclass(frozen=True)

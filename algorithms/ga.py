@@ -27,8 +27,8 @@ import dataclasses
 
 import numpy as np
 
-from heurtune.engine import Optimizer
-from heurtune.registry import register
+from heurtune.core.engine import Optimizer
+from heurtune.core.registry import register
 
 EPS = 1e-14  # parents closer than this in a variable are not recombined (Deb's code)
 

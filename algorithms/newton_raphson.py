@@ -16,7 +16,7 @@ import dataclasses
 
 import numpy as np
 
-from heurtune.registry import register
+from heurtune.core.registry import register
 
 from heurtune.algorithms._gradient import GradientOptimizer, GradientSettings, modify_eigenvalues
 

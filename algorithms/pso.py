@@ -35,8 +35,8 @@ from __future__ import annotations
 import dataclasses
 
 
-from heurtune.engine import Optimizer
-from heurtune.registry import register
+from heurtune.core.engine import Optimizer
+from heurtune.core.registry import register
 
 
 @dataclasses.dataclass(frozen=True)

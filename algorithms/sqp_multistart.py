@@ -1,6 +1,6 @@
 """Multistart SQP: ``scipy.optimize.minimize(method="SLSQP")`` from many starts in the box.
 
-Each local solve runs whole on a worker (``Evaluator.imap_unordered``): it calls the user's objective
+Each local solve runs whole on a worker (``RunContext.map_unordered``): it calls the user's objective
 itself, one point at a time, evaluating f and g together once per point (a small cache serves
 SLSQP's separate requests for f, g and their finite-difference Jacobians, which use the same
 points). Constraints ``g(x) <= 0`` go to SLSQP as inequalities ``-g(x) >= 0``; the box as
@@ -46,10 +46,9 @@ import warnings
 import numpy as np
 import pandas as pd
 
-from heurtune.engine import Driver, violation
-from heurtune.errors import ConfigError
-from heurtune.evaluator import normalise
-from heurtune.registry import register
+from heurtune.core.engine import Driver, violation
+from heurtune.core.errors import ConfigError
+from heurtune.core.registry import register
 
 SAMPLING = ("lhs", "uniform")
 # A local solve is a dict: start, round, cap, x0, x, f, violation, g, nfev, nit, success,
@@ -97,8 +96,7 @@ class _BadIterate(Exception):
 class _Task:
     """Everything a worker needs for a local solve except the start (picklable)."""
 
-    fun: object
-    constraints: object
+    objective: object  # RunContext.objective: X -> (f, g)
     lower: np.ndarray
     upper: np.ndarray
     compare: object
@@ -129,7 +127,7 @@ class _Tracked:
         if self.cap is not None and self.nfev >= self.cap:
             raise _CapReached
         X = x[None, :]
-        f, g = normalise(self.task.fun(X), self.task.constraints, X)
+        f, g = self.task.objective(X)
         self.nfev += 1
         f = float(np.where(np.isnan(f[0]), np.inf, f[0]))
         g = g[0]
@@ -223,7 +221,7 @@ class SQPMultistart(Driver):
 
     def _run(self, ctx, records):
         s = self.settings
-        task = _Task(ctx.evaluator.fun, ctx.evaluator.constraints, self.space.lower, self.space.upper,
+        task = _Task(ctx.objective, self.space.lower, self.space.upper,
                      self.compare, s.max_iter, s.ftol, s.fd_step)
         solve = functools.partial(_local_solve, task)
         # Local solves finished by an earlier, interrupted attempt at this run, by start number.
@@ -245,7 +243,7 @@ class SQPMultistart(Driver):
             items = [(launched + i, X0[i], caps[i]) for i in range(k)]
             results = [_reuse(finished.get(item[0]), item, round_no) for item in items]
             todo = [i for i in range(k) if results[i] is None]
-            for j, res in ctx.evaluator.imap_unordered(solve, [items[i] for i in todo]):
+            for j, res in ctx.map_unordered(solve, [items[i] for i in todo]):
                 i = todo[j]
                 res["round"], res["cap"] = round_no, caps[i]
                 results[i] = finished[items[i][0]] = res
@@ -255,7 +253,7 @@ class SQPMultistart(Driver):
             v = np.array([r["violation"] for r in results])
             X = np.array([r["x"] for r in results])
             G = np.array([r["g"] for r in results]).reshape(len(results), -1)
-            ctx.n_evals += sum(r["nfev"] for r in results)
+            ctx.count_evaluations(sum(r["nfev"] for r in results))
             ctx.offer(X, f, v, G)
             launched += k
             round_no += 1

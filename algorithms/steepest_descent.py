@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from heurtune.registry import register
+from heurtune.core.registry import register
 
 from heurtune.algorithms._gradient import GradientOptimizer, GradientSettings
 

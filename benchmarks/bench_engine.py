@@ -24,8 +24,8 @@ import numpy as np  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
 import heurtune  # noqa: E402
-from heurtune.engine import SearchSpace, run  # noqa: E402
-from heurtune.evaluator import Evaluator  # noqa: E402
+from heurtune.core.engine import SearchSpace, run  # noqa: E402
+from heurtune.core.evaluator import Evaluator  # noqa: E402
 
 
 def trivial(X):

@@ -25,7 +25,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from joblib import Parallel, delayed  # noqa: E402
 
-from heurtune.problem import load_experiment  # noqa: E402
+from heurtune.runner.config import load_experiment  # noqa: E402
 
 OBJECTIVES = ("J", "Jdev", "IAE", "ISE", "ITAE", "TV")
 

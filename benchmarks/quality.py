@@ -14,8 +14,8 @@ import time
 import numpy as np
 
 import heurtune
-from heurtune import registry
-from heurtune.testfunctions import BUDGETS, PROBLEMS
+from heurtune.core import registry
+from heurtune.core.testfunctions import BUDGETS, PROBLEMS
 
 
 def measure(name, problem, seeds):

@@ -34,8 +34,8 @@ import scipy.linalg
 from numba import njit
 from threadpoolctl import threadpool_limits
 
-from heurtune.objectives.loop import ClosedLoop
-from heurtune.objectives.qtp import operating_point, preset
+from heurtune.objectives.qtp.loop import ClosedLoop
+from heurtune.objectives.qtp.model import operating_point, preset
 
 # ---------------------------------------------------------------------------------------------
 # Printed values (thesis seeds/004)
@@ -284,8 +284,8 @@ def table(header, rows, first=38, width=9):
 
 def part_a():
     print("=== a. Per-pump effort J1, J2 (x 1e3 in the thesis) and the split J2/J1 ===\n")
-    from heurtune.config import load_config
-    from heurtune.problem import make_experiment
+    from heurtune.runner.config import load_config
+    from heurtune.core.families import make_experiment
 
     # 0. this script's loop against heurtune's Problem.report
     vals = GAINS[("ch4", "folqi", "min")]
@@ -548,8 +548,8 @@ def part_c():
 
     # heurtune's per-loop margins of the printed min gains against Tables 4.11, 4.12 (diagonal loops)
     try:
-        from heurtune.margins import loop_margins
-        from heurtune.problem import load_experiment
+        from heurtune.objectives.qtp.margins import loop_margins
+        from heurtune.runner.config import load_experiment
 
         rows = []
         for exp, key, printed in (("cs_folqi_qtp", ("ch4", "folqi", "min"), ((1.490, 18.9), (0.318, 17.7))),
@@ -563,7 +563,7 @@ def part_c():
             rows.append([f"{key[0]} {key[1].upper()} min", printed[0][0], printed[0][1], d11.gain_crossover_rad_s,
                          d11.phase_margin_deg, printed[1][0], printed[1][1], d22.gain_crossover_rad_s,
                          d22.phase_margin_deg])
-        print("loops (1,1) and (2,2): printed crossover (rad/s) and phase margin (deg) against heurtune.margins")
+        print("loops (1,1) and (2,2): printed crossover (rad/s) and phase margin (deg) against heurtune.objectives.qtp.margins")
         table(["", "wc11 thes", "PM11 thes", "wc11", "PM11", "wc22 thes", "PM22 thes", "wc22", "PM22"], rows,
               first=18)
     except Exception as exc:  # margins are context here, not a result of this script

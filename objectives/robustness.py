@@ -29,7 +29,7 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from heurtune.errors import ConfigError
+from heurtune.core.errors import ConfigError
 
 __all__ = [
     "KharitonovResult",

@@ -28,14 +28,14 @@ def test_guide_plugin_runs_and_meets_the_contract(tmp_path):
     import numpy as np
 
     import heurtune
-    from heurtune import registry
+    from heurtune.core.plugins import load_plugin
 
     text = (ROOT / "docs" / "optimisers.md").read_text()
     start = text.index('```python\n"""Greedy random walk') + len("```python\n")
     code = text[start:text.index("```", start)]
     path = tmp_path / "random_walk.py"
     path.write_text(code)
-    registry.load_plugin(str(path))
+    load_plugin(str(path))
     lo, hi = [-2.0, -2.0, -2.0], [2.0, 2.0, 2.0]
     a = heurtune.minimize(lambda X: ((X - 0.5) ** 2).sum(axis=1), lo, hi, "random_walk", max_evals=2000, seed=1)
     b = heurtune.minimize(lambda X: ((X - 0.5) ** 2).sum(axis=1), lo, hi, "random_walk", max_evals=2000, seed=1)

@@ -22,8 +22,11 @@ def test_wheel_contains_only_heurtune(wheel):
     names = zipfile.ZipFile(wheel).namelist()
     top = {n.split("/")[0] for n in names if not n.startswith("heurtune-")}
     assert top == {"heurtune"}
-    for required in ("heurtune/objectives/qtp.py", "heurtune/objectives/_kernels.py",
-                     "heurtune/algorithms/__init__.py", "heurtune/experiments/cs_folqi_qtp.toml"):
+    for required in ("heurtune/objectives/qtp/model.py", "heurtune/objectives/qtp/kernels.py",
+                     "heurtune/objectives/tito/family.py", "heurtune/objectives/qtp/thesis/tables.py",
+                     "heurtune/core/families.py", "heurtune/runner/experiment.py", "heurtune/analysis/compare.py",
+                     "heurtune/algorithms/__init__.py", "heurtune/experiments/cs_folqi_qtp.toml",
+                     "heurtune/experiments/plugins/conical_tanks.py"):
         assert required in names
     assert not any(n.startswith("tests/") for n in names)
 

@@ -8,7 +8,7 @@ that degrades an optimiser fails here. The measured table is in docs/quality.md.
 import pytest
 
 import heurtune
-from heurtune.testfunctions import BUDGETS, PROBLEMS
+from heurtune.core.testfunctions import BUDGETS, PROBLEMS
 
 THRESHOLD = {
     ("apso", "ackley"): 3.48,

@@ -1,0 +1,338 @@
+"""Result figures: convergence curves, final-objective box plots, closed-loop responses.
+
+Every figure is drawn with matplotlib's Agg backend (no display needed) and written as a PNG
+through :func:`heurtune.core.io.atomic_path`, so a figure file is either complete or absent.
+
+Examples
+--------
+>>> from heurtune.analysis.figures import convergence_figure, boxplot_figure    # doctest: +SKIP
+>>> convergence_figure(history, "results/convergence.png")             # doctest: +SKIP
+>>> boxplot_figure(runs, "results/final_objective.png")                # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import math
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from heurtune.core.io import atomic_path  # noqa: E402
+from heurtune.core.problem import DEFAULT_SIGNAL_LABELS, RANGE_RTOL  # noqa: E402
+
+__all__ = ["convergence_figure", "boxplot_figure", "response_figure", "plot_responses", "FAILED_THRESHOLD"]
+
+# Objective values at or above this are the problem's failure sentinel (FAILED_OBJECTIVE = 1e10,
+# see heurtune.objectives.qtp.problem): they are left out of medians and boxes, which they would otherwise swamp.
+FAILED_THRESHOLD = 1.0e10
+DPI = 110
+
+
+def _needs_log(values) -> bool:
+    """Log axis when every value is positive and they span more than two decades."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    return bool(v.size and v.min() > 0 and v.max() / v.min() > 100.0)
+
+
+def _panel_grid(n: int, width: float = 5.2, height: float = 3.8, max_cols: int = 3):
+    cols = min(n, max_cols)
+    rows = math.ceil(n / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(width * cols, height * rows), squeeze=False)
+    for ax in axes.flat[n:]:
+        ax.set_visible(False)
+    return fig, list(axes.flat[:n])
+
+
+def _save(fig, path) -> None:
+    fig.tight_layout()
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=DPI, format="png")
+    finally:
+        plt.close(fig)
+
+
+def _require(df: pd.DataFrame, cols, what: str) -> None:
+    missing = [c for c in cols if c not in df.columns]
+    if missing:
+        raise ValueError(f"{what} needs column(s) {', '.join(missing)}; got {', '.join(map(str, df.columns))}")
+
+
+def _algorithm_colors(algorithms):
+    cmap = plt.get_cmap("tab10")
+    return {a: cmap(i % 10) for i, a in enumerate(algorithms)}
+
+
+def convergence_figure(history: pd.DataFrame, path, case=None) -> None:
+    """Median best objective per epoch with its inter-quartile band (thesis Figs 5.4-5.5).
+
+    One PNG with one panel per case (side by side, at most three per row), one line per
+    algorithm: the median over runs of ``best_f`` against ``epoch``, shaded between the 25th and
+    75th percentiles.
+
+    Runs of different lengths are aligned on the union of the case's epochs: each run's
+    ``best_f`` is carried forward from its last recorded epoch (a stopped run keeps its final
+    best), and a run contributes nothing before its first recorded epoch. Values at or above
+    ``FAILED_THRESHOLD`` (the failure sentinel of a run with no simulable candidate yet) rank as
+    +inf; epochs whose median is not finite are not drawn. The y-axis of a panel is logarithmic when all its plotted values are positive
+    and span more than two decades.
+
+    Parameters
+    ----------
+    history : pandas.DataFrame
+        Columns ``case, algorithm, run, epoch, best_f`` (others, e.g. ``n_evals``, ignored).
+    path : str or Path
+        PNG written atomically.
+    case : str or sequence of str, optional
+        Only these cases (default: every case, in order of appearance).
+
+    Raises
+    ------
+    ValueError
+        A required column is missing, or no rows are left for the selected cases.
+    """
+    _require(history, ("case", "algorithm", "run", "epoch", "best_f"), "convergence_figure")
+    cases = list(pd.unique(history["case"])) if case is None else (
+        [case] if isinstance(case, str) else list(case))
+    data = history[history["case"].isin(cases)]
+    if data.empty:
+        raise ValueError(f"convergence_figure: no history rows for case(s) {', '.join(map(str, cases))}")
+    colors = _algorithm_colors(list(pd.unique(data["algorithm"])))
+    fig, axes = _panel_grid(len(cases))
+    for ax, name in zip(axes, cases):
+        d = data[data["case"] == name]
+        epochs = np.sort(pd.unique(d["epoch"]))
+        plotted = []
+        for alg, g in d.groupby("algorithm", sort=False):
+            # A failed best (the sentinel) ranks worst, as +inf: the median stays an order
+            # statistic over all runs, so it never rises when a run finds its first candidate.
+            f = g["best_f"].astype(float).where(lambda s: s < FAILED_THRESHOLD, np.inf)
+            wide = (g.assign(best_f=f).pivot_table(index="epoch", columns="run", values="best_f",
+                                                   aggfunc="last", dropna=False)
+                    .reindex(epochs).ffill())
+            vals = wide.to_numpy()
+            with np.errstate(all="ignore"):
+                q25, q50, q75 = np.nanpercentile(vals, [25, 50, 75], axis=1)
+            ok = np.isfinite(q50)
+            if not ok.any():
+                continue
+            q25, q50, q75 = q25[ok], q50[ok], np.where(np.isfinite(q75[ok]), q75[ok], np.nan)
+            n_runs = wide.shape[1]
+            ax.plot(epochs[ok], q50, color=colors[alg], lw=1.6, label=f"{alg} (n={n_runs})")
+            ax.fill_between(epochs[ok], q25, q75, color=colors[alg], alpha=0.2, lw=0)
+            plotted.append(np.concatenate([q25, q75[np.isfinite(q75)]]))
+        ax.grid(alpha=0.3)
+        if not plotted:
+            ax.text(0.5, 0.5, "median not finite: most runs found\nno simulable candidate",
+                    ha="center", va="center", transform=ax.transAxes, fontsize=9)
+        if plotted and _needs_log(np.concatenate(plotted)):
+            ax.set_yscale("log")
+            ax.grid(alpha=0.1, which="minor")
+        ax.set_title(f"case {name}")
+        ax.set_xlabel("epoch")
+        ax.set_ylabel("best objective (median, IQR band)")
+        if plotted:
+            ax.legend(fontsize=8)
+    _save(fig, path)
+
+
+def boxplot_figure(runs: pd.DataFrame, path, metric: str = "best_f") -> None:
+    """Box plots of the final objective per algorithm, one panel per case.
+
+    Each box summarises the runs whose ``metric`` is finite and below ``FAILED_THRESHOLD``
+    (whiskers at 1.5 IQR); the individual runs are overlaid as points, feasible ones as dots
+    and infeasible ones as red crosses, and every tick label gives the number of runs and of
+    infeasible runs. The y-axis of a panel is logarithmic when all its values are positive and
+    span more than two decades.
+
+    Parameters
+    ----------
+    runs : pandas.DataFrame
+        Columns ``case, algorithm, run, feasible`` and ``metric``.
+    path : str or Path
+        PNG written atomically.
+    metric : str
+        Column to plot (default ``best_f``); lower is better.
+
+    Raises
+    ------
+    ValueError
+        A required column is missing or ``runs`` is empty.
+    """
+    _require(runs, ("case", "algorithm", "run", "feasible", metric), "boxplot_figure")
+    if runs.empty:
+        raise ValueError("boxplot_figure: no runs")
+    cases = list(pd.unique(runs["case"]))
+    colors = _algorithm_colors(list(pd.unique(runs["algorithm"])))
+    rng = np.random.default_rng(0)  # jitter of the overlaid points: deterministic figures
+    fig, axes = _panel_grid(len(cases), width=max(4.5, 1.1 * runs["algorithm"].nunique() + 2))
+    for ax, name in zip(axes, cases):
+        d = runs[runs["case"] == name]
+        algs = list(pd.unique(d["algorithm"]))
+        boxes, labels, shown = [], [], []
+        for k, alg in enumerate(algs, start=1):
+            g = d[d["algorithm"] == alg]
+            v = g[metric].astype(float).to_numpy()
+            feas = g["feasible"].astype(bool).to_numpy()
+            ok = np.isfinite(v) & (v < FAILED_THRESHOLD)
+            boxes.append(v[ok])
+            shown.append(v[ok])
+            labels.append(f"{alg}\nn={len(g)}, infeas.={int((~feas).sum())}")
+            xj = k + rng.uniform(-0.15, 0.15, size=len(v))
+            ax.scatter(xj[ok & feas], v[ok & feas], s=12, color=colors[alg], alpha=0.7, zorder=3)
+            ax.scatter(xj[ok & ~feas], v[ok & ~feas], s=22, marker="x", color="red", zorder=4)
+        ax.boxplot(boxes, positions=range(1, len(algs) + 1), widths=0.55, showfliers=False,
+                   medianprops=dict(color="black", lw=1.5))
+        ax.set_xticks(range(1, len(algs) + 1), labels, fontsize=8)
+        ax.grid(alpha=0.3, axis="y")
+        if shown and _needs_log(np.concatenate(shown)):
+            ax.set_yscale("log")
+            ax.grid(alpha=0.1, axis="y", which="minor")
+        ax.set_title(f"case {name}")
+        ax.set_ylabel(f"final {metric}")
+    _save(fig, path)
+
+
+def response_figure(problem, x, path, scenarios=("nominal", "-30%", "+30%"), title: str = "",
+                    tlim=None) -> None:
+    """Closed-loop response of one candidate under several scenarios (thesis Figs 5.14-5.25).
+
+    Simulates ``x`` under each scenario (``problem.simulate``) and draws it with
+    :func:`plot_responses`, with the problem's :meth:`~heurtune.core.problem.TuningProblem.physical_limits`
+    and :attr:`~heurtune.core.problem.TuningProblem.signal_labels`.
+
+    Parameters
+    ----------
+    problem : heurtune.core.problem.TuningProblem
+    x : array_like or dict
+        Tuning values (see ``problem.names``).
+    path : str or Path
+        PNG written atomically.
+    scenarios : sequence of str or scenario objects
+        Scenario names of ``problem.scenarios`` (or scenario objects, labelled by their
+        uncertainty factor when they have one).
+    title : str
+        Figure title; default ``"<case> / <controller>"``.
+    tlim : (float, float), optional
+        Time window in s to draw (e.g. ``(40, 150)`` to zoom on the disturbance response);
+        default the whole horizon.
+
+    Raises
+    ------
+    ControllerDesignError
+        The controller cannot be designed for ``x`` (QTP).
+    ConfigError
+        An unknown scenario name.
+    """
+    frames = []
+    for sc in scenarios:
+        label = sc if isinstance(sc, str) else f"x{problem.scenario(sc).uncertainty:g}"
+        df = problem.simulate(x, sc)
+        if tlim is not None:
+            df = df[(df["t"] >= tlim[0]) & (df["t"] <= tlim[1])]
+        frames.append(df.assign(scenario=label))
+    traj = pd.concat(frames, ignore_index=True)
+    plot_responses(traj, path, title=title or f"{problem.case} / {problem.controller}",
+                   limits=problem.physical_limits(), labels=problem.signal_labels)
+
+
+OUTSIDE = "outside physical range"
+
+
+def _outside(values, lo, hi) -> bool:
+    """True when a finite value lies below ``lo`` or above ``hi`` by more than the tolerance."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if not v.size:
+        return False
+    tol = RANGE_RTOL * max(abs(lo), abs(hi), 1.0)
+    return bool(v.min() < lo - tol or v.max() > hi + tol)
+
+
+def _draw_limits(ax, lo, hi, label):
+    """Dashed lines at ``lo`` and ``hi`` that do not rescale the panel.
+
+    The view stays on the response: a limit far from it is named in the legend only, one that
+    the response approaches or crosses is also drawn.
+    """
+    ylim = ax.get_ylim()
+    ax.axhline(lo, color="0.35", lw=0.9, ls=(0, (5, 3)), label=label)
+    ax.axhline(hi, color="0.35", lw=0.9, ls=(0, (5, 3)))
+    ax.set_ylim(ylim)
+
+
+def plot_responses(traj, path, title: str = "", limits=None, labels=None) -> None:
+    """Outputs (with set-points and internal levels when recorded) and inputs per scenario.
+
+    Parameters
+    ----------
+    traj : pandas.DataFrame
+        Columns ``scenario, t, y1, y2, u1, u2``; optional ``r1, r2`` (set-points, drawn black
+        dashed for the first scenario) and ``h1..h4`` (true levels: ``h1, h2`` dashed beside
+        the measured ``y1, y2``).
+    path : str or Path
+        PNG written atomically.
+    title : str
+        Figure title.
+    limits : dict, optional
+        :meth:`~heurtune.core.problem.TuningProblem.physical_limits`: ``"y"`` one (lo, hi) per
+        output, ``"u"`` the input range, ``"h"`` one range per recorded level. Drawn as dashed
+        lines; a panel whose trajectory leaves its range says so in its title, and the figure
+        title names the scenarios that leave any range.
+    labels : dict, optional
+        :attr:`~heurtune.core.problem.TuningProblem.signal_labels` (panel names and units).
+    """
+    lab = {**DEFAULT_SIGNAL_LABELS, **(labels or {})}
+    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
+    for k, (name, df) in enumerate(traj.groupby("scenario", sort=False)):
+        for i in (1, 2):
+            line, = axes[0, i - 1].plot(df["t"], df[f"y{i}"], lw=1.2, label=f"{name}: y{i}")
+            if f"h{i}" in df:
+                axes[0, i - 1].plot(df["t"], df[f"h{i}"], lw=0.8, ls="--", color=line.get_color(),
+                                    label=f"{name}: h{i}")
+            if k == 0 and f"r{i}" in df:
+                axes[0, i - 1].plot(df["t"], df[f"r{i}"], "k--", lw=0.8, label="set-point")
+            axes[1, i - 1].plot(df["t"], df[f"u{i}"], lw=1.2, label=name)
+    if limits:
+        u_lo, u_hi = limits["u"]
+        for i in (1, 2):
+            y_lo, y_hi = limits["y"][i - 1]
+            # the true level when recorded (the measured one carries the output disturbance)
+            level = traj[f"h{i}"] if f"h{i}" in traj else traj[f"y{i}"]
+            _draw_limits(axes[0, i - 1], y_lo, y_hi, f"{lab['output']} {i}: {y_lo:g} and {y_hi:g} {lab['y_unit']}".rstrip())
+            _draw_limits(axes[1, i - 1], u_lo, u_hi, f"{lab['input']} range {u_lo:g} to {u_hi:g} {lab['u_unit']}".rstrip())
+            axes[0, i - 1].set_title(f"{lab['output']} {i}" + (f": {OUTSIDE}" if _outside(level, y_lo, y_hi) else ""),
+                                     fontsize=10)
+            axes[1, i - 1].set_title(f"{lab['input']} {i}" + (f": {OUTSIDE}" if _outside(traj[f"u{i}"], u_lo, u_hi) else ""),
+                                     fontsize=10)
+        levels = limits.get("h", limits["y"])
+        leaving = []
+        for name, df in traj.groupby("scenario", sort=False):
+            tanks = [j for j in range(1, len(levels) + 1) if f"h{j}" in df] or [1, 2]
+            out = any(_outside(df[f"h{j}"] if f"h{j}" in df else df[f"y{j}"], *levels[j - 1]) for j in tanks)
+            out = out or any(_outside(df[f"u{j}"], u_lo, u_hi) for j in (1, 2))
+            if out:
+                leaving.append(str(name))
+        if leaving:
+            title = f"{title}\n{OUTSIDE}: {', '.join(leaving)}" if title else f"{OUTSIDE}: {', '.join(leaving)}"
+    else:
+        for i in (1, 2):
+            axes[0, i - 1].set_title(f"{lab['output']} {i}", fontsize=10)
+            axes[1, i - 1].set_title(f"{lab['input']} {i}", fontsize=10)
+    for i in (1, 2):
+        axes[0, i - 1].set_ylabel(lab["y_label"].format(i=i))
+        axes[1, i - 1].set_ylabel(lab["u_label"].format(i=i))
+        axes[1, i - 1].set_xlabel("t (s)")
+        axes[0, i - 1].legend(fontsize=7)
+        axes[1, i - 1].legend(fontsize=7)
+        for ax in axes[:, i - 1]:
+            ax.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    _save(fig, path)

@@ -1,0 +1,128 @@
+"""Batch evaluation of candidates, wherever :class:`heurtune.core.execution.Pool` runs tasks.
+
+The evaluator splits a batch into contiguous chunks, evaluates them where configured and
+concatenates the results in order, so the numbers never depend on the number of workers.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from heurtune.core.execution import BACKENDS, Pool, shared
+
+__all__ = ["Evaluator", "BACKENDS", "normalise"]
+
+CHUNKS_PER_WORKER = 4
+
+
+def normalise(result, constraints, X):
+    """``(f, g)`` from a user function's output: f (n,), g (n, m) with m >= 0."""
+    n = X.shape[0]
+    if isinstance(result, tuple):
+        if len(result) != 2:
+            raise ValueError("the objective must return f or (f, g)")
+        f, g = result
+    else:
+        f, g = result, None
+    if constraints is not None:
+        if g is not None:
+            raise ValueError("give constraints either as fun's second output or as constraints=, not both")
+        g = constraints(X)
+    f = np.asarray(f, dtype=np.float64).reshape(-1)
+    if f.shape != (n,):
+        raise ValueError(f"the objective returned {f.size} values for {n} candidates")
+    g = np.zeros((n, 0)) if g is None else np.asarray(g, dtype=np.float64).reshape(n, -1)
+    return f, g
+
+
+class Objective:
+    """``fun`` with optional ``constraints``: ``(f, g)`` of a batch, normalised. Picklable as
+    long as ``fun`` is; ``warm_up`` is passed on (workers compile jitted kernels once)."""
+
+    def __init__(self, fun, constraints=None):
+        self.fun = fun
+        self.constraints = constraints
+
+    def __call__(self, X):
+        return normalise(self.fun(X), self.constraints, X)
+
+    def warm_up(self):
+        warm = getattr(self.fun, "warm_up", None)
+        if callable(warm):
+            warm()
+
+
+def _evaluate_block(X):
+    return shared()(X)
+
+
+class Evaluator:
+    """Evaluate batches of candidates with ``fun`` (and optional ``constraints``).
+
+    Parameters
+    ----------
+    fun : callable
+        ``fun(X)`` with X (n, d) returns f (n,) or (f, g) with g (n, m), ``g <= 0`` feasible.
+    constraints : callable, optional
+        ``constraints(X)`` returns g (n, m) when fun returns only f.
+    n_jobs : int
+        Workers; 1 evaluates in this process (same code path, no pool).
+    backend : {"loky", "dask"}
+    scheduler : str or distributed.Client, optional
+        Dask scheduler address (or a Client) for ``backend="dask"``.
+    executor : concurrent.futures.Executor, optional
+        Evaluate there instead (see :class:`heurtune.core.execution.Pool`).
+
+    Use as a context manager to keep one pool for many batches (and runs)::
+
+        with Evaluator(problem, n_jobs=2) as ev:
+            f, g = ev(X)
+    """
+
+    def __init__(self, fun, constraints=None, *, n_jobs: int = 1, backend: str = "loky", scheduler=None,
+                 executor=None):
+        self.objective = Objective(fun, constraints)
+        self.pool = Pool(n_jobs, backend, scheduler, executor=executor, shared=self.objective)
+
+    # -- lifecycle ------------------------------------------------------------------------
+    def __enter__(self):
+        self.open()
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    @property
+    def workers(self) -> int:
+        """Number of parallel workers (1 in-process)."""
+        return self.pool.workers
+
+    def open(self):
+        """Warm the jitted kernels here, then start the pool or connect to the cluster."""
+        self.objective.warm_up()
+        self.pool.open()
+        return self
+
+    def close(self):
+        """Forget the pool (its processes stay alive for reuse until the interpreter exits)."""
+        self.pool.close()
+
+    # -- work -------------------------------------------------------------------------------
+    def _chunks(self, n: int):
+        # Several chunks per worker even out candidates of unequal cost (a failed design
+        # returns in 0.1 ms, a full simulation takes milliseconds); order is kept.
+        k = min(n, self.workers * (CHUNKS_PER_WORKER if self.workers > 1 else 1))
+        bounds = np.linspace(0, n, k + 1).round().astype(int)
+        return [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+
+    def __call__(self, X):
+        """Evaluate X (n, d); returns f (n,) and g (n, m)."""
+        X = np.ascontiguousarray(X, dtype=np.float64)
+        if X.shape[0] == 0:
+            return np.zeros(0), np.zeros((0, 0))
+        parts = self.pool.map(_evaluate_block, [X[a:b] for a, b in self._chunks(X.shape[0])])
+        f = np.concatenate([p[0] for p in parts])
+        widths = {p[1].shape[1] for p in parts}
+        if len(widths) != 1:
+            raise ValueError("the constraint function returned different numbers of constraints")
+        return f, np.vstack([p[1] for p in parts])

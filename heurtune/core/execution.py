@@ -1,0 +1,229 @@
+"""Where work runs: this process, a persistent joblib (loky) process pool, a Dask cluster, or any
+``concurrent.futures.Executor``. One layer for the evaluator (batches of candidates) and the
+runner (whole tuning runs).
+
+A :class:`Pool` runs ``fn(item)`` for a list of items, in order (:meth:`Pool.map`) or as they
+finish (:meth:`Pool.imap_unordered`). An object every task needs (the objective of an
+evaluator) is given once as ``shared``: it travels once per worker (loky initialiser, Dask
+scatter) or with each task (a user's executor), and a task reads it with :func:`shared`.
+
+BLAS is pinned to one thread wherever a task runs, so the number of workers never changes a
+number. Workers load the plugins loaded here (:func:`heurtune.core.plugins.loaded`) before
+anything else, so objects of a plugin's classes reach them intact.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import contextlib
+
+from heurtune.core.errors import ConfigError
+from heurtune.core.plugins import load_plugins, loaded
+
+__all__ = ["Pool", "BACKENDS", "shared"]
+
+BACKENDS = ("loky", "dask")
+
+_SHARED = {}  # this process's shared object (set by the initialiser or the task)
+
+
+def shared():
+    """The ``shared`` object of the pool this task runs in."""
+    return _SHARED["value"]
+
+
+_CONTROLLER = []  # one threadpoolctl controller per process (building one costs milliseconds)
+
+
+def _blas_one_thread():
+    if not _CONTROLLER:
+        from threadpoolctl import ThreadpoolController
+
+        _CONTROLLER.append(ThreadpoolController())
+    return _CONTROLLER[0].limit(limits=1, user_api="blas")
+
+
+def _init_worker(plugins, value):
+    """Loky worker initialiser: load the plugins, pin BLAS to one thread, keep ``value``."""
+    from threadpoolctl import threadpool_limits
+
+    load_plugins(plugins)
+    _SHARED["limits"] = threadpool_limits(1)
+    _SHARED["value"] = value
+    warm = getattr(value, "warm_up", None)  # an objective's jitted kernels, compiled once per worker
+    if callable(warm):
+        warm()
+
+
+def _task(fn, item):
+    return fn(item)
+
+
+def _task_with(plugins, value, fn, item):
+    """A task carrying its plugins and shared object (Dask, user executors)."""
+    load_plugins(plugins)
+    _SHARED["value"] = value
+    with _blas_one_thread():
+        return fn(item)
+
+
+class Pool:
+    """Run tasks in this process, a loky pool, a Dask cluster or a user's executor.
+
+    Parameters
+    ----------
+    n_jobs : int
+        Workers of the loky pool; 1 runs tasks in this process (no pool).
+    backend : {"loky", "dask"}
+    scheduler : str or distributed.Client, optional
+        Dask scheduler address (or a Client), for ``backend="dask"``.
+    executor : concurrent.futures.Executor, optional
+        Run tasks there instead (e.g. a ``ThreadPoolExecutor``); ``n_jobs`` then only sets how
+        many workers the chunking assumes (default: ``executor._max_workers`` when it has one).
+    shared : object, optional
+        What every task reads with :func:`shared`.
+    """
+
+    def __init__(self, n_jobs: int = 1, backend: str = "loky", scheduler=None, *, executor=None, shared=None):
+        if backend not in BACKENDS:
+            raise ConfigError(f"unknown backend {backend!r}; allowed: {', '.join(BACKENDS)}")
+        if isinstance(n_jobs, bool) or not isinstance(n_jobs, int) or n_jobs < 1:
+            raise ConfigError(f"n_jobs must be a positive integer, got {n_jobs!r}")
+        if backend == "dask" and scheduler is None and executor is None:
+            raise ConfigError("backend 'dask' needs a scheduler address (e.g. tcp://host:8786)")
+        if executor is not None and not isinstance(executor, concurrent.futures.Executor):
+            raise ConfigError(f"executor must be a concurrent.futures.Executor, got {type(executor).__name__}")
+        self.n_jobs = n_jobs
+        self.backend = backend
+        self.scheduler = scheduler
+        self.executor = executor
+        self.value = shared
+        self._loky = None
+        self._client = None
+        self._owns_client = False
+        self._remote = None
+
+    # -- lifecycle ------------------------------------------------------------------------
+    def __enter__(self):
+        return self.open()
+
+    def __exit__(self, *exc):
+        self.close()
+
+    @property
+    def in_process(self) -> bool:
+        """True when tasks run in this process."""
+        return self.executor is None and self.backend == "loky" and self.n_jobs == 1
+
+    @property
+    def workers(self) -> int:
+        """Number of parallel workers (1 in-process)."""
+        if self._client is not None:
+            return max(1, len(self._client.scheduler_info().get("workers", {})))
+        if self.executor is not None:
+            return int(getattr(self.executor, "_max_workers", self.n_jobs) or self.n_jobs)
+        return self.n_jobs
+
+    def open(self):
+        """Start the loky pool or connect to the Dask cluster (nothing for the others)."""
+        if self.executor is not None or self.in_process:
+            return self
+        if self.backend == "dask":
+            if self._client is None:
+                from distributed import Client
+
+                if isinstance(self.scheduler, Client):
+                    self._client = self.scheduler
+                else:
+                    self._client = Client(self.scheduler)
+                    self._owns_client = True
+                self._remote = self._client.scatter(self.value, broadcast=True, hash=False)
+        elif self._loky is None:
+            # joblib's process pool, reused across calls (and across pools with the same shared
+            # object); the shared object travels once per worker, in the initialiser.
+            from joblib.externals.loky import get_reusable_executor
+
+            self._loky = get_reusable_executor(max_workers=self.n_jobs, initializer=_init_worker,
+                                               initargs=(loaded(), self.value))
+        return self
+
+    def close(self):
+        """Forget the pool (loky's processes stay alive for reuse until the interpreter exits)."""
+        self._loky = None
+        if self._client is not None:
+            if self._owns_client:
+                self._client.close()
+            self._client = None
+            self._remote = None
+
+    def abort(self):
+        """Stop at once: cancel what has not started and kill the loky workers."""
+        if self._loky is not None:
+            self._loky.shutdown(wait=False, kill_workers=True)
+            self._loky = None
+
+    # -- work ---------------------------------------------------------------------------------
+    @contextlib.contextmanager
+    def _here(self):
+        previous = _SHARED.get("value")
+        _SHARED["value"] = self.value
+        try:
+            with _blas_one_thread():
+                yield
+        finally:
+            _SHARED["value"] = previous
+
+    def _submit_all(self, fn, items):
+        self.open()
+        if self._client is not None:
+            return self._client.map(_task_with, [()] * len(items), [self._remote] * len(items), [fn] * len(items),
+                                    items, pure=False)
+        if self._loky is not None:
+            return [self._loky.submit(_task, fn, item) for item in items]
+        return [self.executor.submit(_task_with, loaded(), self.value, fn, item) for item in items]
+
+    def map(self, fn, items) -> list:
+        """``[fn(item) for item in items]``, run on the workers, in order."""
+        items = list(items)
+        if self.in_process:
+            with self._here():
+                return [fn(item) for item in items]
+        futures = self._submit_all(fn, items)
+        if self._client is not None:
+            return self._client.gather(futures)
+        try:
+            return [fut.result() for fut in futures]
+        except BaseException:
+            for fut in futures:
+                fut.cancel()
+            raise
+
+    def imap_unordered(self, fn, items):
+        """Run ``fn(item)`` for every item; yield ``(index, result)`` as each ends.
+
+        In-process the items run in order. What is computed does not depend on the order; a
+        caller can save each result at once. Items not yet started are cancelled if the caller
+        stops early (e.g. on Ctrl-C).
+        """
+        items = list(items)
+        if self.in_process:
+            for i, item in enumerate(items):
+                with self._here():
+                    result = fn(item)
+                yield i, result
+            return
+        futures = self._submit_all(fn, items)
+        if self._client is not None:
+            from distributed import as_completed
+
+            index = {fut.key: i for i, fut in enumerate(futures)}
+            done = as_completed(futures)
+        else:
+            index = {fut: i for i, fut in enumerate(futures)}
+            done = concurrent.futures.as_completed(futures)
+        try:
+            for fut in done:
+                yield index[fut.key if self._client is not None else fut], fut.result()
+        finally:
+            for fut in futures:
+                fut.cancel()

@@ -1,0 +1,118 @@
+"""The plant-family registry: strict names, a config schema per family, plugins found by import.
+
+A plant family is an experiment class (:class:`heurtune.core.problem.ExperimentBase`) that
+builds the tuning problems of a config, registered for one or more ``[plant] model`` names::
+
+    @register_family("conical_tanks", schema=SCHEMA, description="coupled conical tanks, PI")
+    class ConicalTanksExperiment(ExperimentBase):
+        ...
+
+The shipped families live in ``objectives/<family>/family.py`` (imported as
+``heurtune.objectives.<family>.family``); a user's family is a ``.py`` file or module loaded
+with ``--plugin`` or a config's ``plugins`` key (:func:`heurtune.core.plugins.load_plugin`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import importlib.util
+import pkgutil
+
+import heurtune.objectives as families_package
+from heurtune.core.errors import ConfigError
+from heurtune.core.plugins import load_plugins
+from heurtune.core.problem import ExperimentBase
+
+__all__ = ["FamilyInfo", "register_family", "get_family", "available", "load_families", "make_experiment",
+           "families", "DEFAULT_MODEL"]
+
+DEFAULT_MODEL = "qtp"  # the plant model of a config that names none
+_FAMILIES: dict = {}  # model name -> FamilyInfo
+_BUILTINS_LOADED = False
+
+
+@dataclasses.dataclass(frozen=True)
+class FamilyInfo:
+    """What the registry knows of a plant family."""
+
+    name: str
+    models: tuple  # the [plant] model names it builds
+    cls: type  # its ExperimentBase subclass
+    schema: dict  # its config schema (heurtune.core.schema)
+    description: str
+
+
+def register_family(name: str, *, schema: dict, description: str, models: tuple | None = None):
+    """Class decorator adding a plant family to the registry.
+
+    Parameters
+    ----------
+    name : str
+        Lowercase key (``[a-z0-9_]+``).
+    schema : dict
+        The config schema of the family's experiments (see :mod:`heurtune.core.schema`); its
+        ``plant.model`` entry should allow the ``models`` names.
+    description : str
+        One line for listings.
+    models : tuple of str, optional
+        The ``[plant] model`` values this family builds (default: ``(name,)``). A model name
+        already taken is an error.
+    """
+    if not name or name != name.lower() or not name.replace("_", "").isalnum():
+        raise ValueError(f"plant family name {name!r} must be lowercase letters, digits and '_'")
+    models = tuple(models or (name,))
+
+    def decorate(cls):
+        if not (isinstance(cls, type) and issubclass(cls, ExperimentBase)):
+            raise TypeError(f"plant family {name!r} must be a subclass of heurtune.core.problem.ExperimentBase")
+        taken = [m for m in models if m in _FAMILIES and _FAMILIES[m].cls is not cls]
+        if taken:
+            raise ValueError(f"plant model {taken[0]!r} is already registered (by {_FAMILIES[taken[0]].cls.__module__})")
+        info = FamilyInfo(name, models, cls, schema, description)
+        for m in models:
+            _FAMILIES[m] = info
+        cls.family = name
+        return cls
+
+    return decorate
+
+
+def load_families() -> None:
+    """Import the shipped families once: every ``heurtune.objectives.<package>.family``."""
+    global _BUILTINS_LOADED
+    if _BUILTINS_LOADED:
+        return
+    for mod in pkgutil.iter_modules(families_package.__path__):
+        if mod.ispkg and importlib.util.find_spec(f"heurtune.objectives.{mod.name}.family") is not None:
+            importlib.import_module(f"heurtune.objectives.{mod.name}.family")
+    _BUILTINS_LOADED = True
+
+
+def available() -> list:
+    """The registered ``[plant] model`` names, sorted."""
+    load_families()
+    return sorted(_FAMILIES)
+
+
+def families() -> list:
+    """One :class:`FamilyInfo` per registered family (by name)."""
+    load_families()
+    return sorted({info.name: info for info in _FAMILIES.values()}.values(), key=lambda i: i.name)
+
+
+def get_family(model: str) -> FamilyInfo:
+    """The family that builds ``[plant] model = model`` (one-line ConfigError otherwise)."""
+    load_families()
+    try:
+        return _FAMILIES[model]
+    except KeyError:
+        raise ConfigError(f"plant.model: got {model!r}; allowed: {', '.join(sorted(_FAMILIES))} "
+                          "(or load a plant-family plugin)") from None
+
+
+def make_experiment(config: dict) -> ExperimentBase:
+    """The experiment object of a loaded config (e.g. ``meta.json``'s), built by the family of
+    its ``plant.model`` once the config's plugins are loaded."""
+    load_plugins(config.get("plugins", []))
+    return get_family(config.get("plant", {}).get("model", DEFAULT_MODEL)).cls(config)

@@ -1,0 +1,67 @@
+"""User plugins: a ``.py`` file or an importable module that registers optimisers
+(:func:`heurtune.core.registry.register`) or plant families
+(:func:`heurtune.core.families.register_family`) when imported. No reinstall needed."""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.util
+import sys
+from pathlib import Path
+
+from heurtune.core.errors import ConfigError
+
+__all__ = ["load_plugin", "load_plugins", "loaded"]
+
+_LOADED_FILES: dict = {}  # resolved path -> module name
+_MODULES: dict = {}  # module-name plugins (ordered set)
+
+
+def load_plugin(spec: str) -> None:
+    """Import a plugin: a path to a ``.py`` file or a module name (each file once per process).
+
+    Raises
+    ------
+    ConfigError
+        For a file that does not exist or a module that cannot be imported.
+    """
+    spec = str(spec)
+    if spec.endswith(".py"):
+        path = Path(spec).resolve()
+        if not path.is_file():
+            raise ConfigError(f"plugin file {spec!r} does not exist")
+        if path in _LOADED_FILES:
+            return
+        # The same name in every process (workers load the file under it too), so that objects
+        # of the plugin's classes pickle by reference.
+        digest = hashlib.sha256(str(path).encode()).hexdigest()[:8]
+        module_name = f"heurtune_plugin_{path.stem}_{digest}"
+        mod_spec = importlib.util.spec_from_file_location(module_name, path)
+        module = importlib.util.module_from_spec(mod_spec)
+        sys.modules[module_name] = module
+        _LOADED_FILES[path] = module_name
+        try:
+            mod_spec.loader.exec_module(module)
+        except BaseException:
+            del _LOADED_FILES[path]
+            sys.modules.pop(module_name, None)
+            raise
+        return
+    try:
+        importlib.import_module(spec)
+    except ImportError as exc:
+        raise ConfigError(f"cannot import plugin module {spec!r}: {exc}") from None
+    _MODULES.setdefault(spec, None)
+
+
+def load_plugins(specs) -> None:
+    """:func:`load_plugin` each of ``specs`` (a config's ``plugins`` list)."""
+    for spec in specs or ():
+        load_plugin(spec)
+
+
+def loaded() -> tuple:
+    """The plugins loaded in this process, in order: resolved file paths and module names
+    (what a worker process loads before it unpickles anything)."""
+    return tuple(str(p) for p in _LOADED_FILES) + tuple(_MODULES)

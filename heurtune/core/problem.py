@@ -1,0 +1,298 @@
+"""The tuning-problem contract every plant family implements.
+
+A plant family (``objectives/<family>/``, or one plugin file) registers an experiment class
+with :func:`heurtune.core.families.register_family`. The runner, the evaluate command,
+compare, the exports and the figures then only use what is defined here:
+
+- :class:`ExperimentBase`: a config's cases (plant x controller type), its optimisers, and the
+  hooks the runner calls (``problem``, ``baseline_names``, ``structure_warnings``,
+  ``write_outputs``).
+- :class:`TuningProblem`: one case's named decision vector within bounds, its scenarios and
+  ``evaluate(X) -> Evaluation`` (never raising for a bad candidate), ``simulate``, ``report``,
+  ``identity`` (hashed into the problem_id), ``warm_up`` and optional ``margins`` and
+  ``baseline``.
+
+Data flow: config -> experiment -> problem -> evaluate -> kernel -> metrics -> constraints
+(see docs/architecture.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+
+import numpy as np
+import pandas as pd
+
+from heurtune.core import registry
+from heurtune.core.errors import ConfigError
+from heurtune.core.plugins import load_plugins
+
+__all__ = ["Evaluation", "TuningProblem", "ExperimentBase", "StructureWarning", "FAILED_OBJECTIVE",
+           "FAILED_VIOLATION", "FAILURE_REASONS", "problem_fingerprint", "RANGE_RTOL", "DEFAULT_SIGNAL_LABELS"]
+
+# A candidate that cannot be simulated gets these (finite) values.
+FAILED_OBJECTIVE = 1.0e10
+FAILED_VIOLATION = 1.0e6
+# Why a candidate was not simulated to the end ("" when it was).
+FAILURE_REASONS = ("invalid_parameter", "riccati_failed", "invalid_controller", "unstable", "diverged",
+                   "non_finite")
+# Values within this relative distance of a physical limit count as inside it.
+RANGE_RTOL = 1e-9
+# Names and units of a problem's signals on response figures (TuningProblem.signal_labels).
+DEFAULT_SIGNAL_LABELS = {"output": "output", "input": "input", "y_label": "y{i}", "u_label": "u{i}",
+                         "y_unit": "", "u_unit": ""}
+
+
+class StructureWarning(UserWarning):
+    """The configured controller structure cannot meet the problem on this plant (said once
+    by the runner and the evaluate command, then silenced)."""
+
+
+@dataclasses.dataclass
+class Evaluation:
+    """Batch evaluation of candidates.
+
+    Attributes
+    ----------
+    f : (n,) objective values (``FAILED_OBJECTIVE`` for failed candidates)
+    g : (n, m) normalised constraint values ``metric / limit - 1``; ``g <= 0`` is feasible.
+        Failed candidates get ``FAILED_VIOLATION``; unstable ones ``FAILED_VIOLATION * (1 +
+        max Re(eig))``, so that less unstable candidates rank better
+    feasible : (n,) bool
+    metrics : (n, k) metric values in the order of ``metric_names`` (NaN when not simulated)
+    metric_names : tuple of str
+    constraint_names : tuple of str
+    reason : (n,) object array: "" for a simulated candidate, else ``invalid_parameter``,
+        ``riccati_failed``, ``invalid_controller``, ``unstable``, ``diverged`` or ``non_finite``
+    """
+
+    f: np.ndarray
+    g: np.ndarray
+    feasible: np.ndarray
+    metrics: np.ndarray
+    metric_names: tuple
+    constraint_names: tuple
+    reason: np.ndarray
+
+    def to_frame(self) -> pd.DataFrame:
+        """One row per candidate: f, feasible, reason, the constraints (g_*) and metrics."""
+        df = pd.DataFrame(self.metrics, columns=list(self.metric_names))
+        for j, name in enumerate(self.constraint_names):
+            df.insert(j, f"g_{name}", self.g[:, j])
+        df.insert(0, "reason", self.reason)
+        df.insert(0, "feasible", self.feasible)
+        df.insert(0, "f", self.f)
+        return df
+
+
+
+class TuningProblem:
+    """One case's tuning problem: the protocol the runner, the optimisers and the reports use.
+
+    A subclass sets, in its ``__init__``:
+
+    ``case`` (str), ``controller`` (str, the controller type), ``names`` (tuple of str),
+    ``lower`` and ``upper`` ((d,) float arrays), ``scenarios`` (dict of name to scenario, with
+    ``"nominal"``), ``tuning_scenario`` (str), ``objective`` (str) and ``constraint_names``
+    (tuple of str); and implements :meth:`evaluate`, :meth:`simulate`, :meth:`report`,
+    :meth:`identity` and :meth:`warm_up`. The rest has defaults here.
+    """
+
+    scenario_type = object  # the class of this problem's scenarios
+    # One line saying why the configured controller structure cannot meet the problem on this
+    # plant (said by the runner and the evaluate command), or None.
+    structure_warning = None
+    # Report columns the evaluate command prints (None: all of them).
+    report_columns = None
+    # Panel names and units of response figures (see DEFAULT_SIGNAL_LABELS).
+    signal_labels = DEFAULT_SIGNAL_LABELS
+
+    # -- what a family implements ---------------------------------------------------------------
+    def evaluate(self, X, scenario=None) -> Evaluation:
+        """Evaluate a batch ``X`` (n, d) under a scenario (default: the tuning scenario).
+
+        Never raises for a bad candidate: it gets ``FAILED_OBJECTIVE``, ``FAILED_VIOLATION``
+        (or a graded violation) and a reason among ``FAILURE_REASONS``.
+        """
+        raise NotImplementedError
+
+    def simulate(self, x, scenario="nominal") -> pd.DataFrame:
+        """Trajectories of one candidate: columns ``t, y1, y2, u1, u2`` and optionally the
+        set-points ``r1, r2`` and internal states (e.g. levels ``h1..h4``)."""
+        raise NotImplementedError
+
+    def report(self, x, scenarios=None) -> pd.DataFrame:
+        """One row per scenario (index ``scenario``): ``f``, ``feasible``, ``reason`` and the
+        metrics of one candidate."""
+        raise NotImplementedError
+
+    def identity(self) -> dict:
+        """Everything that defines the problem, JSON-able (hashed into the problem_id)."""
+        raise NotImplementedError
+
+    def warm_up(self) -> None:
+        """Compile or load the jitted kernels (called in the parent before workers start)."""
+
+    # -- optional -----------------------------------------------------------------------------
+    def margins(self, x) -> pd.DataFrame | None:
+        """Stability margins of one design, one row per loop, or None when the family has none."""
+        return None
+
+    def baseline(self, name: str) -> np.ndarray:
+        """Decision vector of a fixed design named by the experiment's ``baseline_names``."""
+        raise ConfigError(f"case {self.case!r}: unknown baseline {name!r}; allowed: none")
+
+    def controller_record(self, x) -> dict | None:
+        """What the ``.mat`` export writes of one design besides its gains (e.g. controller
+        matrices and a response as a DataFrame under ``"response"``), or None."""
+        return None
+
+    def physical_limits(self) -> dict | None:
+        """Ranges drawn on response figures: ``{"y": [(lo, hi), (lo, hi)], "u": (lo, hi)}``
+        (and ``"h"``: one range per internal level), or None."""
+        return None
+
+    # -- shared -------------------------------------------------------------------------------
+    def __call__(self, X):
+        """``(f, g)`` of a batch, the form :func:`heurtune.minimize` and the evaluators take."""
+        ev = self.evaluate(X)
+        return ev.f, ev.g
+
+    @property
+    def dim(self) -> int:
+        return len(self.names)
+
+    def scenario(self, scenario):
+        """A scenario from its name in ``self.scenarios`` (a ``scenario_type`` is returned as is)."""
+        if isinstance(scenario, self.scenario_type):
+            return scenario
+        try:
+            return self.scenarios[scenario]
+        except KeyError:
+            raise ConfigError(f"unknown scenario {scenario!r}; allowed: {', '.join(self.scenarios)}") from None
+
+    def batch(self, X) -> np.ndarray:
+        """``X`` as a float (n, d) array (a single vector becomes one row); ConfigError otherwise."""
+        X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+        if X.ndim != 2 or X.shape[1] != self.dim:
+            raise ConfigError(f"X must have shape (n, {self.dim}), got {X.shape}")
+        return X
+
+    def values(self, x) -> dict:
+        """Map a decision vector (or a dict) to ``{name: value}``, checking names and length."""
+        if isinstance(x, dict):
+            unknown = [k for k in x if k not in self.names]
+            if unknown:
+                raise ConfigError(f"unknown variable {unknown[0]!r}; allowed: {', '.join(self.names)}")
+            missing = [k for k in self.names if k not in x]
+            if missing:
+                raise ConfigError(f"missing variable(s) {', '.join(missing)}; required: {', '.join(self.names)}")
+            return {k: float(x[k]) for k in self.names}
+        x = np.asarray(x, dtype=np.float64).ravel()
+        if x.shape != (self.dim,):
+            raise ConfigError(f"decision vector must have {self.dim} values ({', '.join(self.names)}), got {x.size}")
+        return dict(zip(self.names, x.tolist()))
+
+    def parse(self, text: str, *, check_bounds: bool = True) -> np.ndarray:
+        """Parse ``"NAME=VALUE,..."`` (e.g. ``"Q11=0.44,Q22=0.30,..."``) into a vector.
+
+        Unknown, missing and non-numeric names give a one-line ConfigError, and so do values
+        outside ``[lower, upper]`` unless ``check_bounds=False`` (the values are then returned
+        as given, never clipped).
+        """
+        values = {}
+        for item in filter(None, (s.strip() for s in text.split(","))):
+            key, sep, val = item.partition("=")
+            key = key.strip()
+            if not sep:
+                raise ConfigError(f"expected NAME=VALUE, got {item!r}")
+            try:
+                values[key] = float(val)
+            except ValueError:
+                raise ConfigError(f"{key}: {val.strip()!r} is not a number") from None
+        vals = self.values(values)
+        for i, name in enumerate(self.names):
+            v = vals[name]
+            if check_bounds and not (self.lower[i] <= v <= self.upper[i]):
+                raise ConfigError(f"{name}={v:g} is outside its bounds [{self.lower[i]:g}, {self.upper[i]:g}]")
+        return np.array([vals[n] for n in self.names])
+
+
+
+class ExperimentBase:
+    """An experiment config of one plant family: cases per (plant, controller type), optimisers.
+
+    A family's subclass sets ``config`` and ``name`` (``config["name"]``), calls
+    :meth:`_set_cases` and :meth:`_load_optimisers`, and implements :meth:`problem`. The other
+    hooks the runner calls have defaults here.
+    """
+
+    def problem(self, case: str) -> TuningProblem:
+        """The tuning problem of one case."""
+        raise NotImplementedError
+
+    def baseline_names(self, case: str) -> tuple:
+        """Fixed designs run once each for ``case`` (names for ``problem.baseline``)."""
+        return ()
+
+    def structure_warnings(self) -> dict:
+        """``{case: one line}`` for cases whose controller structure cannot meet the problem."""
+        found = {case: self.problem(case).structure_warning for case in self.cases}
+        return {case: msg for case, msg in found.items() if msg}
+
+    def write_outputs(self, out_dir, *, runs: pd.DataFrame, history: pd.DataFrame, best: pd.DataFrame,
+                      figures: bool = True) -> None:
+        """Files of this family beside the runner's (design tables, robustness, chapter tables);
+        ``best`` holds the best run per case and optimiser."""
+
+    def _set_cases(self, plant_cases: tuple, kinds) -> None:
+        """One case per (controller, plant case); named by the plant alone when there is one
+        controller type (``"min"``), else ``"<plant>-<controller>"`` (``"min-folqi"``)."""
+        self.controllers = tuple(kinds) if isinstance(kinds, list) else (kinds,)
+        self.controller = self.controllers[0]
+        self._variants = {}
+        for kind in self.controllers:
+            for pc in plant_cases:
+                self._variants[pc if len(self.controllers) == 1 else f"{pc}-{kind}"] = (pc, kind)
+        self.cases = tuple(self._variants)
+
+    def _load_optimisers(self, config: dict) -> None:
+        """Load the config's plugins and validate each ``[[optimisers]]`` entry's settings."""
+        load_plugins(config.get("plugins", []))
+        self.optimisers = []
+        for i, opt in enumerate(config.get("optimisers", [])):
+            where = f"{self.name}: optimisers[{i}]"
+            if "name" not in opt:
+                raise ConfigError(f"{where}: missing key 'name'")
+            try:
+                settings = registry.make_settings(opt["name"], opt.get("settings", {}))
+            except ConfigError as exc:
+                raise ConfigError(f"{where}: {exc}") from None
+            unknown = [c for c in opt.get("cases", []) if c not in self.cases]
+            if unknown:
+                raise ConfigError(f"{where}.cases: unknown case {unknown[0]!r}; allowed: {', '.join(self.cases)}")
+            self.optimisers.append(dict(opt, settings=settings))
+
+    def optimisers_of(self, case: str) -> list:
+        """``(index, entry)`` of the ``[[optimisers]]`` that tune ``case`` (an entry's
+        ``cases`` restricts it; the index is the entry's place in the config)."""
+        return [(i, opt) for i, opt in enumerate(self.optimisers) if case in opt.get("cases", self.cases)]
+
+    def controller_of(self, case: str) -> str:
+        """The controller type of a case."""
+        return self._variant(case)[1]
+
+    def _variant(self, case: str):
+        try:
+            return self._variants[case]
+        except KeyError:
+            raise ConfigError(f"unknown case {case!r} for {self.name}; allowed: {', '.join(self.cases)}") from None
+
+
+
+def problem_fingerprint(prob) -> str:
+    """A short hash of everything that defines a tuning problem (its ``identity()``)."""
+    text = json.dumps(prob.identity(), sort_keys=True, default=list)
+    return hashlib.sha256(text.encode()).hexdigest()[:12]

@@ -1,0 +1,163 @@
+"""The optimiser registry: strict names, typed settings, plugins found by import.
+
+Every module in ``algorithms/`` (imported as ``heurtune.algorithms.<name>``) registers its
+optimiser on import with :func:`register`. A user adds one by dropping a module there, or by
+naming a ``.py`` file or an importable module (:func:`heurtune.core.plugins.load_plugin`) - no
+reinstall needed.
+
+``python -m heurtune.algorithms`` lists what is registered, with settings and defaults.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import pkgutil
+import typing
+
+import heurtune.algorithms as algorithms_package
+from heurtune.core.errors import ConfigError
+
+__all__ = ["AlgorithmInfo", "register", "get", "available", "load_algorithms",
+           "make_settings", "describe", "reference_markdown"]
+
+_REGISTRY: dict = {}
+_PLUGINS_LOADED = False
+
+
+@dataclasses.dataclass(frozen=True)
+class AlgorithmInfo:
+    """What the registry knows of an optimiser."""
+
+    name: str
+    cls: type
+    settings: type
+    description: str
+    source: str
+    kind: str  # "population" (ask/tell) or "driver" (owns its loop)
+
+
+def register(name: str, *, settings: type, description: str, source: str = "",
+             kind: str = "population"):
+    """Class decorator adding an optimiser to the registry.
+
+    Parameters
+    ----------
+    name : str
+        Lowercase key (``[a-z0-9_]+``); a name already taken is an error.
+    settings : type
+        Frozen dataclass of the hyperparameters, with defaults.
+    description : str
+        One line for listings.
+    source : str
+        The reference the implementation follows.
+    kind : {"population", "driver"}
+        A population optimiser implements ``ask``/``tell``; a driver implements ``run(ctx)``.
+    """
+    if not name or name != name.lower() or not name.replace("_", "").isalnum():
+        raise ValueError(f"optimiser name {name!r} must be lowercase letters, digits and '_'")
+    if not dataclasses.is_dataclass(settings):
+        raise TypeError(f"settings of {name!r} must be a dataclass")
+    if kind not in ("population", "driver"):
+        raise ValueError(f"kind of {name!r} must be 'population' or 'driver'")
+
+    def decorate(cls):
+        if name in _REGISTRY:
+            raise ValueError(f"optimiser {name!r} is already registered (by {_REGISTRY[name].cls.__module__})")
+        _REGISTRY[name] = AlgorithmInfo(name, cls, settings, description, source, kind)
+        cls.registry_name = name
+        return cls
+
+    return decorate
+
+
+def load_algorithms() -> None:
+    """Import every module of ``heurtune.algorithms`` once (each registers itself)."""
+    global _PLUGINS_LOADED
+    if _PLUGINS_LOADED:
+        return
+    for mod in pkgutil.iter_modules(algorithms_package.__path__):
+        if not mod.name.startswith("_"):
+            importlib.import_module(f"heurtune.algorithms.{mod.name}")
+    _PLUGINS_LOADED = True
+
+
+def available() -> list:
+    """Registered names, sorted."""
+    load_algorithms()
+    return sorted(_REGISTRY)
+
+
+def get(name: str) -> AlgorithmInfo:
+    """The registry entry of ``name`` (a one-line ConfigError listing the allowed names)."""
+    load_algorithms()
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise ConfigError(f"unknown optimiser {name!r}; allowed: {', '.join(sorted(_REGISTRY))}") from None
+
+
+def _check_type(name: str, key: str, hint, value):
+    """Check one setting against its annotation (int, float, bool or str); ints pass as floats."""
+    if hint is float:
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        value = float(value) if ok else value
+    elif hint is int:
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif hint is bool:
+        ok = isinstance(value, bool)
+    elif hint is str:
+        ok = isinstance(value, str)
+    else:
+        ok = True
+    if not ok:
+        raise ConfigError(f"{name}: setting {key} must be {getattr(hint, '__name__', hint)}, got {value!r}")
+    return value
+
+
+def make_settings(name: str, values: dict | None = None):
+    """Typed, validated settings of optimiser ``name`` from a dict (unknown keys are errors)."""
+    info = get(name)
+    values = dict(values or {})
+    fields = [f.name for f in dataclasses.fields(info.settings)]
+    unknown = [k for k in values if k not in fields]
+    if unknown:
+        raise ConfigError(f"{name}: unknown setting {unknown[0]!r}; allowed: {', '.join(fields)}")
+    hints = typing.get_type_hints(info.settings)
+    for key, value in list(values.items()):
+        values[key] = _check_type(name, key, hints.get(key), value)
+    try:
+        return info.settings(**values)
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"{name}: {exc}") from None
+
+
+def describe(name: str) -> str:
+    """Multi-line description: name, description, source, settings with defaults and help."""
+    info = get(name)
+    lines = [f"{info.name}: {info.description}"]
+    if info.source:
+        lines.append(f"    source: {info.source}")
+    for f in dataclasses.fields(info.settings):
+        help_text = f.metadata.get("help", "")
+        lines.append(f"    {f.name} = {f.default!r}" + (f"  ({help_text})" if help_text else ""))
+    return "\n".join(lines)
+
+
+def reference_markdown() -> str:
+    """The optimiser reference page: every registered optimiser with its settings."""
+    out = ["# Optimiser reference", "",
+           "Generated by `python -m heurtune.algorithms --markdown`; every setting can be given in",
+           "`settings={...}` or an experiment's `[[optimisers]]` table.", ""]
+    for name in available():
+        info = get(name)
+        module = info.cls.__module__.replace("heurtune.algorithms.", "algorithms/") + ".py"
+        out += [f"## `{name}`", "", info.description + ".", "",
+                f"- kind: {info.kind}; module: `{module}`",
+                f"- source: {info.source or '-'}", "",
+                "| setting | default | meaning |", "| --- | --- | --- |"]
+        for f in dataclasses.fields(info.settings):
+            meaning = f.metadata.get("help", "").replace("|", "\\|")
+            out.append(f"| `{f.name}` | `{f.default!r}` | {meaning} |")
+        out.append("")
+    return "\n".join(out)

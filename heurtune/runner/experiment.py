@@ -1,0 +1,687 @@
+"""Run a named experiment: many seeded tuning runs, logged to parquet, resumable.
+
+Usage::
+
+    python -m heurtune.experiment NAME [--runs N] [--max-epochs E] [--jobs J] [--seed S]
+        [--out DIR] [--smoke] [--fresh] [--backend loky|dask --scheduler ADDRESS]
+        [--plugin FILE_OR_MODULE ...] [--list] [--list-algorithms]
+
+Every (case, optimiser, run) is one tuning run with its own seed,
+``SeedSequence(root_seed, spawn_key=(case index, optimiser index, run))``, so a run's result
+depends on nothing but the config and the root seed: not on the order, on the number of workers
+or on which runs were already done. Each finished run is written at once, atomically, to
+``DIR/parts/``; re-running the same command skips finished runs (``--fresh`` starts over), so an
+interrupt loses at most the runs in flight. At the end the parts are gathered into
+``runs.parquet`` and ``history.parquet``, with ``summary.parquet`` (the printed summary as data),
+``meta.json`` (resolved config, seeds, package versions, git commit and whether the tree was
+dirty, platform and BLAS), ``margins.parquet`` and figures. TITO experiments also write
+``design.parquet`` (decoupled loops' FOPDT fits, GPM design and its exact margins),
+``robustness.parquet`` (spectral-radius and Kharitonov verdicts of each best design),
+``performance.parquet`` / ``performance.md`` (IAE, ISE, ITAE per loop, papers' table layout)
+and spectral-radius plots. Analytic designs named in ``controller.baselines`` (e.g. ``gpm``) are
+written as runs of their own (one each, algorithm = the baseline's name).
+
+With more pending runs than workers, whole runs go to the workers; otherwise the runs go one
+after the other, each evaluating its batches on all workers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import hashlib
+import json
+import shutil
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from heurtune.analysis import figures
+from heurtune.analysis.compare import best_runs, failed_runs, successful_runs
+from heurtune.core import registry
+from heurtune.core.engine import Checkpoint, SearchSpace, run as run_optimiser
+from heurtune.core.errors import ConfigError
+from heurtune.core.evaluator import Evaluator
+from heurtune.core.execution import BACKENDS, Pool
+from heurtune.core.families import make_experiment
+from heurtune.core.io import atomic_path, write_parquet
+from heurtune.core.plugins import load_plugins
+from heurtune.core.problem import StructureWarning, problem_fingerprint
+from heurtune.runner.config import list_experiments, load_config
+
+__all__ = ["RunSpec", "plan", "execute", "problem_id", "run_status", "RUN_STATUSES", "run_experiment", "summary_table",
+           "main"]
+
+# Budgets of --smoke: the same problem, a quick check.
+SMOKE_RUNS = 2
+SMOKE_EPOCHS = 2
+SMOKE_SETTINGS = {"n": 6, "starts": 2, "max_iter": 5, "batch": 2}
+
+
+@dataclasses.dataclass(frozen=True)
+class RunSpec:
+    """One tuning run of an experiment."""
+
+    case: str
+    case_index: int
+    algorithm: str
+    optimiser_index: int
+    run: int
+    settings: dict
+    budget: dict
+    root_seed: int
+    baseline: bool = False
+
+    @property
+    def spawn_key(self) -> tuple:
+        return (self.case_index, self.optimiser_index, self.run)
+
+    @property
+    def seed_key(self) -> str:
+        return ".".join(map(str, self.spawn_key))
+
+    @property
+    def part_name(self) -> str:
+        safe = self.case.replace("/", "_")
+        return f"{safe}__{self.optimiser_index}-{self.algorithm}__{self.run:04d}"
+
+
+def problem_id(exp, case: str) -> str:
+    """A short hash of everything that defines a case's tuning problem (for comparisons)."""
+    return problem_fingerprint(exp.problem(case))
+
+
+def plan(exp, *, runs=None, max_epochs=None, seed=None, smoke=False) -> list:
+    """All runs of an experiment, in a fixed order (case, optimiser, run), then one run per
+    case and baseline: an analytic design (``controller.baselines`` of TITO experiments) or a
+    fixed controller (``[[baselines]]`` of QTP experiments, e.g. printed gains).
+
+    An optimiser entry with ``cases`` tunes only those cases; its index (and hence its runs'
+    seeds) is its place in the config all the same."""
+    if not exp.optimisers and not any(exp.baseline_names(c) for c in exp.cases):
+        raise ConfigError(f"{exp.name}: no [[optimisers]] to run")
+    n_runs = runs if runs is not None else exp.config.get("runs", 10)
+    root = seed if seed is not None else exp.config.get("seed", 0)
+    if smoke:
+        n_runs = min(n_runs, SMOKE_RUNS)
+    specs = []
+    for ci, case in enumerate(exp.cases):
+        for oi, opt in exp.optimisers_of(case):
+            name = opt["name"]
+            settings = dataclasses.asdict(opt["settings"])
+            budget = {k: opt[k] for k in ("max_epochs", "max_evals", "max_time", "tol", "tol_window",
+                                          "constraint_handling", "penalty", "bound_handling") if k in opt}
+            if max_epochs is not None:
+                budget["max_epochs"] = max_epochs
+                budget.pop("max_evals", None)
+            if smoke:
+                budget["max_epochs"] = min(budget.get("max_epochs", SMOKE_EPOCHS), SMOKE_EPOCHS)
+                if "max_evals" in budget:
+                    budget["max_evals"] = min(budget["max_evals"], 200)
+                for key, small in SMOKE_SETTINGS.items():
+                    if key in settings:
+                        settings[key] = min(settings[key], small)
+            for r in range(n_runs):
+                specs.append(RunSpec(case, ci, name, oi, r, settings, budget, root))
+        for bi, name in enumerate(exp.baseline_names(case)):
+            specs.append(RunSpec(case, ci, name, len(exp.optimisers) + bi, 0, {}, {}, root, baseline=True))
+    return specs
+
+
+# Per-process cache: workers rebuild each case's problem once.
+_PROBLEMS = {}
+
+
+def _problem(config: dict, case: str):
+    key = (config["name"], json.dumps(config, sort_keys=True, default=str), case)
+    if key not in _PROBLEMS:
+        _PROBLEMS[key] = make_experiment(config).problem(case)
+    return _PROBLEMS[key]
+
+
+def execute(config: dict, spec: RunSpec, evaluator: Evaluator | None = None, *, parts=None):
+    """Run one tuning run; returns its result row (dict) and history (DataFrame).
+
+    Runs in any process: the optimiser plugins named by the config are loaded here too.
+
+    Parameters
+    ----------
+    config : dict
+        The resolved experiment config.
+    spec : RunSpec
+        The run.
+    evaluator : Evaluator, optional
+        An open evaluator to use (default: a new in-process one).
+    parts : path, optional
+        The experiment's ``parts/`` folder. Given, a driver's finished local solves are saved
+        as they end to ``parts/<run>.starts.parquet`` (for ``starts.parquet``), and a rerun of
+        an interrupted run takes them from there instead of solving them again.
+
+    Returns
+    -------
+    row : dict
+    history : pandas.DataFrame
+    """
+    load_plugins(config.get("plugins", []))
+    prob = _problem(config, spec.case)
+    if spec.baseline:
+        return _execute_baseline(prob, spec)
+    t0 = time.perf_counter()
+    seed = np.random.SeedSequence(spec.root_seed, spawn_key=spec.spawn_key)
+    space = SearchSpace(prob.lower, prob.upper, spec.budget.get("bound_handling", "clip"))
+    budget = {k: v for k, v in spec.budget.items() if k != "bound_handling"}
+    own = evaluator is None
+    ev = Evaluator(prob) if own else evaluator
+    try:
+        checkpoint = None if parts is None else StartsFile(
+            Path(parts) / f"{spec.part_name}.starts.parquet", prob.names, _run_key(prob, spec))
+        res = run_optimiser(spec.algorithm, ev, space, settings=spec.settings, seed=seed,
+                            checkpoint=checkpoint, **budget)
+    finally:
+        if own:
+            ev.close()
+    row = dict(case=spec.case, algorithm=spec.algorithm, optimiser_index=spec.optimiser_index,
+               run=spec.run, seed=spec.root_seed, seed_key=spec.seed_key, best_f=float(res.f),
+               feasible=bool(res.feasible), violation=float(res.violation), n_evals=int(res.n_evals),
+               n_epochs=int(res.n_epochs), convergence_epoch=int(res.convergence_epoch),
+               wall_time_s=time.perf_counter() - t0, stop_reason=res.stop_reason,
+               settings=json.dumps(spec.settings, sort_keys=True))
+    row.update(zip(prob.names, map(float, res.x)))
+    _add_report(row, prob, res.x)
+    hist = res.history.assign(case=spec.case, algorithm=spec.algorithm, optimiser_index=spec.optimiser_index,
+                              run=spec.run)
+    return row, hist
+
+
+def _run_key(prob, spec: RunSpec) -> str:
+    """A short hash of what a run's local solves depend on: problem, optimiser, budget, seed."""
+    payload = dict(problem=problem_fingerprint(prob), algorithm=spec.algorithm, settings=spec.settings, budget=spec.budget,
+                   seed=spec.root_seed, spawn_key=list(spec.spawn_key))
+    return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+class StartsFile(Checkpoint):
+    """A run's finished local solves in one parquet file, rewritten atomically at each save.
+
+    One row per solve: ``start, round, cap, x0_<name>..., <name>..., f, violation, feasible,
+    nit, nfev, success, message``, then the constraint values at the kept point ``g_0, g_1,
+    ...`` and ``run_key`` (what the solves depend on, see :func:`_run_key`). The records are a
+    multistart driver's (``start, round, cap, x0, x, f, violation, g, nfev, nit, success,
+    message``); floats go through parquet unchanged, so a resumed run is bit-identical.
+
+    Parameters
+    ----------
+    path : path
+        ``parts/<run>.starts.parquet``.
+    names : sequence of str
+        The decision variables.
+    key : str
+        The run's key; a file written under another key is refused (the config changed).
+    """
+
+    def __init__(self, path, names, key: str):
+        self.path = Path(path)
+        self.names = list(names)
+        self.key = key
+
+    def load(self) -> list:
+        """The saved solves (a list of records); none when the file does not exist."""
+        if not self.path.exists():
+            return []
+        df = pd.read_parquet(self.path)
+        if len(df) and (df["run_key"] != self.key).any():
+            raise ConfigError(f"{self.path} holds local solves of another configuration of this run; "
+                              "use --fresh or another --out")
+        gcols = sorted((c for c in df.columns if c.startswith("g_") and c[2:].isdigit()), key=lambda c: int(c[2:]))
+        X0 = df[[f"x0_{n}" for n in self.names]].to_numpy(dtype=np.float64)
+        X = df[self.names].to_numpy(dtype=np.float64)
+        G = df[gcols].to_numpy(dtype=np.float64) if gcols else np.zeros((len(df), 0))
+        records = []
+        for i, r in enumerate(df.itertuples(index=False)):
+            records.append(dict(start=int(r.start), round=int(r.round), cap=None if pd.isna(r.cap) else int(r.cap),
+                                x0=X0[i], x=X[i], f=float(r.f), violation=float(r.violation), g=G[i],
+                                nfev=int(r.nfev), nit=int(r.nit), success=bool(r.success), message=str(r.message)))
+        return records
+
+    def save(self, records) -> None:
+        """Write ``records`` (every finished solve of the run) over the file, atomically."""
+        n = len(records)
+        X0 = np.array([r["x0"] for r in records], dtype=np.float64).reshape(n, len(self.names))
+        X = np.array([r["x"] for r in records], dtype=np.float64).reshape(n, len(self.names))
+        G = np.array([np.asarray(r["g"], dtype=np.float64).reshape(-1) for r in records]).reshape(n, -1)
+        cols = {"start": [int(r["start"]) for r in records], "round": [int(r["round"]) for r in records],
+                "cap": pd.array([r["cap"] for r in records], dtype="Int64")}
+        cols.update({f"x0_{name}": X0[:, j] for j, name in enumerate(self.names)})
+        cols.update({name: X[:, j] for j, name in enumerate(self.names)})
+        violation = np.array([r["violation"] for r in records], dtype=np.float64)
+        cols.update(f=np.array([r["f"] for r in records], dtype=np.float64), violation=violation,
+                    feasible=violation == 0, nit=[int(r["nit"]) for r in records],
+                    nfev=[int(r["nfev"]) for r in records], success=[bool(r["success"]) for r in records],
+                    message=[str(r["message"]) for r in records])
+        cols.update({f"g_{j}": G[:, j] for j in range(G.shape[1])})
+        cols["run_key"] = [self.key] * n
+        write_parquet(pd.DataFrame(cols), self.path)
+
+
+RUN_STATUSES = ("feasible", "infeasible", "failed")
+
+
+def run_status(prob, x) -> dict:
+    """How a run's best candidate fares under the tuning scenario, for ``runs.parquet``.
+
+    Returns
+    -------
+    dict
+        ``status``: ``"feasible"``; ``"infeasible"`` (simulated, violates a constraint); or
+        ``"failed"`` (no stable, simulable candidate was found: its ``best_f`` is the
+        ``FAILED_OBJECTIVE`` sentinel, not a number to average). ``failure``: the reason of a
+        failed candidate (``unstable``, ``diverged``, ``riccati_failed``, ...), else "".
+    """
+    ev = prob.evaluate(np.asarray(x, dtype=np.float64)[None, :])
+    return _status(ev.reason[0], ev.feasible[0])
+
+
+def _status(reason, feasible) -> dict:
+    reason = str(reason)
+    status = "failed" if reason else ("feasible" if bool(feasible) else "infeasible")
+    return dict(status=status, failure=reason)
+
+
+def _add_report(row: dict, prob, x):
+    """The run's status (from its tuning scenario) and its metrics per scenario into ``row``."""
+    with warnings.catch_warnings():  # said once, when the experiment starts
+        warnings.simplefilter("ignore", StructureWarning)
+        table = prob.report(x)
+    tuning = table.loc[prob.tuning_scenario]
+    row.update(_status(tuning["reason"], tuning["feasible"]))
+    for scenario, values in table.iterrows():
+        for key, value in values.items():
+            row[f"{key}@{scenario}"] = value
+
+
+def _execute_baseline(prob, spec: RunSpec):
+    """An analytic design (e.g. GPM) as a run: one evaluation, no search."""
+    t0 = time.perf_counter()
+    x = prob.baseline(spec.algorithm)
+    ev = prob.evaluate(x[None, :])
+    viol = float(np.maximum(ev.g[0], 0.0).sum())
+    row = dict(case=spec.case, algorithm=spec.algorithm, optimiser_index=spec.optimiser_index,
+               run=spec.run, seed=spec.root_seed, seed_key=spec.seed_key, best_f=float(ev.f[0]),
+               feasible=bool(ev.feasible[0]), violation=viol, n_evals=1, n_epochs=0, convergence_epoch=0,
+               wall_time_s=time.perf_counter() - t0, stop_reason="analytic design",
+               settings=json.dumps({}, sort_keys=True))
+    row.update(zip(prob.names, map(float, x)))
+    _add_report(row, prob, x)
+    hist = pd.DataFrame(dict(epoch=[0], n_evals=[1], best_f=[float(ev.f[0])], best_violation=[viol],
+                             mean_f=[float(ev.f[0])], sd_f=[0.0], feasible_fraction=[float(ev.feasible[0])],
+                             wall_time_s=[time.perf_counter() - t0])).assign(
+        case=spec.case, algorithm=spec.algorithm, optimiser_index=spec.optimiser_index, run=spec.run)
+    return row, hist
+
+
+def _git(*args) -> str | None:
+    """Output of a git command run in the package's checkout; None outside one."""
+    try:
+        out = subprocess.run(["git", *args], capture_output=True, text=True,
+                             cwd=Path(__file__).resolve().parent, timeout=5)
+        return out.stdout.strip() if out.returncode == 0 else None
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def _git_commit() -> str:
+    return _git("rev-parse", "HEAD") or ""
+
+
+def _git_dirty() -> bool | None:
+    """Whether the checkout has uncommitted changes to tracked files (None outside git)."""
+    status = _git("status", "--porcelain", "--untracked-files=no")
+    return None if status is None else bool(status)
+
+
+def _platform() -> dict:
+    """Where the experiment ran: OS, CPU, core count, and the BLAS libraries numpy loaded."""
+    import os
+    import platform
+
+    cpu = platform.processor() or ""
+    try:
+        with open("/proc/cpuinfo") as fh:
+            cpu = next((line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    from threadpoolctl import threadpool_info
+
+    blas = [{k: lib.get(k) for k in ("internal_api", "version", "threading_layer", "architecture", "num_threads")}
+            for lib in threadpool_info() if lib.get("user_api") == "blas"]
+    return dict(system=platform.platform(), machine=platform.machine(), cpu=cpu, cpu_count=os.cpu_count(),
+                blas=blas)
+
+
+def _versions() -> dict:
+    from importlib import metadata
+
+    out = {"python": sys.version.split()[0]}
+    for pkg in ("heurtune", "numpy", "scipy", "numba", "joblib", "control", "pandas", "pyarrow", "matplotlib"):
+        try:
+            out[pkg] = metadata.version(pkg)
+        except metadata.PackageNotFoundError:
+            out[pkg] = None
+    return out
+
+
+class Progress:
+    """One status line: runs done, evaluations per second, best so far per case."""
+
+    def __init__(self, total: int, done: int, stream=sys.stdout):
+        self.total, self.done = total, done
+        self.stream = stream
+        self.tty = stream.isatty()
+        self.t0 = time.perf_counter()
+        self.evals = 0
+        self.best = {}
+
+    def update(self, row: dict):
+        self.done += 1
+        self.evals += row["n_evals"]
+        key = row["case"]
+        cand = (not row["feasible"], row["best_f"] if row["feasible"] else row["violation"])
+        if key not in self.best or cand < self.best[key][0]:
+            self.best[key] = (cand, row["algorithm"])
+        rate = self.evals / max(time.perf_counter() - self.t0, 1e-9)
+        width = 24
+        filled = int(width * self.done / max(self.total, 1))
+        bests = ", ".join(f"{c}: {v[0][1]:.6g}{'' if not v[0][0] else ' (infeasible)'} [{v[1]}]"
+                          for c, v in self.best.items())
+        line = (f"[{'#' * filled}{'.' * (width - filled)}] {self.done}/{self.total} runs, "
+                f"{rate:.0f} evals/s, best {bests}")
+        if self.tty:
+            self.stream.write("\r" + line[:200].ljust(200))
+        else:
+            self.stream.write(line + "\n")
+        self.stream.flush()
+
+    def close(self):
+        if self.tty:
+            self.stream.write("\n")
+
+
+def _finished(parts: Path) -> set:
+    return {p.name[:-len(".run.parquet")] for p in parts.glob("*.run.parquet")}
+
+
+def _persist(parts: Path, spec: RunSpec, row: dict, hist: pd.DataFrame):
+    # History first; the run file marks the run finished.
+    write_parquet(hist, parts / f"{spec.part_name}.history.parquet")
+    write_parquet(pd.DataFrame([row]), parts / f"{spec.part_name}.run.parquet")
+
+
+def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed=None, out=None,
+                   smoke=False, fresh=False, backend="loky", scheduler=None, plugins=(),
+                   progress_stream=sys.stdout, figures=True, executor=None) -> Path:
+    """Run (or resume) an experiment; returns its output folder. See the module docstring.
+
+    ``jobs``, ``backend`` and ``scheduler`` say where the runs go (:class:`heurtune.core.execution.Pool`);
+    an ``executor`` (any ``concurrent.futures.Executor``) takes whole runs instead."""
+    load_plugins(plugins)
+    config = load_config(name)
+    if plugins:
+        config["plugins"] = list(config.get("plugins", [])) + [str(Path(p).resolve()) if p.endswith(".py") else p
+                                                              for p in plugins]
+    exp = make_experiment(config)
+    out_dir = Path(out) if out else Path("results") / exp.name
+    parts = out_dir / "parts"
+    specs = plan(exp, runs=runs, max_epochs=max_epochs, seed=seed, smoke=smoke)
+    if fresh and out_dir.exists():
+        shutil.rmtree(out_dir)
+    parts.mkdir(parents=True, exist_ok=True)
+    # What makes earlier runs reusable (a different --runs only adds or leaves out runs).
+    plan_key = dict(max_epochs=max_epochs, seed=seed, smoke=smoke)
+    meta_path = out_dir / "plan.json"
+    if meta_path.exists():
+        old = json.loads(meta_path.read_text())
+        if old != plan_key:
+            raise ConfigError(f"{out_dir} holds runs of a different plan ({old}); use --fresh or another --out")
+    else:
+        with atomic_path(meta_path) as tmp:
+            tmp.write_text(json.dumps(plan_key))
+    structure_warnings = exp.structure_warnings()
+    for case, msg in structure_warnings.items():
+        print(f"warning: {case}: {msg}", file=sys.stderr)
+    done = _finished(parts)
+    pending = [s for s in specs if s.part_name not in done]
+    bar = Progress(len(specs), len(specs) - len(pending), progress_stream)
+    ids = {case: problem_id(exp, case) for case in exp.cases}
+    if pending:
+        print(f"{exp.name}: {len(pending)} of {len(specs)} runs to do ({len(done)} already done), "
+              f"{jobs} worker(s), output {out_dir}", file=progress_stream)
+        _run_pending(config, pending, parts, bar, jobs=jobs, backend=backend, scheduler=scheduler, executor=executor)
+    bar.close()
+    _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, figures=figures)
+    return out_dir
+
+
+def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler, executor=None):
+    for spec in [s for s in pending if s.baseline]:  # analytic designs: one evaluation each
+        row, hist = execute(config, spec)
+        _persist(parts, spec, row, hist)
+        bar.update(row)
+    pending = [s for s in pending if not s.baseline]
+    if not pending:
+        return
+    whole_runs = backend == "dask" or executor is not None or (jobs > 1 and len(pending) >= jobs)
+    if not whole_runs:
+        # Few runs: one after the other, each spreading its batches over the workers.
+        for spec in pending:
+            prob = _problem(config, spec.case)
+            with Evaluator(prob, n_jobs=jobs) as ev:
+                row, hist = execute(config, spec, ev, parts=parts)
+            _persist(parts, spec, row, hist)
+            bar.update(row)
+        return
+    # Whole runs on the workers (each evaluating in its own process); the kernels are warmed
+    # here first, so that the workers load them from the cache.
+    _problem(config, pending[0].case).warm_up()
+    pool = Pool(jobs, backend, scheduler, executor=executor)
+    try:
+        with pool:
+            for i, (row, hist) in pool.imap_unordered(functools.partial(execute, config, parts=parts), pending):
+                _persist(parts, pending[i], row, hist)
+                bar.update(row)
+    except BaseException:
+        pool.abort()
+        raise
+
+
+def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, *, figures):
+    rows, hists = [], []
+    for spec in specs:
+        run_file = parts / f"{spec.part_name}.run.parquet"
+        if run_file.exists():
+            rows.append(pd.read_parquet(run_file))
+            hists.append(pd.read_parquet(parts / f"{spec.part_name}.history.parquet"))
+    runs = pd.concat(rows, ignore_index=True)
+    runs.insert(0, "experiment", exp.name)
+    runs.insert(3, "controller", [exp.controller_of(c) for c in runs["case"]])
+    runs.insert(4, "problem_id", [ids[c] for c in runs["case"]])
+    history = pd.concat(hists, ignore_index=True)
+    history.insert(0, "experiment", exp.name)
+    lead = ["experiment", "case", "algorithm", "optimiser_index", "run"]
+    history = history[lead + [c for c in history.columns if c not in lead]]
+    write_parquet(runs, out_dir / "runs.parquet")
+    write_parquet(history, out_dir / "history.parquet")
+    _gather_starts(exp, specs, parts, out_dir)
+    meta = dict(experiment=exp.name, config=config, plan=plan_key, root_seed=specs[0].root_seed,
+                structure_warnings=structure_warnings,
+                seeds={s.part_name: dict(seed=s.root_seed, spawn_key=list(s.spawn_key)) for s in specs},
+                problem_ids=ids, versions=_versions(), git_commit=_git_commit(), git_dirty=_git_dirty(),
+                platform=_platform(),
+                written=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
+    with atomic_path(out_dir / "meta.json") as tmp:
+        tmp.write_text(json.dumps(meta, indent=2, default=str))
+    best = best_runs(runs)
+    tables = []
+    for _, r in best.iterrows():
+        prob = exp.problem(r["case"])
+        m = prob.margins(np.array([r[n] for n in prob.names]))
+        if m is not None:
+            tables.append(m.assign(experiment=exp.name, case=r["case"], algorithm=r["algorithm"], run=r["run"]))
+    if tables:
+        margins = pd.concat(tables, ignore_index=True)
+        lead = ["experiment", "case", "algorithm", "run"]
+        write_parquet(margins[lead + [c for c in margins.columns if c not in lead]], out_dir / "margins.parquet")
+    exp.write_outputs(out_dir, runs=runs, history=history, best=best, figures=figures)
+    if figures:
+        _figures(exp, runs, history, best, out_dir)
+    write_parquet(summary_table(runs, exp), out_dir / "summary.parquet")
+    print_summary(runs, exp)
+
+
+def _gather_starts(exp, specs, parts, out_dir):
+    """``starts.parquet``: every local solve of the finished multistart runs (none: no file).
+
+    Columns: experiment, case, algorithm, optimiser_index, run, start, round, cap, x0_<name>
+    (start point), <name> (the point kept), f, violation, feasible, nit, nfev, success, message.
+    """
+    tables = []
+    for spec in specs:
+        path = parts / f"{spec.part_name}.starts.parquet"
+        if (parts / f"{spec.part_name}.run.parquet").exists() and path.exists():
+            t = pd.read_parquet(path)
+            t = t.drop(columns=[c for c in t.columns if c == "run_key" or (c.startswith("g_") and c[2:].isdigit())])
+            tables.append(t.assign(experiment=exp.name, case=spec.case, algorithm=spec.algorithm,
+                                   optimiser_index=spec.optimiser_index, run=spec.run))
+    if not tables:
+        return
+    starts = pd.concat(tables, ignore_index=True)
+    lead = ["experiment", "case", "algorithm", "optimiser_index", "run"]
+    write_parquet(starts[lead + [c for c in starts.columns if c not in lead]], out_dir / "starts.parquet")
+
+
+def _figures(exp, runs, history, best, out_dir):
+    for case in exp.cases:
+        h = history[history["case"] == case]
+        figures.convergence_figure(h, out_dir / f"convergence_{_slug(case)}.png", case=case)
+        b = best[best["case"] == case].sort_values(["feasible", "best_f"], ascending=[False, True]).head(1)
+        if len(b):
+            prob = exp.problem(case)
+            r = b.iloc[0]
+            x = np.array([r[n] for n in prob.names])
+            title = f"{exp.name} / {case}: best of {r['algorithm']} (run {r['run']})"
+            figures.response_figure(prob, x, out_dir / f"responses_{_slug(case)}.png",
+                                    scenarios=tuple(prob.scenarios), title=title)
+    figures.boxplot_figure(runs, out_dir / "boxplot_best_f.png")
+
+
+def _slug(text: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in text)
+
+
+def summary_table(runs: pd.DataFrame, exp) -> pd.DataFrame:
+    """One row per (case, optimiser): the statistics of the printed summary, as data.
+
+    Columns: case, algorithm, optimiser_index, runs, successes (runs that did not fail and whose
+    best candidate is feasible), feasible (runs whose best candidate is feasible), failed (no
+    stable, simulable candidate), best, mean, sd, median, worst (of
+    ``best_f`` over the successful runs, :func:`heurtune.analysis.compare.successful_runs`: a failed
+    run's ``best_f`` is a sentinel and an infeasible run's answers another question, so both are
+    counted, not averaged; NaN when no run succeeded), conv_epoch and n_evals (means over all
+    runs), wall_s (summed), best_run, and the best run's gains (one column per variable).
+    """
+    rows = []
+    for (case, oi), grp in runs.groupby(["case", "optimiser_index"], sort=False):
+        failed = failed_runs(grp)
+        f = grp.loc[successful_runs(grp), "best_f"]
+        best = best_runs(grp).iloc[0]
+        row = {
+            "case": case, "algorithm": grp["algorithm"].iloc[0], "optimiser_index": int(oi), "runs": len(grp),
+            "successes": int(successful_runs(grp).sum()),
+            "feasible": int(grp["feasible"].sum()), "failed": int(failed.sum()),
+            "best": f.min(), "mean": f.mean(), "sd": f.std(ddof=1) if len(f) > 1 else 0.0,
+            "median": f.median(), "worst": f.max(),
+            "conv_epoch": grp["convergence_epoch"].mean(), "n_evals": grp["n_evals"].mean(),
+            "wall_s": grp["wall_time_s"].sum(), "best_run": int(best["run"]),
+        }
+        row.update({n: float(best[n]) for n in exp.problem(case).names})
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def print_summary(runs: pd.DataFrame, exp, stream=sys.stdout):
+    """Per case and optimiser: best, mean, SD, median, worst objective over the successful runs,
+    feasible runs, failed runs, mean convergence epoch, wall time and the best gains
+    (:func:`summary_table`)."""
+    summary = summary_table(runs, exp)
+    table = summary[["case", "algorithm", "runs", "best", "mean", "sd", "median", "worst"]].assign(
+        feasible=[f"{a}/{b}" for a, b in zip(summary["feasible"], summary["runs"])], failed=summary["failed"],
+        conv_epoch=summary["conv_epoch"], wall_s=summary["wall_s"])
+    table["best gains"] = [" ".join(f"{n}={row[n]:.4g}" for n in exp.problem(row["case"]).names)
+                           for _, row in summary.iterrows()]
+    with pd.option_context("display.width", 250, "display.max_columns", 20, "display.max_colwidth", 120,
+                           "display.float_format", "{:.2f}".format):
+        print(table.to_string(index=False), file=stream)
+
+
+def _parser():
+    ap = argparse.ArgumentParser(prog="python -m heurtune.experiment", description=__doc__.split("\n")[0])
+    ap.add_argument("name", nargs="?", help="experiment name (experiments/<name>.toml) or a .toml path")
+    ap.add_argument("--runs", type=int, help="runs per case and optimiser (overrides the config)")
+    ap.add_argument("--max-epochs", type=int, help="generation budget of every optimiser (overrides the config)")
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    ap.add_argument("--seed", type=int, help="root seed (overrides the config)")
+    ap.add_argument("--out", help="output folder (default results/NAME)")
+    ap.add_argument("--smoke", action="store_true", help="tiny budgets, same problem: a quick check")
+    ap.add_argument("--fresh", action="store_true", help="discard earlier results in the output folder")
+    ap.add_argument("--backend", default="loky", help="loky (default) or dask")
+    ap.add_argument("--scheduler", help="Dask scheduler address, with --backend dask")
+    ap.add_argument("--plugin", action="append", default=[], help="optimiser plugin: a .py file or module")
+    ap.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    ap.add_argument("--list", action="store_true", help="list the experiments")
+    ap.add_argument("--list-algorithms", action="store_true", help="list the optimisers with their settings")
+    return ap
+
+
+def run(argv=None) -> int:
+    """Command-line entry point; returns the exit code."""
+    args = _parser().parse_args(argv)
+    try:
+        load_plugins(args.plugin)
+        if args.list:
+            for name in list_experiments():
+                print(f"{name:24s} {load_config(name).get('description', '')}")
+            return 0
+        if args.list_algorithms:
+            for name in registry.available():
+                print(registry.describe(name))
+            return 0
+        if not args.name:
+            raise ConfigError("name an experiment (--list shows them)")
+        for key in ("runs", "max_epochs", "jobs"):
+            value = getattr(args, key)
+            if value is not None and value < (0 if key == "max_epochs" else 1):
+                raise ConfigError(f"--{key.replace('_', '-')} must be {'>= 0' if key == 'max_epochs' else '>= 1'}, got {value}")
+        if args.backend not in BACKENDS:
+            raise ConfigError(f"unknown backend {args.backend!r}; allowed: {', '.join(BACKENDS)}")
+        if args.backend == "dask" and not args.scheduler:
+            raise ConfigError("--backend dask needs --scheduler ADDRESS")
+        run_experiment(args.name, runs=args.runs, max_epochs=args.max_epochs, jobs=args.jobs, seed=args.seed,
+                       out=args.out, smoke=args.smoke, fresh=args.fresh, backend=args.backend,
+                       scheduler=args.scheduler, plugins=args.plugin, figures=not args.no_figures)
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("\ninterrupted: finished runs are kept; run the same command again to resume", file=sys.stderr)
+        return 130
+    return 0
+
+
+def main() -> None:
+    sys.exit(run())
+

@@ -1,0 +1,567 @@
+"""Linear controllers of the QTP as continuous-time state-space blocks.
+
+Every controller maps the measured deviations ``w = [y1 - h1o, y2 - h2o, h3 - h3o, h4 - h4o]``
+to the pump-voltage deviations ``du`` (the applied voltage is ``u = u_o + du``)::
+
+    z' = A z + B w,    du = C z + D w
+
+with ``A`` block diagonal: block ``b`` occupies states ``blocks[b]`` and is driven by the
+whole ``w``; ``block_channel[b]`` names the pump it acts on (used by anti-windup).
+
+Conventions
+-----------
+(FO)LQI (thesis eq. 3.9)::
+
+    du = -K dx + diag(Ki1 / s^alpha1, Ki2 / s^alpha2) e,   e = r - dy = -dy (regulation)
+
+``K = R^-1 B^T P`` from the CARE of the linearised plant. A positive ``Ki`` integrates the
+error ``r - y`` and so removes it (the QTP has positive DC gains). Note python-control's
+``lqr(..., integral_action=C)`` integrates ``C x`` instead: its integral gains have the opposite
+sign.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import scipy.linalg
+import scipy.linalg.lapack
+
+from heurtune.core.errors import ConfigError, DesignError
+from heurtune.objectives.qtp.oustaloup import REALISATIONS, fractional_integrator
+
+__all__ = [
+    "LinearController",
+    "DiscreteController",
+    "ControllerDesignError",
+    "lqr_gain",
+    "CONTROLLER_TYPES",
+    "decision_names",
+    "default_bounds",
+    "build_controller",
+    "PAIRINGS",
+    "dc_gain",
+    "integral_action_obstruction",
+]
+
+N_MEASURED = 4
+N_INPUTS = 2
+_UNIT_ROWS = np.eye(2)
+# Largest Riccati residual accepted, relative to the size of its terms.
+RICCATI_RESIDUAL_TOL = 1e-9
+_DGEES = scipy.linalg.lapack.get_lapack_funcs("gees", dtype=np.float64)
+
+
+def _left_half_plane(re, im):
+    return re < 0.0
+
+_PUMP_ROWS = np.array([[False], [True]])  # row r is the unit vector of pump r where unit1 == r
+_SEGMENT_KEYS = np.arange(4)
+# Largest eigenvector condition number for which a block is simulated in modal form.
+MODAL_COND_LIMIT = 1e6
+
+
+class ControllerDesignError(DesignError):
+    """A candidate's controller cannot be built (Riccati failure, invalid parameter)."""
+
+    def __init__(self, reason: str, detail: str = ""):
+        super().__init__(f"{reason}: {detail}" if detail else reason)
+        self.reason = reason
+
+
+@dataclasses.dataclass(frozen=True)
+class LinearController:
+    """Continuous-time linear controller ``z' = A z + B w``, ``du = C z + D w``.
+
+    Attributes
+    ----------
+    A : (nz, nz) ndarray, block diagonal per ``blocks``
+    B : (nz, 4) ndarray
+    C : (2, nz) ndarray
+    D : (2, 4) ndarray
+    blocks : tuple of (start, stop)
+    block_channel : tuple of int
+    minimal : bool
+        False when the realisation may hold uncontrollable or unobservable modes (LADR): the
+        stability check then works on a minimal realisation.
+    """
+
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    blocks: tuple
+    block_channel: tuple
+    minimal: bool = True
+
+    @property
+    def n_states(self) -> int:
+        return self.A.shape[0]
+
+    def discretise(self, dt: float) -> "DiscreteController":
+        """Exact zero-order-hold discretisation, block by block.
+
+        A block driven by a single measured signal that is diagonal already (FOLQI builds its
+        fractional integrators in partial fractions) or whose eigenvalues are real with a
+        well-conditioned eigenvector matrix (``cond(V) < MODAL_COND_LIMIT``) is put in modal
+        form: each of its states then advances by ``z <- a z + b w_col``. Other blocks (several inputs, complex modes, Jordan
+        chains such as a double integrator) keep a dense matrix exponential.
+        """
+        nw = self.B.shape[1]
+        lam_parts, b_parts, C_parts, col_parts, ch_parts = [], [], [], [], []
+        dense = []
+        for (start, stop), ch in zip(self.blocks, self.block_channel):
+            A = self.A[start:stop, start:stop]
+            B = self.B[start:stop]
+            C = self.C[:, start:stop]
+            cols = np.flatnonzero(B.any(axis=0))
+            lam = A.diagonal()
+            diagonal = np.count_nonzero(A) == np.count_nonzero(lam)
+            V = None
+            if not diagonal and len(cols) == 1:
+                lam, V = np.linalg.eig(A)
+            if len(cols) == 1 and (diagonal or (not np.iscomplexobj(lam)
+                                                and np.linalg.cond(V) < MODAL_COND_LIMIT)):
+                lam_parts.append(lam)
+                b_parts.append(B[:, cols[0]] if diagonal else np.linalg.solve(V, B[:, cols[0]]))
+                C_parts.append(C if diagonal else C @ V)
+                col_parts.append(np.full(lam.size, cols[0], dtype=np.int64))
+                ch_parts.append(np.full(lam.size, ch, dtype=np.int64))
+            else:
+                n = stop - start
+                M = np.zeros((n + nw, n + nw))
+                M[:n, :n] = A
+                M[:n, n:] = B
+                E = scipy.linalg.expm(M * dt)
+                dense.append((E[:n, :n], E[:n, n:], C, ch))
+        if lam_parts:
+            lam = np.concatenate(lam_parts)
+            x = lam * dt
+            # (e^{lam dt} - 1) / lam, which is dt for lam = 0
+            zero = x == 0.0
+            phi = np.where(zero, dt, np.expm1(x) / np.where(zero, 1.0, lam))
+            a_all, b_all = np.exp(x), phi * np.concatenate(b_parts)
+            C_all = np.hstack(C_parts)
+            cols, ch_all = np.concatenate(col_parts), np.concatenate(ch_parts)
+            # A modal state read from measured signal r that drives pump r only (r = 0, 1: the
+            # integrators of the errors e1, e2) is rescaled so that its output weight is 1
+            # (z' = c z): the kernel adds those up without products. Order (``segments``):
+            # those of pump 0, those of pump 1, the other modal states, then the dense blocks.
+            c0, c1 = C_all
+            unit0 = (cols == 0) & (c1 == 0.0) & (c0 != 0.0)
+            unit1 = (cols == 1) & (c0 == 0.0) & (c1 != 0.0)
+            b_all = np.where(unit0, b_all * c0, np.where(unit1, b_all * c1, b_all))
+            key = np.where(unit0, 0, np.where(unit1, 1, 2))
+            perm = np.argsort(key, kind="stable")
+            C_all = np.where(unit0 | unit1, (unit1[None, :] == _PUMP_ROWS), C_all)[:, perm]
+            a_all, b_all, cols, ch_all = a_all[perm], b_all[perm], cols[perm], ch_all[perm]
+            segments = np.searchsorted(key[perm], _SEGMENT_KEYS)
+        else:
+            a_all = b_all = np.zeros(0)
+            C_all = np.zeros((N_INPUTS, 0))
+            cols = ch_all = np.zeros(0, dtype=np.int64)
+            segments = np.zeros(N_INPUTS + 2, dtype=np.int64)
+        if dense:
+            Ad = np.ascontiguousarray(scipy.linalg.block_diag(*[d[0] for d in dense]))
+            Bd = np.vstack([d[1] for d in dense])
+            Cc = np.hstack([C_all] + [d[2] for d in dense])
+            ch_all = np.concatenate([ch_all] + [np.full(d[0].shape[0], d[3], dtype=np.int64) for d in dense])
+        else:
+            Ad, Bd, Cc = np.zeros((0, 0)), np.zeros((0, nw)), C_all
+        return DiscreteController(ad=a_all, bd=b_all, state_input=cols, Ad=Ad, Bd=Bd,
+                                  Cc=np.ascontiguousarray(Cc), Dc=np.ascontiguousarray(self.D),
+                                  state_channel=ch_all, segments=segments, dt=dt)
+
+    def closed_loop_matrix(self, A: np.ndarray, B: np.ndarray) -> np.ndarray:
+        """State matrix of the loop with the linearised plant ``dx' = A dx + B du`` (w = dx).
+
+        A non-minimal controller is first reduced with python-control's ``minreal`` (SLICOT
+        TB01PD), so that modes the loop can neither excite nor see (e.g. the LADR's structural
+        zero eigenvalues) do not decide stability.
+        """
+        Ac, Bc, Cc, Dc = self.A, self.B, self.C, self.D
+        if not self.minimal and Ac.shape[0]:
+            import control
+
+            red = control.ss(Ac, Bc, Cc, Dc).minreal()
+            Ac, Bc, Cc = np.asarray(red.A), np.asarray(red.B), np.asarray(red.C)
+        n, nc = A.shape[0], Ac.shape[0]
+        M = np.empty((n + nc, n + nc))
+        M[:n, :n] = A + B @ Dc
+        M[:n, n:] = B @ Cc
+        M[n:, :n] = Bc
+        M[n:, n:] = Ac
+        return M
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class DiscreteController:
+    """Sampled controller as the simulation kernel takes it.
+
+    States ``[0, nd)`` are modal and single-input: ``z_i <- ad_i z_i + bd_i w[state_input[i]]``.
+    ``segments`` (4,) orders them for the kernel: ``[segments[r], segments[r + 1])`` for pump
+    ``r`` in 0..1 read signal ``r`` and drive pump ``r`` with weight 1 (their ``Cc`` column is
+    the unit vector), then ``[segments[2], segments[3] = nd)`` hold the other modal states.
+    The remaining states advance densely, ``z_d <- Ad z_d + Bd w``. The output is
+    ``du = Cc z + Dc w``; ``state_channel`` names each state's pump (for anti-windup).
+    """
+
+    ad: np.ndarray
+    bd: np.ndarray
+    state_input: np.ndarray
+    Ad: np.ndarray
+    Bd: np.ndarray
+    Cc: np.ndarray
+    Dc: np.ndarray
+    state_channel: np.ndarray
+    segments: np.ndarray
+    dt: float
+
+    def __post_init__(self):
+        # The kernel does no bounds checking: make inconsistent shapes fail here instead (the
+        # segment contents are checked by check_segments, in the tests).
+        nd, nq = self.ad.size, self.Ad.shape[0]
+        seg = self.segments.tolist() if self.segments.shape == (4,) else None
+        ok = (self.bd.shape == (nd,) and self.state_input.shape == (nd,)
+              and self.Ad.shape == (nq, nq) and self.Bd.shape == (nq, 4)
+              and self.Cc.shape == (2, nd + nq) and self.Dc.shape == (2, 4)
+              and self.state_channel.shape == (nd + nq,)
+              and seg is not None and 0 == seg[0] <= seg[1] <= seg[2] <= seg[3] == nd
+              and (nd == 0 or 0 <= self.state_input.min() <= self.state_input.max() < 4))
+        if not ok:
+            raise ValueError("inconsistent DiscreteController shapes or segments")
+
+    def check_segments(self) -> bool:
+        """Whether the modal states follow ``segments`` (input 0 / pump 0 with unit weight,
+        then input 1 / pump 1 with unit weight, then the rest)."""
+        lo, mid, hi = self.segments[:3]
+        return (bool(np.all(self.state_input[lo:mid] == 0)) and bool(np.all(self.state_input[mid:hi] == 1))
+                and np.array_equal(self.Cc[:, lo:hi], _UNIT_ROWS[:, self.state_input[lo:hi]]))
+
+    @property
+    def n_states(self) -> int:
+        return self.ad.size + self.Ad.shape[0]
+
+    def step(self, z: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """One controller update in Python (reference for tests): returns ``z[k+1]``."""
+        nd = self.ad.size
+        return np.concatenate([self.ad * z[:nd] + self.bd * w[self.state_input], self.Ad @ z[nd:] + self.Bd @ w])
+
+
+def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """State-feedback gain ``K = R^-1 B^T P`` from the continuous algebraic Riccati equation.
+
+    ``P`` comes from the ordered real Schur form of the Hamiltonian
+    ``H = [[A, -B R^-1 B^T], [-Q, -A^T]]`` (Laub's method): with the stable invariant subspace
+    spanned by ``[U11; U21]``, ``P = U21 U11^-1``. A solution whose Riccati residual exceeds
+    ``RICCATI_RESIDUAL_TOL`` times the size of its terms (an ill-conditioned ``U11``) is
+    rejected. For the 4-state QTP this is several times faster than
+    ``scipy.linalg.solve_continuous_are`` (whose balancing and QZ steps matter for larger, badly
+    scaled problems); the tests compare both, and python-control's ``lqr``.
+
+    Raises
+    ------
+    ControllerDesignError
+        With reason ``riccati_failed`` when there is no stabilising solution.
+    """
+    n = A.shape[0]
+    try:
+        Rinv_Bt = np.linalg.solve(R, B.T)
+        H = np.empty((2 * n, 2 * n))
+        H[:n, :n] = A
+        H[:n, n:] = -B @ Rinv_Bt
+        H[n:, :n] = -Q
+        H[n:, n:] = -A.T
+        # LAPACK dgees with the stable eigenvalues ordered first (scipy.linalg.schur(sort="lhp")
+        # without its wrapper's overhead).
+        _, sdim, _, _, Z, _, info = _DGEES(_left_half_plane, H, compute_v=1, sort_t=1, overwrite_a=1)
+        if info != 0:
+            raise ControllerDesignError("riccati_failed", f"ordered Schur form failed (LAPACK info {info})")
+        if sdim != n:
+            raise ControllerDesignError("riccati_failed", f"{sdim} stable Hamiltonian eigenvalues, need {n}")
+        U11, U21 = Z[:n, :n], Z[n:, :n]
+        P = np.linalg.solve(U11.T, U21.T).T
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        raise ControllerDesignError("riccati_failed", str(exc)) from None
+    P = 0.5 * (P + P.T)
+    K = Rinv_Bt @ P
+    # An ill-conditioned stable subspace shows as a poor Riccati residual.
+    residual = A.T @ P + P @ A - P @ B @ K + Q
+    scale = np.abs(Q).max() + np.abs(P).max() * (2.0 * np.abs(A).max() + np.abs(B @ K).max())
+    if not (np.abs(residual).max() <= RICCATI_RESIDUAL_TOL * scale):
+        raise ControllerDesignError("riccati_failed", "Riccati residual too large (ill-conditioned problem)")
+    return K
+
+
+CONTROLLER_TYPES = ("folqi", "iolqi", "ladr", "lqi")
+# Which error each pump integrates: "diagonal" (thesis eq. 3.9: pump r integrates e_r) or
+# "anti-diagonal" (pump 1 integrates e2, pump 2 integrates e1).
+PAIRINGS = ("diagonal", "anti-diagonal")
+# Controller types whose integral action follows a pairing (LQI's 2 x 2 integral gain comes from
+# the Riccati solution and couples both errors to both pumps).
+PAIRED_TYPES = ("folqi", "iolqi", "ladr")
+
+_LQI_NAMES = ("Q11", "Q22", "Q33", "Q44", "R11", "R22", "Ki1", "Ki2")
+_AUGMENTED_LQI_NAMES = ("Q11", "Q22", "Q33", "Q44", "Qi1", "Qi2", "R11", "R22")
+_LADR_BETAS = tuple(f"beta{i}{j}" for j in (1, 2, 3) for i in (1, 2, 3, 4))
+_LADR_NAMES = _LADR_BETAS + ("b1", "b2", "b3", "b4", "r1", "r2", "r3", "r4")
+
+
+def decision_names(kind: str) -> tuple:
+    """Names of the tuning variables of a controller type, in decision-vector order."""
+    if kind == "folqi":
+        return _LQI_NAMES + ("alpha1", "alpha2")
+    if kind == "iolqi":
+        return _LQI_NAMES
+    if kind == "ladr":
+        return _LADR_NAMES
+    if kind == "lqi":
+        return _AUGMENTED_LQI_NAMES
+    raise ConfigError(f"unknown controller type {kind!r}; allowed: {', '.join(CONTROLLER_TYPES)}")
+
+
+# Bounds of the LQI's weights on the integrated errors (see docs/model.md, "Integral action"
+# for the sweep they come from).
+LQI_INTEGRAL_WEIGHT_BOUNDS = (1e-4, 10.0)
+
+
+def default_bounds(kind: str) -> dict:
+    """Thesis bounds (sec. 4.3 and 5.3): Q in [0.01, 2.5], R in [0.1, 5], Ki in [0.1, 10],
+    alpha in [0.1, 2]; LADR beta in [0, 150], b and r in [0, 10]; the LQI's integral weights
+    Qi in ``LQI_INTEGRAL_WEIGHT_BOUNDS``."""
+    out = {}
+    for name in decision_names(kind):
+        if name.startswith("Qi"):
+            out[name] = LQI_INTEGRAL_WEIGHT_BOUNDS
+        elif name.startswith("Q"):
+            out[name] = (0.01, 2.5)
+        elif name.startswith("R"):
+            out[name] = (0.1, 5.0)
+        elif name.startswith("Ki"):
+            out[name] = (0.1, 10.0)
+        elif name.startswith("alpha"):
+            out[name] = (0.1, 2.0)
+        elif name.startswith("beta"):
+            out[name] = (0.0, 150.0)
+        else:
+            out[name] = (0.0, 10.0)
+    return out
+
+
+def _error_of_pump(pairing: str, pump: int) -> int:
+    """Index of the error (0: e1, 1: e2) that pump ``pump`` integrates under ``pairing``."""
+    return pump if pairing == "diagonal" else 1 - pump
+
+
+def _folqi(values: dict, A, B, alphas, order, band, realisation, pairing="diagonal") -> LinearController:
+    Q = np.diag([values["Q11"], values["Q22"], values["Q33"], values["Q44"]])
+    R = np.diag([values["R11"], values["R22"]])
+    K = lqr_gain(A, B, Q, R)
+    ki = (values["Ki1"], values["Ki2"])
+    parts = []
+    for a in alphas:
+        fi = fractional_integrator(a, order, band, realisation)
+        modal = fi.modal()
+        if modal is None:
+            parts.append(fi.state_space())
+        else:  # diagonal form: the discretisation needs no eigen-decomposition
+            poles, residues, d = modal
+            parts.append((np.diag(poles), np.ones(poles.size), residues, d))
+    nz = sum(p[0].shape[0] for p in parts)
+    Ac = np.zeros((nz, nz))
+    Bc = np.zeros((nz, N_MEASURED))
+    Cc = np.zeros((N_INPUTS, nz))
+    Dc = -K.copy()
+    blocks = []
+    start = 0
+    for ch, (Af, bf, cf, df) in enumerate(parts):
+        stop = start + Af.shape[0]
+        err = _error_of_pump(pairing, ch)
+        Ac[start:stop, start:stop] = Af
+        Bc[start:stop, err] = -bf  # e_err = -w_err
+        Cc[ch, start:stop] = ki[ch] * cf
+        Dc[ch, err] -= ki[ch] * df
+        blocks.append((start, stop))
+        start = stop
+    return LinearController(Ac, Bc, Cc, Dc, tuple(blocks), (0, 1))
+
+
+def _ladr(values: dict, pairing: str = "diagonal") -> LinearController:
+    """LADR of the thesis Appendix A (eq. A.1-A.22), implemented as printed.
+
+    Channel 1 (pump 1) observes tanks 1 and 4 with states (Z1, Z4, Z5, Z7); channel 2 observes
+    tanks 2 and 3 with (Z2, Z3, Z6, Z8). Printed quirks kept as written: A.4 has ``+ b4 u1`` in
+    the extended state Z5 while A.9 has no input term; A.5 uses ``beta12`` (``beta42`` is never
+    used); A.18/A.21 add two gains on the same error. With a zero set-point (``x_id = 0``) the
+    tracking-differentiator states Z11..Z14 stay at zero, so they are left out of the
+    realisation and ``r1..r4`` have no effect on the regulator. As printed, the observer has
+    structural zero eigenvalues (``Z1 - Z4`` and ``Z2 - Z3`` are never fed back, ``beta32 Z6 -
+    beta22 Z8`` never changes), so the realisation is marked non-minimal for the stability check.
+
+    With ``pairing = "anti-diagonal"`` each channel regulates the other lower tank: channel 1
+    observes tanks 2 and 4 (pump 1 reaches tank 2 through tank 4), channel 2 tanks 1 and 3; the
+    gains keep their printed slots.
+    """
+    b = [values[f"b{i}"] for i in (1, 2, 3, 4)]
+    if min(b) <= 0.0:
+        raise ControllerDesignError("invalid_controller", "LADR needs b1..b4 > 0 (u = ... - Z/b)")
+    beta = {name: values[name] for name in _LADR_BETAS}
+    # channel: (pump, measured pair, observer gains, b pair, feedback gain, extended-state terms)
+    channels = [
+        dict(ch=0, meas=(_error_of_pump(pairing, 0), 3), l=(beta["beta11"], beta["beta41"]), bb=(b[0], b[3]),
+             kp=beta["beta13"] + beta["beta43"],
+             ext=((-beta["beta12"], b[3]), (-beta["beta12"], 0.0))),
+        dict(ch=1, meas=(_error_of_pump(pairing, 1), 2), l=(beta["beta21"], beta["beta31"]), bb=(b[1], b[2]),
+             kp=beta["beta23"] + beta["beta33"],
+             ext=((-beta["beta22"], 0.0), (-beta["beta32"], 0.0))),
+    ]
+    nz = 8
+    Ac = np.zeros((nz, nz))
+    Bc = np.zeros((nz, N_MEASURED))
+    Cc = np.zeros((N_INPUTS, nz))
+    Dc = np.zeros((N_INPUTS, N_MEASURED))
+    blocks = []
+    for c in channels:
+        s = 4 * c["ch"]  # local states: [Zp, Zq, Ep, Eq] (observer pair and extended states)
+        ip, iq, ep, eq = s, s + 1, s + 2, s + 3
+        # u = kp (0 - Zp - Zq) - Ep / bp - Eq / bq
+        cu = np.zeros(nz)
+        cu[ip] = cu[iq] = -c["kp"]
+        cu[ep] = -1.0 / c["bb"][0]
+        cu[eq] = -1.0 / c["bb"][1]
+        Cc[c["ch"]] = cu
+        # observer error e = Zp + Zq - x_p - x_q
+        ce = np.zeros(nz)
+        ce[ip] = ce[iq] = 1.0
+        de = np.zeros(N_MEASURED)
+        de[list(c["meas"])] = -1.0
+        for row, ext, gain, bu in ((ip, ep, c["l"][0], c["bb"][0]), (iq, eq, c["l"][1], c["bb"][1])):
+            Ac[row, ext] += 1.0
+            Ac[row] += -gain * ce + bu * cu
+            Bc[row] += -gain * de
+        for row, (ge, gu) in zip((ep, eq), c["ext"]):
+            Ac[row] += ge * ce + gu * cu
+            Bc[row] += ge * de
+        blocks.append((s, s + 4))
+    return LinearController(Ac, Bc, Cc, Dc, tuple(blocks), (0, 1), minimal=False)
+
+
+def _lqi(values: dict, A, B) -> LinearController:
+    """Textbook LQI: the integrated errors augment the plant state in the Riccati design.
+
+    With ``xi' = e = r - y = -C x`` (regulation) the augmented plant is
+    ``[x; xi]' = [[A, 0], [-C, 0]] [x; xi] + [B; 0] du`` with ``C = [I2 0]``; LQR with
+    ``Q = diag(Q11..Q44, Qi1, Qi2)``, ``R = diag(R11, R22)`` gives ``du = -Kx x - Kxi xi``. The
+    controller's states are the two exact integrators; their 2 x 2 output matrix is ``-Kxi``
+    (both errors drive both pumps). For anti-windup, integrator j belongs to the pump it drives
+    most strongly.
+    """
+    n, m = A.shape[0], B.shape[1]
+    Aa = np.zeros((n + m, n + m))
+    Aa[:n, :n] = A
+    Aa[n:, :n] = -np.eye(m, n)
+    Ba = np.vstack([B, np.zeros((m, m))])
+    Qa = np.diag([values[k] for k in ("Q11", "Q22", "Q33", "Q44", "Qi1", "Qi2")])
+    R = np.diag([values["R11"], values["R22"]])
+    Ka = lqr_gain(Aa, Ba, Qa, R)
+    Kint = -Ka[:, n:]
+    Bc = np.zeros((m, N_MEASURED))
+    Bc[0, 0] = Bc[1, 1] = -1.0  # xi_j' = e_j = -w_j
+    channel = tuple(int(np.argmax(np.abs(Kint[:, j]))) for j in range(m))
+    return LinearController(np.zeros((m, m)), Bc, np.ascontiguousarray(Kint), -Ka[:, :n].copy(),
+                            ((0, 1), (1, 2)), channel)
+
+
+def dc_gain(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
+    """Steady-state gain ``G(0) = -C A^-1 B`` of a stable linear plant."""
+    return -C @ np.linalg.solve(A, B)
+
+
+def integral_action_obstruction(kind: str, pairing: str, A, B, C, ki_bounds=((0.1, 10.0), (0.1, 10.0))):
+    """Why no controller of this structure can hold integral action on this plant, or None.
+
+    For state feedback ``-K x`` that stabilises a stable plant, ``det(I + K (-A)^-1 B) > 0``, so
+    the inner loop keeps the sign of ``det G(0)``. Integrators ``Kint / s`` on the errors then
+    close a loop whose state matrix has determinant ``det(A - BK) det G(0) det(Kint)`` times a
+    positive factor, and a Hurwitz matrix of even size has a positive determinant: the loop can
+    be stable only if ``det G(0) det(Kint) > 0`` (derivation in docs/model.md). ``Kint`` is
+    ``diag(Ki1, Ki2)`` (diagonal pairing) or ``[[0, Ki1], [Ki2, 0]]`` (anti-diagonal), so
+    ``sign det(Kint) = +-sign(Ki1) sign(Ki2)``.
+
+    Parameters
+    ----------
+    kind : str
+        Controller type; ``lqi`` needs only ``det G(0) != 0``, ``ladr`` is not checked (its
+        extended-state observer is not an integrator on the errors).
+    pairing : {"diagonal", "anti-diagonal"}
+    A, B, C : ndarray
+        Linearised plant.
+    ki_bounds : pair of (low, high)
+        Bounds of Ki1 and Ki2: the signs they allow.
+
+    Returns
+    -------
+    str or None
+        A one-line explanation naming the fix, or None when the structure can work.
+    """
+    if kind == "ladr":
+        return None
+    G0 = dc_gain(A, B, C)
+    det = float(np.linalg.det(G0))
+    scale = float(np.abs(G0).max()) ** 2
+    if abs(det) <= 1e-9 * scale:
+        return (f"det G(0) = {det:.3g}: the plant has a transmission zero at s = 0, so no controller "
+                "can hold integral action on both outputs; change the valve splits (gamma1 + gamma2 != 1)")
+    if kind == "lqi":
+        return None
+    signs = [{s for s, ok in ((1, hi > 0), (-1, lo < 0)) if ok} for lo, hi in ki_bounds]
+    flip = 1 if pairing == "diagonal" else -1
+    possible = {flip * a * b for a in signs[0] for b in signs[1]}
+    needed = 1 if det > 0 else -1
+    if needed in possible:
+        return None
+    other = "anti-diagonal" if pairing == "diagonal" else "diagonal"
+    return (f"det G(0) = {det:.3g} and {pairing} integral action with Ki1, Ki2 in their bounds has "
+            f"det(Kint) of sign {-needed:+d}: every such loop with exact integral action has a real "
+            f"right-half-plane pole (see docs/model.md); use [controller] pairing = \"{other}\" "
+            "or type = \"lqi\"")
+
+
+def build_controller(kind: str, values: dict, A: np.ndarray, B: np.ndarray, *,
+                     oustaloup_order: int = 5, band: tuple = (1e-3, 1e3),
+                     realisation: str = "direct", pairing: str = "diagonal") -> LinearController:
+    """Build a controller from its named tuning variables and the linearised plant.
+
+    Parameters
+    ----------
+    kind : {"folqi", "iolqi", "ladr", "lqi"}
+    values : dict
+        Tuning variables by name (see :func:`decision_names`).
+    A, B : ndarray
+        Linearised plant used for the LQR design (nominal model).
+    oustaloup_order, band, realisation :
+        Fractional-integrator options (FOLQI only).
+    pairing : {"diagonal", "anti-diagonal"}
+        Which error each pump integrates (FOLQI, IOLQI) or which lower tank each LADR channel
+        regulates; LQI ignores it (its integral gain is a full 2 x 2 matrix).
+
+    Raises
+    ------
+    ControllerDesignError
+        The design fails for this candidate (reason in ``.reason``).
+    """
+    if realisation not in REALISATIONS:
+        raise ConfigError(f"unknown realisation {realisation!r}; allowed: {', '.join(REALISATIONS)}")
+    if pairing not in PAIRINGS:
+        raise ConfigError(f"unknown pairing {pairing!r}; allowed: {', '.join(PAIRINGS)}")
+    if kind == "folqi":
+        return _folqi(values, A, B, (values["alpha1"], values["alpha2"]),
+                      oustaloup_order, band, realisation, pairing)
+    if kind == "iolqi":
+        return _folqi(values, A, B, (1.0, 1.0), oustaloup_order, band, realisation, pairing)
+    if kind == "ladr":
+        return _ladr(values, pairing)
+    if kind == "lqi":
+        return _lqi(values, A, B)
+    raise ConfigError(f"unknown controller type {kind!r}; allowed: {', '.join(CONTROLLER_TYPES)}")

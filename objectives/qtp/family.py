@@ -1,0 +1,270 @@
+"""The quadruple-tank family: experiment configs of the QTP under FOLQI, IOLQI, LQI or LADR.
+
+``[plant] model = "qtp"`` (the default) or ``"qtp_bond_graph"`` (the thesis' chapter-6
+bond-graph form). Each case is a plant preset (``min``, ``nmp``) or a ``plant.custom`` table,
+times each configured controller type; :meth:`Experiment.problem` builds its
+:class:`heurtune.objectives.qtp.problem.Problem`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from heurtune.core.errors import ConfigError
+from heurtune.core.families import register_family
+from heurtune.core.problem import ExperimentBase
+from heurtune.core.schema import COMMON_SCHEMA, NUMBER, PAIR
+from heurtune.objectives.qtp.controllers import (
+    CONTROLLER_TYPES, PAIRED_TYPES, dc_gain, decision_names, default_bounds, integral_action_obstruction,
+)
+from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
+from heurtune.objectives.qtp.model import QTPParams, linearise, preset
+from heurtune.objectives.qtp.problem import OBJECTIVES, WEIGHTED_METRICS, Problem
+from heurtune.objectives.qtp.thesis.printed import printed_row
+from heurtune.objectives.qtp.thesis.tables import write_chapter
+
+__all__ = ["Experiment", "SCHEMA", "MODELS"]
+
+MODELS = ("qtp", "qtp_bond_graph")
+DEFAULT_UNCERTAINTY = {"nominal": 1.0, "-30%": 0.7, "+30%": 1.3}
+DEFAULT_CONSTRAINTS = {"Mp": 10.0, "ts": 70.0, "ess": 1.0}
+# Thesis chapters whose tables the runner can write next to the printed values (heurtune.objectives.qtp.thesis).
+THESIS_CHAPTERS = (4, 5, 6)
+
+SCHEMA = dict(COMMON_SCHEMA, **{
+    "plant": {
+        # "qtp_bond_graph": the thesis' chapter-6 bond-graph form (pressure states) of the QTP
+        "model": MODELS,
+        "cases": ("list", str),
+        "custom": ("map", {
+            "A": ("list", NUMBER), "a": ("list", NUMBER), "k": ("list", NUMBER),
+            "gamma": ("list", NUMBER), "levels": ("list", NUMBER), "g": NUMBER,
+            "height": ("list", NUMBER), "u_range": PAIR,
+        }),
+    },
+    "controller": {
+        "type": ("choices", ("folqi", "iolqi", "ladr", "lqi")),  # one, or a list (one case per type)
+        "oustaloup_order": int,
+        "band": PAIR,
+        "realisation": ("direct", "integer_split"),
+        # One pairing for every case, "auto" (the one the sign of det G(0) allows), or a table
+        # naming it per plant case.
+        "pairing": ("oneof", (("diagonal", "anti-diagonal", "auto"),
+                              ("map", ("diagonal", "anti-diagonal", "auto")))),
+    },
+    "scenario": {
+        "horizon": NUMBER, "dt": NUMBER,
+        "output_disturbance": PAIR, "disturbance_time": NUMBER,
+        "input_disturbance": PAIR, "input_disturbance_time": NUMBER,
+        "noise_sd": NUMBER, "noise_seed": int,
+        "saturation": PAIR,
+        "limits": ("none", "physical"),
+        "uncertainty": ("map", NUMBER),
+    },
+    "problem": {
+        "objective": tuple(OBJECTIVES) + ("weighted",),
+        # objective = "weighted": sum over the named metrics of weight * (metric1 + metric2)
+        "weights": {name: NUMBER for name in WEIGHTED_METRICS},
+        "settling_band": NUMBER,
+        "tuning_scenario": str,
+        # "none": no performance constraints (stability is always required)
+        "constraints": ("oneof", ({"Mp": NUMBER, "ts": NUMBER, "ess": NUMBER}, ("none",))),
+        "bounds": ("map", PAIR),
+    },
+    # Fixed controllers evaluated as runs of their own (one evaluation, no search), e.g. the
+    # thesis' printed gains: x = {name = value, ...} or printed = {table = "4.7", row = "min"}.
+    "baselines": ("list", {"name": str, "case": str, "x": ("map", NUMBER),
+                           "printed": {"table": str, "row": str}}),
+    # thesis_chapter = 4, 5 or 6: write that chapter's tables next to the printed values.
+    "report": {"thesis_chapter": int},
+})
+
+
+@register_family("qtp", models=MODELS, schema=SCHEMA,
+                 description="quadruple tank process (nonlinear, minimum and non-minimum phase) under FOLQI, IOLQI, LQI or LADR")
+class Experiment(ExperimentBase):
+    """A named experiment config: plant cases, controller, scenario, problem (and optimisers).
+
+    Use :func:`heurtune.load_experiment` to create one.
+    """
+
+    def __init__(self, config: dict):
+        self.config = config
+        self.name = config["name"]
+        plant = config.get("plant", {})
+        self.plant_model = plant.get("model", "qtp")
+        plant_cases = tuple(plant.get("cases", ["min", "nmp"]))
+        if not plant_cases:
+            raise ConfigError(f"{self.name}: plant.cases must name at least one case")
+        self._custom = plant.get("custom", {})
+        for case in plant_cases:
+            self._plant(case)  # validate early
+        ctrl = config.get("controller", {})
+        self._set_cases(plant_cases, ctrl.get("type", "folqi"))
+        self.controller_options = dict(
+            oustaloup_order=ctrl.get("oustaloup_order", 5),
+            band=tuple(ctrl.get("band", (1e-3, 1e3))),
+            realisation=ctrl.get("realisation", "direct"),
+        )
+        self.pairing = ctrl.get("pairing", "diagonal")
+        if isinstance(self.pairing, dict):
+            unknown = [c for c in self.pairing if c not in plant_cases]
+            if unknown:
+                raise ConfigError(f"{self.name}: controller.pairing: unknown case {unknown[0]!r}; "
+                                  f"allowed: {', '.join(plant_cases)}")
+        unpaired = [k for k in self.controllers if k not in PAIRED_TYPES]
+        if unpaired and self.pairing != "diagonal" and len(self.controllers) == len(unpaired):
+            raise ConfigError(f"{self.name}: controller.pairing applies to {', '.join(PAIRED_TYPES)}; "
+                              f"{unpaired[0]} designs its full integral gain (leave pairing out)")
+        sc = dict(config.get("scenario", {}))
+        uncertainty = sc.pop("uncertainty", DEFAULT_UNCERTAINTY)
+        if "nominal" not in uncertainty:
+            uncertainty = {"nominal": 1.0, **uncertainty}
+        if "saturation" in sc:
+            sc["saturation"] = tuple(sc["saturation"])
+        try:
+            self.scenarios = {k: Scenario(**sc, uncertainty=float(v)) for k, v in uncertainty.items()}
+        except ConfigError as exc:
+            raise ConfigError(f"{self.name}: {exc}") from None
+        for case in plant_cases:  # fail at load, not in every evaluation (any controller type)
+            loop = ClosedLoop(self._plant(case), "iolqi")
+            for scenario in self.scenarios.values():
+                try:
+                    loop.check_scenario(scenario)
+                except ConfigError as exc:
+                    raise ConfigError(f"{self.name}: {exc}") from None
+        prob = config.get("problem", {})
+        self.objective = prob.get("objective", "effort")
+        self.weights = prob.get("weights")
+        if self.objective == "weighted" and not self.weights:
+            raise ConfigError(f"{self.name}: problem.objective = 'weighted' needs problem.weights "
+                              f"(a weight per metric among {', '.join(WEIGHTED_METRICS)})")
+        if self.weights and self.objective != "weighted":
+            raise ConfigError(f"{self.name}: problem.weights needs problem.objective = 'weighted', "
+                              f"got {self.objective!r}")
+        self.constraints = prob.get("constraints", DEFAULT_CONSTRAINTS)
+        if self.constraints == "none":
+            self.constraints = {}
+        for key, lim in self.constraints.items():
+            if lim <= 0:
+                raise ConfigError(f"{self.name}: problem.constraints.{key} must be positive, got {lim}")
+        self.settling_band = prob.get("settling_band", 3.0)
+        if not 0 < self.settling_band < 100:
+            raise ConfigError(f"{self.name}: problem.settling_band must lie in (0, 100), got {self.settling_band}")
+        self.tuning_scenario = prob.get("tuning_scenario", "nominal")
+        if self.tuning_scenario not in self.scenarios:
+            raise ConfigError(f"{self.name}: problem.tuning_scenario {self.tuning_scenario!r}; "
+                              f"allowed: {', '.join(self.scenarios)}")
+        names = [n for kind in self.controllers for n in decision_names(kind)]
+        bounds = {}
+        for kind in self.controllers:
+            bounds.update(default_bounds(kind))
+        # Bounds of variables no configured controller uses (e.g. alpha inherited by an IOLQI
+        # config extending a FOLQI one) are ignored; a name no controller knows is an error.
+        known = {n for kind in CONTROLLER_TYPES for n in decision_names(kind)}
+        for key, (lo, hi) in prob.get("bounds", {}).items():
+            if key not in known:
+                raise ConfigError(f"{self.name}: problem.bounds: unknown variable {key!r}; "
+                                  f"allowed: {', '.join(dict.fromkeys(names))}")
+            if not lo <= hi:
+                raise ConfigError(f"{self.name}: problem.bounds.{key}: lower {lo} > upper {hi}")
+            if key in bounds:
+                bounds[key] = (float(lo), float(hi))
+        self.bounds = bounds
+        self._load_optimisers(config)
+        self.baselines = self._fixed_controllers(config.get("baselines", []))
+        chapter = config.get("report", {}).get("thesis_chapter")
+        if chapter is not None and chapter not in THESIS_CHAPTERS:
+            raise ConfigError(f"{self.name}: report.thesis_chapter: got {chapter!r}; "
+                              f"allowed: {', '.join(map(str, THESIS_CHAPTERS))}")
+
+    def __repr__(self):
+        return f"Experiment({self.name!r}, cases={self.cases}, controllers={self.controllers})"
+
+    def _fixed_controllers(self, entries: list) -> dict:
+        """``{case: {name: x}}`` from the config's ``[[baselines]]`` (gains given as ``x`` or
+        looked up in the thesis' printed tables as ``printed = {table, row}``)."""
+        out = {}
+        for i, entry in enumerate(entries):
+            where = f"{self.name}: baselines[{i}]"
+            for key in ("name", "case"):
+                if key not in entry:
+                    raise ConfigError(f"{where}: missing key {key!r}")
+            case = entry["case"]
+            if case not in self.cases:
+                raise ConfigError(f"{where}.case: unknown case {case!r}; allowed: {', '.join(self.cases)}")
+            if ("x" in entry) == ("printed" in entry):
+                raise ConfigError(f"{where}: give the gains as x = {{...}} or printed = {{table, row}}, not both")
+            if "printed" in entry:
+                ref = entry["printed"]
+                if set(ref) != {"table", "row"}:
+                    raise ConfigError(f"{where}.printed: give table and row, got {sorted(ref)}")
+                values = printed_row(ref["table"], ref["row"])
+            else:
+                values = entry["x"]
+            names = decision_names(self.controller_of(case))
+            missing = [n for n in names if n not in values or values[n] is None]
+            if missing:
+                raise ConfigError(f"{where}: no value for {', '.join(missing)} (case {case!r} needs {', '.join(names)})")
+            if entry["name"] in out.get(case, {}):
+                raise ConfigError(f"{where}: baseline {entry['name']!r} given twice for case {case!r}")
+            out.setdefault(case, {})[entry["name"]] = np.array([float(values[n]) for n in names])
+        return out
+
+    def baseline_names(self, case: str) -> tuple:
+        """Names of the fixed controllers evaluated as runs of their own for ``case``."""
+        return tuple(self.baselines.get(case, {}))
+
+    def _plant(self, case: str) -> QTPParams:
+        if case in self._custom:
+            spec = self._custom[case]
+            missing = [k for k in ("A", "a", "k", "gamma", "levels") if k not in spec]
+            if missing:
+                raise ConfigError(f"{self.name}: plant.custom.{case}: missing {', '.join(missing)}")
+            return QTPParams(name=case, **spec)
+        try:
+            return preset(case)
+        except ConfigError as exc:
+            raise ConfigError(f"{self.name}: plant.cases: {exc} (or define plant.custom.{case})") from None
+
+    def pairing_of(self, case: str) -> str:
+        """The resolved integral pairing of a case: ``"diagonal"`` or ``"anti-diagonal"``.
+
+        ``"auto"`` picks the pairing whose integral action can be stable on the case's plant:
+        diagonal when det G(0) > 0, anti-diagonal when det G(0) < 0 (the pairing the relative
+        gain array recommends for the QTP). Types without a pairing (``lqi``) get diagonal.
+        """
+        plant_case, kind = self._variant(case)
+        choice = self.pairing.get(plant_case, "diagonal") if isinstance(self.pairing, dict) else self.pairing
+        if kind not in PAIRED_TYPES:
+            return "diagonal"
+        if choice == "auto":
+            A, B, C = linearise(self._plant(plant_case))
+            choice = "diagonal" if np.linalg.det(dc_gain(A, B, C)) > 0 else "anti-diagonal"
+        return choice
+
+    def problem(self, case: str) -> Problem:
+        """The tuning problem of one case (e.g. ``"min"``, or ``"min-folqi"`` when the experiment
+        names several controllers)."""
+        plant_case, kind = self._variant(case)
+        pairing = self.pairing_of(case)
+        model = {} if self.plant_model == "qtp" else {"plant_model": self.plant_model}
+        loop = ClosedLoop(self._plant(plant_case), kind, **self.controller_options, pairing=pairing, **model)
+        names = decision_names(kind)
+        lower = [self.bounds[n][0] for n in names]
+        upper = [self.bounds[n][1] for n in names]
+        ki = tuple(self.bounds.get(k, (1.0, 1.0)) for k in ("Ki1", "Ki2"))
+        warning = integral_action_obstruction(kind, pairing, loop.A, loop.B, loop.C, ki)
+        prob = Problem(case, loop, names, lower, upper, objective=self.objective,
+                       constraints=self.constraints, settling_band=self.settling_band,
+                       scenarios=self.scenarios, tuning_scenario=self.tuning_scenario,
+                       weights=self.weights, structure_warning=warning)
+        prob.baselines = dict(self.baselines.get(case, {}))
+        return prob
+
+    def write_outputs(self, out_dir, *, runs, history, best, figures: bool = True) -> None:
+        """With ``[report] thesis_chapter``: the chapter's tables next to the printed values
+        and its figures, in ``out_dir/tables/`` (:func:`heurtune.objectives.qtp.thesis.tables.write_chapter`)."""
+        chapter = self.config.get("report", {}).get("thesis_chapter")
+        if chapter is not None:
+            write_chapter(chapter, self, out_dir, runs=runs, history=history, figures=figures)

@@ -1,0 +1,444 @@
+"""The QTP closed loop: scenario, controller design for one plant case, simulation, metrics.
+
+This is the Python facade over the jitted kernels in :mod:`heurtune.objectives.qtp.kernels`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping
+
+import numpy as np
+import pandas as pd
+import scipy.linalg.lapack
+
+from heurtune.core.errors import ConfigError
+from heurtune.core.problem import RANGE_RTOL
+from heurtune.objectives.qtp import kernels as _kernels
+from heurtune.objectives.qtp.controllers import LinearController, build_controller
+from heurtune.objectives.qtp.model import QTPParams, linearise, operating_point
+from heurtune.objectives.qtp.bond_graph import BondGraphElements, pressure_coefficients
+
+_DGEEV = scipy.linalg.lapack.get_lapack_funcs("geev", dtype=np.float64)
+
+__all__ = ["Scenario", "ClosedLoop", "SimulationResult", "METRIC_NAMES", "LIMITS", "PLANT_MODELS",
+           "physical_range_flags"]
+
+METRIC_NAMES = _kernels.METRIC_NAMES
+
+# Allowed values of ClosedLoop's plant_model: the level model of heurtune.objectives.qtp.model, or the
+# pressure (bond-graph) formulation of heurtune.objectives.qtp.bond_graph.
+PLANT_MODELS = ("qtp", "qtp_bond_graph")
+
+# Allowed values of Scenario.limits: the thesis' unlimited model, or the plant's physical limits.
+LIMITS = ("none", "physical")
+
+# physical_range_flags uses the core's RANGE_RTOL: a clipped level or saturated voltage sits
+# exactly on its limit and must not count as leaving the range.
+
+
+def _pair(key, value):
+    try:
+        a, b = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise ConfigError(f"scenario.{key} must be two numbers, got {value!r}") from None
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise ConfigError(f"scenario.{key} must be finite, got {value!r}")
+    return (a, b)
+
+
+@dataclasses.dataclass(frozen=True)
+class Scenario:
+    """What a closed-loop simulation exercises.
+
+    Parameters
+    ----------
+    horizon : float
+        Simulated time T in s (thesis: 350).
+    dt : float
+        Fixed step in s (default 0.01); ``horizon`` must be a whole number of steps.
+    output_disturbance : (float, float)
+        Additive step on the measured levels y1 = h1 + d1, y2 = h2 + d2 in cm (thesis: 1 cm).
+    disturbance_time : float
+        When the output disturbance starts, s (thesis: 50).
+    input_disturbance : (float, float)
+        Additive step on the pump voltages in V (off by default).
+    input_disturbance_time : float
+        When the input disturbance starts, s.
+    noise_sd : float
+        Standard deviation in cm of white measurement noise on all four measured levels.
+    noise_seed : int
+        Seed of that noise.
+    saturation : (float, float) or None
+        Pump limits [u_min, u_max] in V with conditional-integration anti-windup; None = off.
+    uncertainty : float
+        Factor on every A_i and a_i of the plant (1.0 nominal; thesis robustness 0.7 and 1.3).
+    limits : {"none", "physical"}
+        ``"none"`` (default): the thesis' model, with no bound on levels or voltages.
+        ``"physical"``: the pumps saturate at the plant's ``u_range`` (with the anti-windup of
+        ``saturation``) and every level stays in [0, H_i], the water above a rim being lost;
+        needs a plant with ``height`` and ``u_range``. Excludes ``saturation``.
+    """
+
+    horizon: float = 350.0
+    dt: float = 0.01
+    output_disturbance: tuple = (1.0, 1.0)
+    disturbance_time: float = 50.0
+    input_disturbance: tuple = (0.0, 0.0)
+    input_disturbance_time: float = 0.0
+    noise_sd: float = 0.0
+    noise_seed: int = 0
+    saturation: tuple | None = None
+    uncertainty: float = 1.0
+    limits: str = "none"
+
+    def __post_init__(self):
+        for key in ("horizon", "dt", "disturbance_time", "input_disturbance_time", "noise_sd",
+                    "uncertainty"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ConfigError(f"scenario.{key} must be a finite number, got {v!r}")
+        if self.dt <= 0 or self.horizon <= 0:
+            raise ConfigError(f"scenario.dt and scenario.horizon must be positive, got {self.dt}, {self.horizon}")
+        if abs(self.n_steps * self.dt - self.horizon) > 1e-9 * self.horizon:
+            raise ConfigError(f"scenario.horizon ({self.horizon}) must be a whole number of steps dt ({self.dt})")
+        for key in ("disturbance_time", "input_disturbance_time"):
+            t = getattr(self, key)
+            if not 0 <= t <= self.horizon:
+                raise ConfigError(f"scenario.{key} must lie in [0, horizon], got {t}")
+            if abs(round(t / self.dt) * self.dt - t) > 1e-9 * max(1.0, t):
+                raise ConfigError(f"scenario.{key} ({t}) must be a multiple of dt ({self.dt})")
+        if self.noise_sd < 0:
+            raise ConfigError(f"scenario.noise_sd must be >= 0, got {self.noise_sd}")
+        if self.uncertainty <= 0:
+            raise ConfigError(f"scenario.uncertainty must be positive, got {self.uncertainty}")
+        if isinstance(self.noise_seed, bool) or not isinstance(self.noise_seed, int) or self.noise_seed < 0:
+            raise ConfigError(f"scenario.noise_seed must be a non-negative integer, got {self.noise_seed!r}")
+        object.__setattr__(self, "output_disturbance", _pair("output_disturbance", self.output_disturbance))
+        object.__setattr__(self, "input_disturbance", _pair("input_disturbance", self.input_disturbance))
+        if self.saturation is not None:
+            lo, hi = _pair("saturation", self.saturation)
+            if not lo < hi:
+                raise ConfigError(f"scenario.saturation needs u_min < u_max, got {self.saturation!r}")
+            object.__setattr__(self, "saturation", (lo, hi))
+        if not isinstance(self.limits, str) or self.limits not in LIMITS:
+            raise ConfigError(f"scenario.limits must be one of {', '.join(map(repr, LIMITS))}, got {self.limits!r}")
+        if self.limits == "physical" and self.saturation is not None:
+            raise ConfigError("scenario.saturation and scenario.limits = 'physical' both set pump limits; give one")
+
+    @property
+    def n_steps(self) -> int:
+        return int(round(self.horizon / self.dt))
+
+    @property
+    def disturbance_index(self) -> int:
+        return int(round(self.disturbance_time / self.dt))
+
+    @property
+    def input_disturbance_index(self) -> int:
+        return int(round(self.input_disturbance_time / self.dt))
+
+    def noise(self) -> np.ndarray:
+        """Measurement noise (n_steps + 1, 4) drawn from ``noise_seed``, or an empty (0, 4)."""
+        if self.noise_sd == 0:
+            return np.zeros((0, 4))
+        rng = np.random.default_rng(self.noise_seed)
+        return rng.normal(0.0, self.noise_sd, size=(self.n_steps + 1, 4))
+
+
+@dataclasses.dataclass
+class SimulationResult:
+    """A closed-loop run: ``metrics`` (in the order of METRIC_NAMES; NaN when diverged), the
+    ``diverged`` flag, the operating point used and, when recorded, the sampled response ``y``
+    (n+1, 2) measured levels, ``u`` (n+1, 2) voltages and ``h`` (n+1, 4) true levels (cm, for
+    either plant model). ``P`` (n+1, 4) holds the tank pressures in dyn/cm^2 when the plant
+    model is ``"qtp_bond_graph"`` and the levels were recorded; None otherwise."""
+
+    t: np.ndarray | None
+    y: np.ndarray | None
+    u: np.ndarray | None
+    h: np.ndarray | None
+    diverged: bool
+    h_op: np.ndarray
+    u_op: np.ndarray
+    metrics: np.ndarray
+    P: np.ndarray | None = None
+
+    def to_frame(self) -> pd.DataFrame:
+        """Columns t, h1..h4 (if recorded), P1..P4 (bond-graph model), y1, y2, u1, u2."""
+        if self.y is None:
+            raise ValueError("this run was not recorded (run(..., record=True))")
+        cols = {"t": self.t}
+        if self.h is not None:
+            for i in range(4):
+                cols[f"h{i + 1}"] = self.h[:, i]
+        if self.P is not None:
+            for i in range(4):
+                cols[f"P{i + 1}"] = self.P[:, i]
+        cols.update(y1=self.y[:, 0], y2=self.y[:, 1], u1=self.u[:, 0], u2=self.u[:, 1])
+        return pd.DataFrame(cols)
+
+
+class ClosedLoop:
+    """One plant case under one controller type: design, stability check, simulation, metrics.
+
+    Parameters
+    ----------
+    plant : QTPParams
+        The nominal plant; controllers are designed on its linearisation.
+    kind : {"folqi", "iolqi", "ladr", "lqi"}
+    oustaloup_order, band, realisation :
+        Fractional-integrator options (FOLQI).
+    pairing : {"diagonal", "anti-diagonal"}
+        Which error each pump integrates (see :func:`build_controller`).
+    plant_model : {"qtp", "qtp_bond_graph"}
+        The simulated plant: ``"qtp"`` integrates the four levels (cm); ``"qtp_bond_graph"``
+        integrates the four tank pressures P = rho g h (dyn/cm^2, water, see
+        :mod:`heurtune.objectives.qtp.bond_graph`) and its sensors read the levels P / (rho g).
+        The controller is designed on the level linearisation in both cases, so the two loops
+        agree up to rounding. Kept as :attr:`plant_model`, not in :attr:`options`.
+
+    Raises
+    ------
+    ConfigError
+        For an unknown ``plant_model``.
+    """
+
+    def __init__(self, plant: QTPParams, kind: str, *, oustaloup_order: int = 5,
+                 band: tuple = (1e-3, 1e3), realisation: str = "direct", pairing: str = "diagonal",
+                 plant_model: str = "qtp"):
+        if not isinstance(plant_model, str) or plant_model not in PLANT_MODELS:
+            raise ConfigError(f"plant.model must be one of {', '.join(map(repr, PLANT_MODELS))}, "
+                              f"got {plant_model!r}")
+        self.plant = plant
+        self.kind = kind
+        self.plant_model = plant_model
+        self.options = dict(oustaloup_order=oustaloup_order, band=tuple(band), realisation=realisation,
+                            pairing=pairing)
+        self.op = operating_point(plant)
+        self.A, self.B, self.C = linearise(plant, self.op)
+        # Plant state per level: the pressure model's state is rho g h (rho and g do not change
+        # with the uncertainty factor, which scales areas only).
+        if plant_model == "qtp_bond_graph":
+            self._rho_g = BondGraphElements.from_plant(plant).rho_g
+            self._level_per_state = 1.0 / self._rho_g
+        else:
+            self._rho_g = 1.0
+            self._level_per_state = 1.0
+        self._plants = {}
+        self._scenarios = {}
+        self._limits = None
+
+    def __getstate__(self):
+        # Caches are rebuilt on demand.
+        state = self.__dict__.copy()
+        state["_plants"] = {}
+        state["_scenarios"] = {}
+        state["_limits"] = None
+        return state
+
+    def __setstate__(self, state):
+        state.setdefault("_limits", None)
+        # Pickles from before the bond-graph model are level models.
+        state.setdefault("plant_model", "qtp")
+        state.setdefault("_rho_g", 1.0)
+        state.setdefault("_level_per_state", 1.0)
+        self.__dict__.update(state)
+
+    # -- design ---------------------------------------------------------------------------
+    def controller(self, values: dict) -> LinearController:
+        """Design the controller for named tuning ``values`` (raises ControllerDesignError)."""
+        return build_controller(self.kind, values, self.A, self.B, **self.options)
+
+    def stability_margin(self, ctrl: LinearController) -> float:
+        """Largest real part of the linearised closed-loop eigenvalues (negative = stable)."""
+        Acl = ctrl.closed_loop_matrix(self.A, self.B)
+        if not np.isfinite(Acl).all():
+            return math.inf
+        # LAPACK dgeev without eigenvectors (numpy's eigvals adds checks and copies)
+        wr, _, _, _, info = _DGEEV(Acl, compute_vl=0, compute_vr=0, overwrite_a=1)
+        if info != 0:
+            return math.inf
+        return float(wr.max())
+
+    # -- simulation -----------------------------------------------------------------------
+    def _scenario_arrays(self, scenario: Scenario):
+        """Kernel arrays of a scenario, drawn once (the noise is seeded, hence the same)."""
+        if scenario not in self._scenarios:
+            self._scenarios[scenario] = (np.asarray(scenario.output_disturbance, dtype=np.float64),
+                                         np.asarray(scenario.input_disturbance, dtype=np.float64),
+                                         scenario.noise())
+        return self._scenarios[scenario]
+
+    def _perturbed(self, factor: float):
+        if factor not in self._plants:
+            p = self.plant if factor == 1.0 else self.plant.scaled(factor)
+            if self.plant_model == "qtp_bond_graph":
+                coef = pressure_coefficients(BondGraphElements.from_plant(p))
+            else:
+                coef = _kernels.plant_coefficients(p.as_array())
+            self._plants[factor] = (coef, operating_point(p).u)
+        return self._plants[factor]
+
+    def check_scenario(self, scenario: Scenario) -> None:
+        """Raise ConfigError now if ``scenario`` cannot run on this plant (``limits =
+        "physical"`` on a plant without limits, or whose operating point they exclude), so
+        that a bad config fails when it is loaded, not in every evaluation."""
+        if scenario.limits == "physical":
+            self._physical_limits(self._perturbed(scenario.uncertainty)[1])
+
+    def _physical_limits(self, u_op: np.ndarray):
+        """Tank heights (4,) and pump range of the nominal plant, checked against the operating
+        point (raises ConfigError when the plant has no limits or cannot hold that point)."""
+        if self._limits is None:
+            self._limits = self.plant.physical_limits()
+        height, (lo, hi) = self._limits
+        if np.any(self.op.h > height):
+            raise ConfigError(
+                f"plant '{self.plant.name}': operating levels {np.round(self.op.h, 4).tolist()} exceed the "
+                f"tank heights {list(self.plant.height)}; scenario.limits = 'physical' cannot hold them"
+            )
+        if np.any(u_op < lo) or np.any(u_op > hi):
+            raise ConfigError(
+                f"plant '{self.plant.name}': operating voltages {np.round(u_op, 4).tolist()} lie outside "
+                f"u_range {self.plant.u_range}; scenario.limits = 'physical' cannot hold them"
+            )
+        return height, lo, hi
+
+    def run(self, ctrl: LinearController, scenario: Scenario, *, settling_band: float = 3.0,
+            record: bool = True, record_levels: bool | None = None) -> SimulationResult:
+        """Simulate the nonlinear loop and its metrics (kernel :func:`simulate_loop`).
+
+        Parameters
+        ----------
+        ctrl : LinearController
+        scenario : Scenario
+            With ``limits = "physical"`` the pumps saturate at the nominal plant's ``u_range``
+            and the levels stay within [0, height] (uncertainty scales areas, not heights).
+        settling_band : float
+            Band of the settling time, percent of the operating level.
+        record : bool
+            Keep the sampled y and u; ``False`` keeps only the metrics (what a tuning
+            evaluation needs).
+        record_levels : bool, optional
+            Keep the true levels h1..h4 as well (and, for the bond-graph model, the pressures
+            P1..P4); default: as ``record``.
+
+        Returns
+        -------
+        SimulationResult
+            ``h`` holds levels in cm for both plant models; ``P`` the pressures of the
+            bond-graph model.
+
+        Raises
+        ------
+        ConfigError
+            ``limits = "physical"`` on a plant without height and u_range, or whose operating
+            point lies outside them.
+        """
+        if record_levels is None:
+            record_levels = record
+        coef, u_op = self._perturbed(scenario.uncertainty)
+        n = scenario.n_steps
+        rows = n + 1 if record else 0
+        y, u = np.empty((rows, 2)), np.empty((rows, 2))
+        h = np.empty((n + 1 if record_levels else 0, 4))
+        metrics = np.empty(_kernels.N_METRICS)
+        dc = ctrl.discretise(scenario.dt)
+        out_dist, in_dist, noise = self._scenario_arrays(scenario)
+        sat = scenario.saturation
+        clip = scenario.limits == "physical"
+        pressure = self.plant_model == "qtp_bond_graph"
+        x_op = self.op.h * self._rho_g if pressure else self.op.h  # initial plant state
+        if clip:
+            h_max, u_lo, u_hi = self._physical_limits(u_op)
+            sat = (u_lo, u_hi)
+            if pressure:
+                h_max = h_max * self._rho_g  # tank heights as pressures
+        else:
+            h_max = self.op.h  # not read by the kernel
+        status, _ = _kernels.simulate_loop(
+            coef, self._level_per_state, x_op, self.op.h, u_op, dc.ad, dc.bd, dc.state_input,
+            dc.Ad, dc.Bd, dc.Cc, dc.Dc, dc.state_channel, dc.segments,
+            scenario.dt, n, scenario.disturbance_index, out_dist,
+            scenario.input_disturbance_index, in_dist,
+            noise, sat is not None, sat[0] if sat else 0.0, sat[1] if sat else 0.0,
+            clip, h_max, float(settling_band), metrics, y, u, h,
+        )
+        t = np.arange(n + 1) * scenario.dt if record or record_levels else None
+        P = None
+        if record_levels and pressure:
+            P, h = h, h * self._level_per_state  # the kernel records its state, the pressures
+        return SimulationResult(t, y if record else None, u if record else None,
+                                h if record_levels else None, status != _kernels.STATUS_OK,
+                                self.op.h.copy(), u_op.copy(), metrics, P)
+
+    def metrics(self, sim: SimulationResult, scenario: Scenario, settling_band: float) -> np.ndarray:
+        """Metrics recomputed from a recorded run (:func:`loop_metrics`; NaN when diverged).
+
+        hmin and hmax need the recorded true levels ``sim.h``: NaN for a run without them.
+        """
+        out = np.full(_kernels.N_METRICS, np.nan)
+        if sim.diverged:
+            return out
+        _kernels.loop_metrics(sim.y, sim.u, sim.h_op[:2], sim.u_op, scenario.dt,
+                              scenario.disturbance_index, settling_band, out, sim.h)
+        return out
+
+    def warm_up(self):
+        """Compile (or load from cache) the kernels on a tiny problem."""
+        sc = Scenario(horizon=0.02, dt=0.01, disturbance_time=0.0)
+        A = np.zeros((1, 1))
+        ctrl = LinearController(A, np.zeros((1, 4)), np.zeros((2, 1)), np.zeros((2, 4)), ((0, 1),), (0,))
+        self.metrics(self.run(ctrl, sc), sc, 3.0)
+        self.run(ctrl, sc, record=False)
+
+
+def physical_range_flags(metrics, plant: QTPParams) -> list[str]:
+    """Say where a run leaves the plant's physical range.
+
+    Parameters
+    ----------
+    metrics : mapping or array_like
+        The run's metrics: a mapping (dict, pandas Series) with any of ``hmin``, ``hmax``,
+        ``umin``, ``umax``, or a vector in the order of :data:`METRIC_NAMES`.
+    plant : QTPParams
+        Its tank heights and pump voltage range are the limits.
+
+    Returns
+    -------
+    list of str
+        One flag per limit crossed, e.g. ``"levels below 0 cm (min -226.1)"`` or
+        ``"u above 10 V (max 12.3)"``; empty when the run stays inside, when the plant has no
+        limits, or for missing or NaN values (a diverged run, levels not recorded). A value on a
+        limit (a clipped level, a saturated pump) is inside: the comparison allows a relative
+        ``RANGE_RTOL``. ``hmax`` is the highest level of any tank, so it is compared with the
+        tallest tank's height.
+    """
+    if not getattr(plant, "has_limits", False):
+        return []
+    if isinstance(metrics, (Mapping, pd.Series)):
+        values = {k: metrics[k] for k in ("hmin", "hmax", "umin", "umax") if k in metrics}
+    else:
+        row = np.asarray(metrics, dtype=np.float64)
+        if row.shape != (len(METRIC_NAMES),):
+            raise ValueError(f"physical_range_flags: a metrics vector needs {len(METRIC_NAMES)} values, "
+                             f"got shape {row.shape}")
+        values = {k: row[METRIC_NAMES.index(k)] for k in ("hmin", "hmax", "umin", "umax")}
+    h_top = max(plant.height)
+    u_lo, u_hi = plant.u_range
+    checks = (
+        ("hmin", "levels below", 0.0, "cm", "min", -1.0, h_top),
+        ("hmax", "levels above", h_top, "cm", "max", 1.0, h_top),
+        ("umin", "u below", u_lo, "V", "min", -1.0, max(abs(u_lo), abs(u_hi))),
+        ("umax", "u above", u_hi, "V", "max", 1.0, max(abs(u_lo), abs(u_hi))),
+    )
+    flags = []
+    for key, what, limit, unit, stat, sign, scale in checks:
+        v = values.get(key)
+        if v is None or not math.isfinite(float(v)):
+            continue
+        if sign * (float(v) - limit) > RANGE_RTOL * max(scale, 1.0):
+            flags.append(f"{what} {limit:g} {unit} ({stat} {float(v):.4g})")
+    return flags

@@ -1,0 +1,297 @@
+"""The QTP tuning problem of one plant case (thesis eq. 3.10-3.11).
+
+>>> import heurtune
+>>> prob = heurtune.load_experiment("cs_folqi_qtp").problem("min")
+>>> prob.names[:3]
+('Q11', 'Q22', 'Q33')
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+
+import numpy as np
+import pandas as pd
+
+from heurtune.core.errors import ConfigError
+from heurtune.core.problem import FAILED_OBJECTIVE, FAILED_VIOLATION, Evaluation, StructureWarning, TuningProblem
+from heurtune.objectives.qtp.controllers import ControllerDesignError
+from heurtune.objectives.qtp.loop import METRIC_NAMES, ClosedLoop, Scenario, physical_range_flags
+from heurtune.objectives.qtp.margins import loop_margins
+
+__all__ = ["Problem", "IntegralActionWarning", "STABILITY_CONSTRAINT", "WEIGHTED_METRICS", "OBJECTIVES"]
+
+# Unstable candidates' violations grow with the largest closed-loop real part, up to this cap.
+UNSTABLE_MARGIN_CAP = 1.0e3
+
+OBJECTIVES = {
+    "effort": ("J1", "J2"),
+    "effort_deviation": ("Jdev1", "Jdev2"),
+    "iae": ("IAE1", "IAE2"),
+    "ise": ("ISE1", "ISE2"),
+    "itae": ("ITAE1", "ITAE2"),
+}
+_METRIC_INDEX = {name: i for i, name in enumerate(METRIC_NAMES)}
+# Metrics a weighted objective may combine (each summed over both loops or pumps).
+WEIGHTED_METRICS = ("J", "Jdev", "IAE", "ISE", "ITAE", "TV")
+# The constraint that a problem without performance constraints keeps: the candidate's loop is
+# stable and its simulation finished (g = 0), else it carries the failure's violation.
+STABILITY_CONSTRAINT = "stability"
+# Controller types with an LQI structure, whose interaction-loop margins the problem reports.
+LQI_TYPES = ("folqi", "iolqi", "lqi")
+
+
+class IntegralActionWarning(StructureWarning):
+    """The configured controller structure cannot hold integral action on this plant."""
+
+
+class Problem(TuningProblem):
+    """Constrained tuning problem of one plant case.
+
+    Minimise the objective (default: effort ``J = J1 + J2``, the integral of the squared
+    absolute pump voltages; or ``Jdev``, IAE, ISE, ITAE, or a weighted sum of metrics) subject
+    to ``Mp_i < Mp``, ``ts_i < ts`` and ``ess_i < ess`` for both lower tanks, under the tuning
+    scenario. Stability is always required: a candidate that cannot be designed, whose loop is
+    unstable or whose simulation diverges is never feasible. Without performance constraints
+    (``constraints = {}``, the config's ``"none"``) a single ``stability`` constraint column
+    carries that (0 when simulated, the failure's violation otherwise).
+
+    Attributes
+    ----------
+    names : tuple of str
+        Decision variables, e.g. ``Q11, Q22, Q33, Q44, R11, R22, Ki1, Ki2, alpha1, alpha2``.
+    lower, upper : (d,) ndarray
+        Bounds.
+    constraint_names : tuple of str
+        ``Mp1, Mp2, ts1, ts2, ess1, ess2`` (those configured).
+    scenarios : dict of str to Scenario
+        The tuning scenario and its uncertainty variants (``nominal``, ``-30%``, ``+30%``).
+    weights : dict or None
+        Metric weights of ``objective = "weighted"``.
+    structure_warning : str or None
+        Why the controller structure cannot hold integral action on this plant (one line), or
+        None (see :func:`heurtune.objectives.qtp.controllers.integral_action_obstruction`).
+    """
+
+    scenario_type = Scenario
+    report_columns = ("Mp1", "Mp2", "ts1", "ts2", "ess1", "ess2", "J1", "J2", "J", "hmin", "hmax", "umin", "umax",
+                      "feasible", "reason")
+    signal_labels = {"output": "tank", "input": "pump", "y_label": "level {i} (cm)",
+                     "u_label": "pump voltage u{i} (V)", "y_unit": "cm", "u_unit": "V"}
+
+    def __init__(self, case: str, loop: ClosedLoop, names, lower, upper, *, objective: str,
+                 constraints: dict, settling_band: float, scenarios: dict, tuning_scenario: str,
+                 weights: dict | None = None, structure_warning: str | None = None):
+        self.case = case
+        self.loop = loop
+        self.controller = loop.kind
+        self.names = tuple(names)
+        self.lower = np.asarray(lower, dtype=np.float64)
+        self.upper = np.asarray(upper, dtype=np.float64)
+        self.objective = objective
+        self.constraints = dict(constraints)
+        self.settling_band = float(settling_band)
+        self.scenarios = dict(scenarios)
+        self.tuning_scenario = tuning_scenario
+        self.structure_warning = structure_warning
+        self.baselines = {}  # name -> decision vector of a fixed controller (Experiment.problem)
+        if objective == "weighted":
+            if not weights:
+                raise ConfigError("problem.objective = 'weighted' needs problem.weights "
+                                  f"(a weight per metric among {', '.join(WEIGHTED_METRICS)})")
+            self.weights = dict(weights)
+            self._objective_idx = [_METRIC_INDEX[f"{m}{i}"] for m in self.weights for i in (1, 2)]
+            self._objective_w = np.repeat([float(w) for w in self.weights.values()], 2)
+        else:
+            self.weights = None
+            self._objective_idx = [_METRIC_INDEX[m] for m in OBJECTIVES[objective]]
+            self._objective_w = None
+        self._constraint_idx = []
+        self._constraint_limit = []
+        names_g = []
+        for key, limit in self.constraints.items():
+            for i in (1, 2):
+                names_g.append(f"{key}{i}")
+                self._constraint_idx.append(_METRIC_INDEX[f"{key}{i}"])
+                self._constraint_limit.append(limit)
+        # Without performance constraints a column still carries stability, so that an unstable
+        # or diverging candidate is never feasible to the optimisers either.
+        self._stability_only = not names_g
+        self.constraint_names = (STABILITY_CONSTRAINT,) if self._stability_only else tuple(names_g)
+        self._constraint_limit = np.array(self._constraint_limit)
+
+    def __repr__(self):
+        return (f"Problem(case={self.case!r}, controller={self.loop.kind!r}, dim={self.dim}, "
+                f"objective={self.objective!r}, constraints={self.constraints})")
+
+    # -- evaluation -------------------------------------------------------------------
+    def _evaluate_one(self, x, scenario: Scenario, metrics_row: np.ndarray):
+        """Reason ("" when simulated) and, for an unstable loop, its eigenvalue margin."""
+        if not np.all(np.isfinite(x)):
+            return "invalid_parameter", 0.0
+        try:
+            ctrl = self.loop.controller(dict(zip(self.names, x.tolist())))
+        except ControllerDesignError as exc:
+            return exc.reason, 0.0
+        except ConfigError:
+            return "invalid_parameter", 0.0
+        margin = self.loop.stability_margin(ctrl)
+        if not margin < 0.0:
+            return "unstable", margin
+        sim = self.loop.run(ctrl, scenario, settling_band=self.settling_band, record=False)
+        if sim.diverged:
+            return "diverged", 0.0
+        metrics_row[:] = sim.metrics
+        if not np.all(np.isfinite(metrics_row)):
+            return "non_finite", 0.0
+        return "", 0.0
+
+    def evaluate(self, X, scenario=None) -> Evaluation:
+        """Evaluate a batch of candidates.
+
+        Parameters
+        ----------
+        X : array_like, shape (n, d) or (d,)
+        scenario : str or Scenario, optional
+            Defaults to the tuning scenario.
+
+        Returns
+        -------
+        Evaluation
+            Never raises for a bad candidate: unstable, undesignable or diverging candidates get
+            ``FAILED_OBJECTIVE``, violations ``FAILED_VIOLATION`` and a reason.
+        """
+        X = self.batch(X)
+        sc = self.scenario(self.tuning_scenario if scenario is None else scenario)
+        n = X.shape[0]
+        m = len(self.constraint_names)
+        metrics = np.full((n, len(METRIC_NAMES)), np.nan)
+        f = np.full(n, FAILED_OBJECTIVE)
+        g = np.full((n, m), FAILED_VIOLATION)
+        reason = np.empty(n, dtype=object)
+        for i in range(n):
+            reason[i], margin = self._evaluate_one(X[i], sc, metrics[i])
+            if reason[i] == "":
+                if self._objective_w is None:
+                    f[i] = metrics[i, self._objective_idx].sum()
+                else:
+                    f[i] = metrics[i, self._objective_idx] @ self._objective_w
+                g[i] = 0.0 if self._stability_only else (
+                    metrics[i, self._constraint_idx] / self._constraint_limit - 1.0)
+            else:
+                metrics[i] = np.nan
+                if reason[i] == "unstable":
+                    # Graded: the less unstable, the smaller the violation, so Deb's rules and
+                    # SLSQP both see a way back to stability.
+                    g[i] = FAILED_VIOLATION * (1.0 + min(margin, UNSTABLE_MARGIN_CAP))
+        feasible = (reason == "") & np.all(g <= 0.0, axis=1)
+        return Evaluation(f, g, feasible, metrics, METRIC_NAMES, self.constraint_names, reason)
+
+    def baseline(self, name: str) -> np.ndarray:
+        """Decision vector of a fixed controller named in the config's ``[[baselines]]``.
+
+        Raises
+        ------
+        ConfigError
+            For a name the case has no baseline of.
+        """
+        try:
+            return self.baselines[name].copy()
+        except KeyError:
+            raise ConfigError(f"case {self.case!r}: unknown baseline {name!r}; "
+                              f"allowed: {', '.join(self.baselines) or 'none'}") from None
+
+    def warm_up(self):
+        """Compile or load the jitted kernels (call in the parent before starting workers)."""
+        self.loop.warm_up()
+
+    def identity(self) -> dict:
+        """Everything that defines the tuning problem (hashed into the runner's problem_id)."""
+        p = self.loop.plant
+        payload = dict(
+            plant=dict(A=p.A, a=p.a, k=p.k, gamma=p.gamma, levels=p.levels, g=p.g),
+            controller=self.loop.kind, options={k: list(v) if isinstance(v, tuple) else v
+                                                for k, v in self.loop.options.items()
+                                                if not (k == "pairing" and v == "diagonal")},
+            scenario=dataclasses.asdict(self.scenario(self.tuning_scenario)),
+            objective=self.objective, constraints=self.constraints, band=self.settling_band,
+            bounds=dict(zip(self.names, zip(self.lower.tolist(), self.upper.tolist()))),
+        )
+        # Options added later enter only when set, so earlier problems keep their ids.
+        if self.weights:
+            payload["weights"] = self.weights
+        if payload["scenario"].get("limits", "none") == "none":
+            payload["scenario"].pop("limits", None)
+        if self.loop.plant_model != "qtp":
+            payload["plant"]["model"] = self.loop.plant_model
+        return payload
+
+    def margins(self, x) -> pd.DataFrame | None:
+        """Margins of the four interaction loops of an LQI-type design
+        (:func:`heurtune.objectives.qtp.margins.loop_margins`); None for LADR."""
+        if self.loop.kind not in LQI_TYPES:
+            return None
+        return loop_margins(self, np.array([self.values(x)[n] for n in self.names]))
+
+    def controller_record(self, x) -> dict:
+        """The continuous controller (A, B, C, D, blocks), its discretisation at the scenario's
+        step and the nominal response, for the ``.mat`` export (``controller_error`` instead
+        when it cannot be designed)."""
+        scenario = "nominal" if "nominal" in self.scenarios else self.tuning_scenario
+        try:
+            ctrl = self.loop.controller(self.values(x))
+            dt = float(self.scenario(scenario).dt)
+            dc = ctrl.discretise(dt)
+            resp = self.simulate(x, scenario)
+        except (ControllerDesignError, ConfigError) as exc:
+            return {"controller_error": str(exc)}
+        discrete = {name: np.asarray(getattr(dc, name)) for name in
+                    ("ad", "bd", "state_input", "Ad", "Bd", "Cc", "Dc", "state_channel", "segments")}
+        discrete["dt"] = dt
+        return {"controller": {"A": ctrl.A, "B": ctrl.B, "C": ctrl.C, "D": ctrl.D,
+                               "blocks": np.asarray(ctrl.blocks, dtype=float).reshape(-1, 2)},
+                "discrete": discrete, "response_scenario": scenario, "response": resp}
+
+    def physical_limits(self) -> dict | None:
+        """The tank heights (0 to height, cm) and the pump voltage range, when the plant has them."""
+        p = self.loop.plant
+        if not p.has_limits:
+            return None
+        return {"y": [(0.0, p.height[0]), (0.0, p.height[1])], "h": [(0.0, h) for h in p.height], "u": tuple(p.u_range)}
+
+    def simulate(self, x, scenario="nominal", *, record_levels: bool = True) -> pd.DataFrame:
+        """Trajectories of one candidate: columns t, h1..h4, y1, y2, u1, u2.
+
+        Raises
+        ------
+        ControllerDesignError
+            When the controller cannot be designed for ``x``.
+        """
+        sc = self.scenario(scenario)
+        ctrl = self.loop.controller(self.values(x))
+        return self.loop.run(ctrl, sc, record_levels=record_levels).to_frame()
+
+    def report(self, x, scenarios=None) -> pd.DataFrame:
+        """Metrics of one candidate per scenario (rows) with its objective and feasibility.
+
+        Column ``range`` names where the trajectory leaves the plant's physical range (levels
+        outside [0, height], voltages outside ``u_range``; "" when inside or when the plant has
+        no limits), see :func:`heurtune.objectives.qtp.loop.physical_range_flags`.
+
+        When the controller structure cannot hold integral action on this plant
+        (``structure_warning``), an :class:`IntegralActionWarning` says so.
+        """
+        if self.structure_warning:
+            warnings.warn(f"{self.case}: {self.structure_warning}", IntegralActionWarning, stacklevel=2)
+        x = np.array([self.values(x)[n] for n in self.names])
+        rows = []
+        for name in (scenarios or list(self.scenarios)):
+            ev = self.evaluate(x[None, :], name)
+            row = {"scenario": name, "f": ev.f[0], "feasible": bool(ev.feasible[0]),
+                   "reason": ev.reason[0]}
+            row.update(zip(METRIC_NAMES, ev.metrics[0]))
+            row["J"] = row["J1"] + row["J2"]
+            row["range"] = "; ".join(physical_range_flags(ev.metrics[0], self.loop.plant))
+            rows.append(row)
+        return pd.DataFrame(rows).set_index("scenario")

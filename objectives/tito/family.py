@@ -1,0 +1,248 @@
+"""The TITO family: decentralised PI/PID of two-input two-output coupled tanks with dead time.
+
+``[plant] model = "tito"`` (transfer-function plants: the presets of papers 000-002 or
+``plant.custom`` tables) or ``"two_tank_nonlinear"`` (the nonlinear two-tank rig of paper 002,
+tuned on its identified linear model and simulated nonlinear). Each case gets its design chain
+(decoupler, FOPDT fits, GPM baseline) and a :class:`heurtune.objectives.tito.problem.TITOProblem`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from heurtune.core.errors import ConfigError
+from heurtune.core.families import register_family
+from heurtune.core.problem import ExperimentBase
+from heurtune.core.schema import COMMON_SCHEMA, NUMBER, PAIR
+from heurtune.objectives.tito import model as tito
+from heurtune.objectives.tito import report, two_tank
+from heurtune.objectives.tito.problem import (
+    DEFAULT_GPM, OBJECTIVES, DesignChain, TITOProblem, default_bounds, fopdt_fit, gain_names,
+)
+from heurtune.objectives.tito.sim import TITOScenario
+
+__all__ = ["TITOExperiment", "SCHEMA", "MODELS"]
+
+MODELS = ("tito", "two_tank_nonlinear")
+DEFAULT_BANDWIDTH_CONSTRAINTS = {"Am": 3.0, "phim": 60.0, "Mt": 1.3}
+DEFAULT_VARIATION = {"nominal": 0.0, "-20%": -0.2, "+20%": 0.2}
+
+STEPS = ("list", ("list", PAIR))  # per loop, [[time, value], ...]
+
+SCHEMA = dict(COMMON_SCHEMA, **{
+    "plant": {
+        "model": MODELS,
+        "cases": ("list", str),
+        # TITO: {g11 = {K, lags, leads, L}, ...}; two_tank_nonlinear: TwoTankParams fields.
+        # Validated by the plant constructors, which name the key.
+        "custom": ("map", ("map", None)),
+    },
+    "decoupler": {"type": ("inverted", "none"), "case": int, "delay_compensation": bool},
+    "controller": {
+        "type": ("choices", ("pi", "pid")),
+        "N": NUMBER,
+        "baselines": ("list", ("gpm",)),
+        "gpm": {"Am": NUMBER, "phim": NUMBER},
+    },
+    "scenario": {
+        "horizon": NUMBER, "dt": NUMBER,
+        "setpoints": STEPS,
+        "input_disturbance": {"time": NUMBER, "size": PAIR},
+        "output_disturbance": {"time": NUMBER, "size": PAIR},
+        "noise_power": NUMBER, "noise_seed": int,
+        "variation": ("map", NUMBER),
+        "vary": ("list", ("K", "lags", "leads", "L")),
+    },
+    "problem": {
+        "objective": OBJECTIVES,
+        "tuning_scenario": str,
+        "settling_band": NUMBER,
+        "windows": ("map", PAIR),
+        "constraints": {"Am": NUMBER, "phim": NUMBER, "Mt": NUMBER, "Ms": NUMBER},
+        "bounds": ("map", PAIR),
+    },
+    "robustness": {"uncertainty": NUMBER, "variation": NUMBER, "pade_order": int, "w": PAIR},
+})
+
+
+@register_family("tito", models=MODELS, schema=SCHEMA,
+                 description="two-input two-output coupled tanks with dead time (papers 000-002) under decentralised PI/PID")
+class TITOExperiment(ExperimentBase):
+    """A named TITO experiment config (``[plant] model = "tito"`` or ``"two_tank_nonlinear"``).
+
+    Use :func:`heurtune.load_experiment`, which picks this class from the config's plant model.
+    """
+
+    def __init__(self, config: dict):
+        self.config = config
+        self.name = config["name"]
+        plant = config.get("plant", {})
+        self.model = plant.get("model", "tito")
+        cases = tuple(plant.get("cases", []))
+        if not cases:
+            raise ConfigError(f"{self.name}: plant.cases must name at least one plant "
+                              f"(presets: {', '.join(tito.PRESETS)}, or plant.custom.<name>)")
+        self._custom = plant.get("custom", {})
+        ctrl = config.get("controller", {})
+        self._set_cases(cases, ctrl.get("type", "pi"))
+        self.N = float(ctrl.get("N", 100.0))
+        if not self.N > 0:
+            raise ConfigError(f"{self.name}: controller.N must be > 0, got {self.N}")
+        self.baselines = tuple(ctrl.get("baselines", []))
+        self.gpm = {**DEFAULT_GPM, **ctrl.get("gpm", {})}
+        dec = config.get("decoupler", {})
+        self.decoupler_type = dec.get("type", "inverted")
+        self.decoupler_case = dec.get("case", 1)
+        if self.decoupler_case not in (1, 2):
+            raise ConfigError(f"{self.name}: decoupler.case must be 1 or 2, got {self.decoupler_case}")
+        self.delay_compensation = dec.get("delay_compensation", False)
+        self.scenarios = self._scenarios(config.get("scenario", {}))
+        prob = config.get("problem", {})
+        self.objective = prob.get("objective", "iae")
+        default_c = DEFAULT_BANDWIDTH_CONSTRAINTS if self.objective == "bandwidth" else {}
+        self.constraints = dict(prob.get("constraints", default_c))
+        for key, lim in self.constraints.items():
+            if not lim > 0:
+                raise ConfigError(f"{self.name}: problem.constraints.{key} must be positive, got {lim}")
+        if self.objective == "bandwidth":
+            for key in ("Am", "phim", "Mt"):
+                self.constraints.setdefault(key, DEFAULT_BANDWIDTH_CONSTRAINTS[key])
+        if not self.constraints:
+            # A tuning problem needs one constraint: the sensitivity peak, loose by default.
+            self.constraints = {"Ms": 5.0}
+        self.tuning_scenario = prob.get("tuning_scenario", "nominal")
+        if self.tuning_scenario not in self.scenarios:
+            raise ConfigError(f"{self.name}: problem.tuning_scenario {self.tuning_scenario!r}; "
+                              f"allowed: {', '.join(self.scenarios)}")
+        self.settling_band = float(prob.get("settling_band", 2.0))
+        nominal = self.scenarios["nominal"]
+        t_in = nominal.input_disturbance[0]
+        default_windows = ({"servo": (0.0, t_in), "regulatory": (t_in, nominal.horizon)}
+                           if 0 < t_in < nominal.horizon else {})
+        self.windows = {k: tuple(v) for k, v in prob.get("windows", default_windows).items()}
+        self.bounds_config = prob.get("bounds", {})
+        self.robustness = dict(config.get("robustness", {}))
+        self._load_optimisers(config)
+        if not self.optimisers and not self.baselines:
+            raise ConfigError(f"{self.name}: give [[optimisers]] or controller.baselines (e.g. [\"gpm\"])")
+        self._chains = {}
+        for case in cases:
+            self._chain(case)  # validate plants and decouplers early
+
+    def baseline_names(self, case: str) -> tuple:
+        """Names of the analytic designs (``controller.baselines``) run for ``case``: all of them."""
+        return self.baselines
+
+    def __repr__(self):
+        return f"TITOExperiment({self.name!r}, cases={self.cases}, controllers={self.controllers})"
+
+    def _scenarios(self, sc: dict) -> dict:
+        kw = {}
+        for key in ("horizon", "dt", "noise_power", "noise_seed"):
+            if key in sc:
+                kw[key] = sc[key]
+        if "setpoints" in sc:
+            if len(sc["setpoints"]) != 2:
+                raise ConfigError(f"{self.name}: scenario.setpoints must hold two lists (one per loop)")
+            kw["setpoints"] = tuple(tuple(tuple(p) for p in loop) for loop in sc["setpoints"])
+        for key in ("input_disturbance", "output_disturbance"):
+            if key in sc:
+                d = sc[key]
+                kw[key] = (d.get("time", 0.0), tuple(d.get("size", (0.0, 0.0))))
+        if "vary" in sc:
+            kw["vary"] = tuple(sc["vary"])
+        variation = dict(sc.get("variation", DEFAULT_VARIATION))
+        if "nominal" not in variation:
+            variation = {"nominal": 0.0, **variation}
+        try:
+            return {k: TITOScenario(**kw, variation=float(v)) for k, v in variation.items()}
+        except ConfigError as exc:
+            raise ConfigError(f"{self.name}: {exc}") from None
+
+    def _plant(self, case: str):
+        """``(TITOPlant, TwoTankParams or None)`` of a plant case."""
+        where = f"{self.name}: plant.custom.{case}"
+        if self.model == "two_tank_nonlinear":
+            cfg = self._custom.get(case)
+            if cfg is None:
+                if case not in ("rig", "default"):
+                    raise ConfigError(f"{self.name}: plant.cases: {case!r} is not defined; use 'rig' (the "
+                                      f"calibrated default) or define plant.custom.{case}")
+                params = two_tank.TwoTankParams()
+            else:
+                try:
+                    params = two_tank.from_config(dict(cfg, name=cfg.get("name", case)))
+                except ConfigError as exc:
+                    raise ConfigError(f"{where}: {exc}") from None
+            return two_tank.linear_tito_plant(params, name=case), params
+        if case in self._custom:
+            try:
+                return tito.TITOPlant.from_config(dict(self._custom[case], name=case)), None
+            except ConfigError as exc:
+                raise ConfigError(f"{where}: {exc}") from None
+        try:
+            return tito.preset(case), None
+        except ConfigError as exc:
+            raise ConfigError(f"{self.name}: plant.cases: {exc} (or define plant.custom.{case})") from None
+
+    def _chain(self, case: str) -> tuple:
+        if case in self._chains:
+            return self._chains[case]
+        plant, params = self._plant(case)
+        dec = None
+        if self.decoupler_type == "inverted":
+            try:
+                dec = tito.inverted_decoupler(plant, delay_compensation=self.delay_compensation,
+                                              case=self.decoupler_case)
+            except ConfigError as exc:
+                raise ConfigError(f"{self.name}: decoupler for {case!r}: {exc}") from None
+        els = [plant.element(1, 1).freqresp, plant.element(2, 2).freqresp] if dec is None else [dec.z11, dec.z22]
+        fits = [fopdt_fit(el, f"loop {i}") for i, el in enumerate(els, start=1)]
+        gpm, gpm_m = [], []
+        for i, (fo, _) in enumerate(fits):
+            if fo is None:
+                gpm.append(None)
+                gpm_m.append(None)
+                continue
+            try:
+                Kc, Ti = tito.gpm_pi(fo, self.gpm["Am"], self.gpm["phim"])
+                c = tito.PIController(Kc, Ti)
+                gpm.append(c)
+                gpm_m.append(tito.exact_margins(els[i], c.freqresp))
+            except ConfigError as exc:
+                fits[i] = (fo, f"loop {i + 1}: GPM: {exc}")
+                gpm.append(None)
+                gpm_m.append(None)
+        chain = DesignChain(plant, dec, tuple(f[0] for f in fits), tuple(f[1] for f in fits), tuple(gpm), tuple(gpm_m))
+        self._chains[case] = (chain, params)
+        return self._chains[case]
+
+    def problem(self, case: str) -> TITOProblem:
+        """The tuning problem of one case."""
+        plant_case, kind = self._variant(case)
+        chain, params = self._chain(plant_case)
+        gpm_x = None
+        if all(c is not None for c in chain.gpm):
+            gpm_x = np.array([v for c in chain.gpm for v in c.parallel()[:2]])
+        signs = [float(np.real(chain.element(i)(np.array([1e-9]))[0])) for i in (1, 2)]
+        bounds = default_bounds(kind, gpm_x, signs)
+        known = set(gain_names("pid"))
+        for key, pair in self.bounds_config.items():
+            if key not in known:
+                raise ConfigError(f"{self.name}: problem.bounds: unknown variable {key!r}; "
+                                  f"allowed: {', '.join(gain_names(kind))}")
+            lo, hi = pair
+            if not lo <= hi:
+                raise ConfigError(f"{self.name}: problem.bounds.{key}: lower {lo} > upper {hi}")
+            if key in bounds:
+                bounds[key] = (float(lo), float(hi))
+        prob = TITOProblem(case, kind, chain, bounds, objective=self.objective, constraints=self.constraints,
+                           scenarios=self.scenarios, tuning_scenario=self.tuning_scenario, N=self.N,
+                           windows=self.windows, settling_band=self.settling_band, nonlinear=params,
+                           robustness=self.robustness, gpm_spec=self.gpm)
+        return prob
+
+    def write_outputs(self, out_dir, *, runs, history, best, figures: bool = True) -> None:
+        """``design.parquet``, ``robustness.parquet``, ``performance.{parquet,md}`` and the
+        spectral-radius figures of the best designs (:func:`heurtune.objectives.tito.report.write_outputs`)."""
+        report.write_outputs(self, runs, best, out_dir, figures=figures)

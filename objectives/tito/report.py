@@ -1,0 +1,132 @@
+"""Outputs of TITO experiments: design, robustness and performance tables, figures.
+
+Called by the experiment runner after the runs are gathered (:func:`write_outputs`); the
+functions also work on their own, e.g. on a ``runs.parquet`` read back.
+
+The performance table follows the layout of the papers' Tables 1-3: one row per design (each
+optimiser's best run and the analytic baselines), per loop the IAE, ISE and ITAE of the
+nominal response, and the same per window (servo, regulatory) when the experiment has them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from heurtune.core.io import atomic_path, write_parquet
+
+__all__ = ["performance_table", "spectral_radius_figure", "write_outputs"]
+
+
+def performance_table(best: pd.DataFrame, scenario: str = "nominal", windows=()) -> pd.DataFrame:
+    """IAE / ISE / ITAE per loop of each design (papers' table layout).
+
+    Parameters
+    ----------
+    best : DataFrame
+        Rows of ``runs.parquet`` (one per design), with the report columns ``IAE1@nominal``...
+    scenario : str
+        Which scenario's response.
+    windows : sequence of str
+        Window names (columns ``IAE_<window><loop>@<scenario>``) to add after the whole-horizon
+        integrals.
+
+    Returns
+    -------
+    DataFrame indexed by (case, design) with columns ``(loop, window, metric)``.
+    """
+    rows, index = [], []
+    for _, r in best.iterrows():
+        vals = {}
+        for loop in (1, 2):
+            for win in ("whole",) + tuple(windows):
+                for m in ("IAE", "ISE", "ITAE"):
+                    key = f"{m}{loop}@{scenario}" if win == "whole" else f"{m}_{win}{loop}@{scenario}"
+                    vals[(f"loop {loop}", win, m)] = float(r[key]) if key in r and pd.notna(r[key]) else np.nan
+        rows.append(vals)
+        design = r["algorithm"] if r.get("stop_reason") == "analytic design" else f"{r['algorithm']} (best of runs)"
+        index.append((r["case"], design))
+    table = pd.DataFrame(rows, index=pd.MultiIndex.from_tuples(index, names=["case", "design"]))
+    table.columns = pd.MultiIndex.from_tuples(table.columns, names=["loop", "window", "metric"])
+    return table
+
+
+def _markdown(table: pd.DataFrame, title: str) -> str:
+    cols = list(table.columns)
+    head = "| case | design | " + " | ".join(f"{c[0]} {c[1]} {c[2]}" for c in cols) + " |"
+    sep = "| --- | --- | " + " | ".join("---:" for _ in cols) + " |"
+    lines = [f"# {title}", "", head, sep]
+    for (case, design), row in table.iterrows():
+        lines.append(f"| {case} | {design} | " + " | ".join(f"{v:.4g}" for v in row.to_numpy()) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def spectral_radius_figure(results: dict, path, title: str = "") -> None:
+    """``rho(W T(jw))`` for input and output uncertainty, one line per design, with the limit 1.
+
+    ``results`` maps a label to a :class:`~heurtune.objectives.robustness.SpectralRadiusResult`.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    for label, sr in results.items():
+        axes[0].semilogx(sr.w, sr.rho_input, label=label)
+        axes[1].semilogx(sr.w, sr.rho_output, label=label)
+    for ax, side in zip(axes, ("input", "output")):
+        ax.axhline(1.0, color="k", ls="--", lw=0.8)
+        ax.set_xlabel("w (rad/s)")
+        ax.set_title(f"multiplicative {side} uncertainty")
+    axes[0].set_ylabel("spectral radius rho(W T)")
+    axes[0].legend(fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def _save(fig, path) -> None:
+    import matplotlib.pyplot as plt
+
+    with atomic_path(Path(path)) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
+def write_outputs(exp, runs: pd.DataFrame, best: pd.DataFrame, out_dir: Path, *, figures: bool = True) -> None:
+    """``design.parquet``, ``robustness.parquet``, ``performance.{parquet,md}`` and the
+    spectral-radius figures of a TITO experiment's best designs."""
+    out_dir = Path(out_dir)
+    designs, robust = [], []
+    spectral = {}
+    for case in exp.cases:
+        prob = exp.problem(case)
+        designs.append(prob.design_table().assign(experiment=exp.name, case=case))
+        spectral[case] = {}
+        for _, r in best[best["case"] == case].iterrows():
+            x = np.array([r[n] for n in prob.names])
+            summary, sr = prob.robustness(x)
+            robust.append(dict(experiment=exp.name, case=case, algorithm=r["algorithm"], run=int(r["run"]), **summary))
+            spectral[case][f"{r['algorithm']} (run {int(r['run'])})"] = sr
+    lead = ["experiment", "case"]
+    d = pd.concat(designs, ignore_index=True)
+    write_parquet(d[lead + [c for c in d.columns if c not in lead]], out_dir / "design.parquet")
+    if robust:
+        write_parquet(pd.DataFrame(robust), out_dir / "robustness.parquet")
+    windows = tuple(exp.windows)
+    table = performance_table(best, "nominal", windows)
+    flat = table.copy()
+    flat.columns = [" ".join(c) for c in flat.columns]
+    write_parquet(flat.reset_index(), out_dir / "performance.parquet")
+    with atomic_path(out_dir / "performance.md") as tmp:
+        tmp.write_text(_markdown(table, f"{exp.name}: IAE, ISE, ITAE per loop (nominal plant)"))
+    if figures:
+        for case, results in spectral.items():
+            if results:
+                slug = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in case)
+                spectral_radius_figure(results, out_dir / f"spectral_radius_{slug}.png",
+                                       title=f"{exp.name} / {case}: robust stability (weight "
+                                             f"{exp.problem(case).robustness_options.get('uncertainty', 0.2):g})")

@@ -1,0 +1,104 @@
+"""Result figures (heurtune.analysis.figures): each writes one valid PNG and leaves no temporary file."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import heurtune
+from heurtune.analysis.figures import (FAILED_THRESHOLD, _needs_log, boxplot_figure, convergence_figure,
+                              response_figure)
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+THESIS_X = ("Q11=0.4431,Q22=0.3027,Q33=0.4434,Q44=1.5722,R11=4.2253,R22=2.5994,"
+            "Ki1=1.7411,Ki2=7.1716,alpha1=0.9814,alpha2=0.8437")
+
+
+def synthetic_history(seed=0):
+    """Decaying best-so-far curves; runs of different lengths, some failed early epochs."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for case, scale in (("min", 3.5e3), ("nmp", 4.0e3)):
+        for a, alg in enumerate(("cs", "apso", "ff")):
+            for run in range(5):
+                n_epochs = 30 + 10 * run + 5 * a
+                f = scale * (1 + 2.0 * np.exp(-np.arange(n_epochs) / (5 + 3 * a)))
+                f = np.minimum.accumulate(f * (1 + 0.05 * rng.random(n_epochs)))
+                if run == 0:
+                    f[:3] = 1e10  # no simulable candidate yet
+                for e, v in enumerate(f):
+                    rows.append(dict(case=case, algorithm=alg, run=run, epoch=e, best_f=v,
+                                     n_evals=25 * (e + 1)))
+    return pd.DataFrame(rows)
+
+
+def synthetic_runs(seed=1):
+    rng = np.random.default_rng(seed)
+    rows = []
+    for case in ("min", "nmp"):
+        for a, alg in enumerate(("cs", "apso", "ff", "ga")):
+            for run in range(10):
+                feasible = run != 3 or alg == "cs"
+                f = 3.5e3 * (1 + 0.1 * a) + 200 * rng.standard_normal()
+                if alg == "ga" and run == 7:
+                    f = 1e10  # failed run: left out of the box
+                rows.append(dict(case=case, algorithm=alg, run=run, best_f=f, feasible=feasible))
+    return pd.DataFrame(rows)
+
+
+def check_png(path):
+    assert path.exists()
+    assert path.read_bytes()[:8] == PNG_SIGNATURE
+    assert path.stat().st_size > 10_000
+    leftovers = [p.name for p in path.parent.iterdir() if p.name.startswith(".")]
+    assert leftovers == []
+
+
+def test_convergence_figure(tmp_path):
+    out = tmp_path / "conv" / "convergence.png"
+    convergence_figure(synthetic_history(), out)
+    check_png(out)
+
+
+def test_convergence_figure_one_case_and_log_axis(tmp_path):
+    # a benchmark-like history spanning six decades, with a wide spread between runs
+    h = synthetic_history()
+    spread = 1 + h["run"].to_numpy() / 2
+    h["best_f"] = np.where(h["best_f"] < FAILED_THRESHOLD,
+                           spread * 10.0 ** (-h["epoch"].to_numpy() / 10), h["best_f"])
+    out = tmp_path / "conv_min.png"
+    convergence_figure(h, out, case=["min"])
+    check_png(out)
+
+
+def test_log_axis_rule():
+    assert _needs_log([1e-3, 1.0])
+    assert not _needs_log([1.0, 99.0])
+    assert not _needs_log([-1.0, 1e3])
+    assert not _needs_log([np.nan])
+
+
+def test_convergence_figure_rejects_bad_input(tmp_path):
+    with pytest.raises(ValueError, match="best_f"):
+        convergence_figure(pd.DataFrame({"case": [], "algorithm": [], "run": [], "epoch": []}),
+                           tmp_path / "x.png")
+    with pytest.raises(ValueError, match="no history rows"):
+        convergence_figure(synthetic_history(), tmp_path / "x.png", case="P+")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_boxplot_figure(tmp_path):
+    out = tmp_path / "box.png"
+    boxplot_figure(synthetic_runs(), out)
+    check_png(out)
+
+
+def test_boxplot_figure_missing_metric(tmp_path):
+    with pytest.raises(ValueError, match="J"):
+        boxplot_figure(synthetic_runs(), tmp_path / "box.png", metric="J")
+
+
+def test_response_figure(tmp_path):
+    prob = heurtune.load_experiment("cs_folqi_qtp").problem("min")
+    out = tmp_path / "resp.png"
+    response_figure(prob, prob.parse(THESIS_X), out, title="CS / FOLQI / min")
+    check_png(out)

@@ -1,0 +1,55 @@
+"""Parallel evaluation: joblib pool and Dask cluster give bit-identical runs."""
+
+import numpy as np
+import pytest
+
+import heurtune
+from heurtune.core.evaluator import Evaluator
+
+
+@pytest.fixture(scope="module")
+def qtp():
+    return heurtune.load_experiment("cs_folqi_qtp").problem("min")
+
+
+def test_evaluator_chunks_give_the_same_numbers(qtp):
+    rng = np.random.default_rng(0)
+    X = qtp.lower + rng.random((7, qtp.dim)) * (qtp.upper - qtp.lower)
+    serial = Evaluator(qtp)(X)
+    with Evaluator(qtp, n_jobs=2) as ev:
+        pooled = ev(X)
+        again = ev(X[:3])  # the pool is reused
+    np.testing.assert_array_equal(serial[0], pooled[0])
+    np.testing.assert_array_equal(serial[1], pooled[1])
+    np.testing.assert_array_equal(serial[0][:3], again[0])
+
+
+def test_minimize_is_bit_identical_with_one_and_two_workers(qtp):
+    kw = dict(max_evals=40, seed=11, settings=dict(n=5))
+    a = heurtune.minimize(qtp, qtp.lower, qtp.upper, "cs", n_jobs=1, **kw)
+    b = heurtune.minimize(qtp, qtp.lower, qtp.upper, "cs", n_jobs=2, **kw)
+    cols = ["epoch", "n_evals", "best_f", "best_violation", "mean_f", "sd_f", "feasible_fraction"]
+    assert a.history[cols].equals(b.history[cols])
+    np.testing.assert_array_equal(a.x, b.x)
+    assert a.n_evals == b.n_evals == 40
+
+
+def test_dask_backend_on_a_local_cluster(qtp):
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        kw = dict(max_evals=30, seed=3, settings=dict(n=5))
+        local = heurtune.minimize(qtp, qtp.lower, qtp.upper, "cs", **kw)
+        remote = heurtune.minimize(qtp, qtp.lower, qtp.upper, "cs", backend="dask",
+                                   scheduler=cluster.scheduler_address, **kw)
+    np.testing.assert_array_equal(local.x, remote.x)
+    assert local.history["best_f"].equals(remote.history["best_f"])
+
+
+def test_bad_parallel_settings_are_clear_errors():
+    with pytest.raises(heurtune.ConfigError, match="n_jobs must be a positive integer"):
+        Evaluator(lambda X: X[:, 0], n_jobs=0)
+    with pytest.raises(heurtune.ConfigError, match="unknown backend 'mpi'; allowed: loky, dask"):
+        Evaluator(lambda X: X[:, 0], backend="mpi")
+    with pytest.raises(heurtune.ConfigError, match="needs a scheduler address"):
+        Evaluator(lambda X: X[:, 0], backend="dask")

@@ -1,0 +1,93 @@
+"""python -m heurtune.evaluate: table, parquet, plot, and one-line errors with exit code 2."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from heurtune.runner.evaluate import run
+
+X = "Q11=0.4431,Q22=0.3027,Q33=0.4434,Q44=1.5722,R11=4.2253,R22=2.5994,Ki1=1.7411,Ki2=7.1716,alpha1=0.9814,alpha2=0.8437"
+
+
+def test_table_parquet_and_plot(tmp_path, capsys):
+    out, png = tmp_path / "traj.parquet", tmp_path / "resp.png"
+    assert run(["cs_folqi_qtp", "--case", "min", "--x", X, "--out", str(out), "--plot", str(png)]) == 0
+    text = capsys.readouterr().out
+    for token in ("nominal", "-30%", "+30%", "Mp1", "ts2", "ess1", "J1", "J"):
+        assert token in text
+    df = pd.read_parquet(out)
+    assert list(df.columns) == ["scenario", "t", "h1", "h2", "h3", "h4", "y1", "y2", "u1", "u2"]
+    assert df.scenario.unique().tolist() == ["nominal", "-30%", "+30%"]
+    assert len(df) == 3 * 35001
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not list(tmp_path.glob(".*"))  # no temporary files left behind
+
+
+def test_one_scenario(capsys):
+    assert run(["cs_folqi_qtp", "--case", "nmp", "--x", X, "--scenario", "+30%"]) == 0
+    text = capsys.readouterr().out
+    assert "+30%" in text and "nominal" not in text
+
+
+@pytest.mark.parametrize("args, message", [
+    (["nope", "--case", "min", "--x", X], "unknown experiment 'nope'"),
+    (["cs_folqi_qtp", "--case", "mid", "--x", X], "unknown case 'mid'"),
+    (["cs_folqi_qtp", "--case", "min", "--x", X + ",Q55=1"], "unknown variable 'Q55'"),
+    (["cs_folqi_qtp", "--case", "min", "--x", X.replace(",alpha2=0.8437", "")], "missing variable(s) alpha2"),
+    (["cs_folqi_qtp", "--case", "min", "--x", X.replace("Ki1=1.7411", "Ki1=12")], "Ki1=12 is outside its bounds [0.1, 10]"),
+    (["cs_folqi_qtp", "--case", "min", "--x", X.replace("Ki1=1.7411", "Ki1=abc")], "Ki1: 'abc' is not a number"),
+    (["cs_folqi_qtp", "--case", "min", "--x", X, "--scenario", "worst"], "unknown scenario 'worst'"),
+])
+def test_errors_are_one_line_with_exit_code_2(args, message, capsys):
+    assert run(args) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: ") and message in err
+
+
+def test_module_entry_point(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "heurtune.evaluate", "cs_folqi_qtp", "--case", "min", "--x", "Q11=1"],
+                         capture_output=True, text=True, cwd=tmp_path)
+    assert res.returncode == 2 and "missing variable(s)" in res.stderr
+
+
+# Thesis Table 6.3, NR / FOLQI / minimum phase: six of the ten gains lie below this experiment's
+# lower bounds (Q22, Q33 < 0.01; R11, R22 < 0.1; Ki1, Ki2 < 0.1).
+NR_X = ("Q11=0.0185,Q22=0.0021,Q33=0.0081,Q44=0.0118,R11=0.0094,R22=0.0124,Ki1=0.0103,Ki2=0.0056,"
+        "alpha1=0.4946,alpha2=0.5439")
+NR_OUTSIDE = ["Q22", "Q33", "R11", "R22", "Ki1", "Ki2"]
+
+
+def test_outside_bounds_is_refused_without_the_flag(capsys):
+    assert run(["cs_folqi_qtp", "--case", "min", "--x", NR_X]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: Q22=0.0021 is outside its bounds [0.01, 2.5]")
+    assert "(and 5 more)" in err and "--outside-bounds" in err
+
+
+def test_outside_bounds_flag_evaluates_the_given_values(capsys):
+    from heurtune import load_experiment
+
+    assert run(["cs_folqi_qtp", "--case", "min", "--x", NR_X, "--scenario", "nominal", "--outside-bounds"]) == 0
+    cap = capsys.readouterr()
+    lines = cap.err.splitlines()
+    assert [line.split()[1] for line in lines] == NR_OUTSIDE  # one warning per variable, in order
+    assert lines[0] == ("warning: Q22 = 0.0021 lies outside its bounds [0.01, 2.5]; "
+                        "evaluated anyway (--outside-bounds)")
+    assert all(line.endswith("evaluated anyway (--outside-bounds)") for line in lines)
+    # the printed effort is that of the values as given, not of the values clipped to the box
+    prob = load_experiment("cs_folqi_qtp").problem("min")
+    x = prob.parse(NR_X, check_bounds=False)
+    assert x.tolist() == [float(item.split("=")[1]) for item in NR_X.split(",")]
+    J_given = prob.report(x, ["nominal"]).loc["nominal", "J"]
+    J_clipped = prob.report(np.clip(x, prob.lower, prob.upper), ["nominal"]).loc["nominal", "J"]
+    assert abs(J_given - J_clipped) > 1.0  # the two really differ
+    row = next(line for line in cap.out.splitlines() if line.startswith("nominal"))
+    assert float(row.split()[9]) == pytest.approx(J_given, abs=1e-4)  # printed with 4 decimals
+
+
+def test_outside_bounds_flag_is_harmless_inside_the_bounds(capsys):
+    assert run(["cs_folqi_qtp", "--case", "min", "--x", X, "--scenario", "nominal", "--outside-bounds"]) == 0
+    assert capsys.readouterr().err == ""

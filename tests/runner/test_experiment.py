@@ -1,0 +1,184 @@
+"""The experiment runner end to end: files, columns, re-simulation, resume, determinism, errors."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import heurtune
+from heurtune.runner.experiment import run
+
+RUN_COLUMNS = ["experiment", "case", "algorithm", "controller", "run", "seed", "best_f", "feasible", "n_evals",
+               "n_epochs", "convergence_epoch", "wall_time_s", "stop_reason"]
+GAINS = ["Q11", "Q22", "Q33", "Q44", "R11", "R22", "Ki1", "Ki2", "alpha1", "alpha2"]
+
+
+@pytest.fixture(scope="module")
+def smoke(tmp_path_factory):
+    out = tmp_path_factory.mktemp("smoke") / "cs"
+    assert run(["cs_folqi_qtp", "--smoke", "--out", str(out)]) == 0
+    return out
+
+
+def test_smoke_run_writes_every_file(smoke):
+    for name in ("runs.parquet", "history.parquet", "meta.json"):
+        assert (smoke / name).is_file()
+    runs = pd.read_parquet(smoke / "runs.parquet")
+    for col in RUN_COLUMNS + GAINS:
+        assert col in runs.columns
+    for scenario in ("nominal", "-30%", "+30%"):
+        for metric in ("Mp1", "Mp2", "ts1", "ts2", "ess1", "ess2", "J1", "J2", "J"):
+            assert f"{metric}@{scenario}" in runs.columns
+    assert sorted(runs["case"].unique()) == ["min", "nmp"] and len(runs) == 4
+    hist = pd.read_parquet(smoke / "history.parquet")
+    for col in ("case", "algorithm", "run", "epoch", "n_evals", "best_f", "mean_f", "sd_f", "feasible_fraction"):
+        assert col in hist.columns
+    meta = json.loads((smoke / "meta.json").read_text())
+    assert meta["config"]["name"] == "cs_folqi_qtp" and meta["versions"]["numpy"]
+    assert {"seed", "spawn_key"} <= set(next(iter(meta["seeds"].values())))
+    assert not list(smoke.glob("**/.*"))  # no temporary files left
+
+
+def test_stored_gains_resimulate_to_the_stored_objective(smoke):
+    runs = pd.read_parquet(smoke / "runs.parquet")
+    exp = heurtune.load_experiment("cs_folqi_qtp")
+    for _, row in runs.iterrows():
+        prob = exp.problem(row["case"])
+        ev = prob.evaluate(np.array([row[n] for n in prob.names]))
+        assert ev.f[0] == row["best_f"] and bool(ev.feasible[0]) == row["feasible"]
+        assert ev.f[0] == pytest.approx(row["f@nominal"])
+
+
+def test_same_results_with_one_and_two_workers(smoke, tmp_path):
+    out = tmp_path / "two"
+    assert run(["cs_folqi_qtp", "--smoke", "--jobs", "2", "--out", str(out), "--no-figures"]) == 0
+    a = pd.read_parquet(smoke / "runs.parquet").sort_values(["case", "run"]).reset_index(drop=True)
+    b = pd.read_parquet(out / "runs.parquet").sort_values(["case", "run"]).reset_index(drop=True)
+    pd.testing.assert_frame_equal(a[["case", "run", "best_f", "n_evals"] + GAINS], b[["case", "run", "best_f", "n_evals"] + GAINS])
+
+
+def test_rerun_resumes_without_redoing(smoke, capsys):
+    before = pd.read_parquet(smoke / "runs.parquet")
+    assert run(["cs_folqi_qtp", "--smoke", "--out", str(smoke), "--no-figures"]) == 0
+    assert "runs to do" not in capsys.readouterr().out  # nothing was redone
+    after = pd.read_parquet(smoke / "runs.parquet")
+    pd.testing.assert_frame_equal(before.drop(columns=[]), after)
+
+
+def test_interrupted_run_resumes_and_completes(tmp_path):
+    cfg = tmp_path / "slowish.toml"
+    cfg.write_text('extends = "cs_folqi_qtp"\nruns = 4\n[[optimisers]]\nname = "cs"\nsettings = { n = 6 }\nmax_epochs = 4\n')
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "heurtune.experiment", str(cfg), "--out", str(out), "--no-figures"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    parts = out / "parts"
+    deadline = time.time() + 120
+    while time.time() < deadline and len(list(parts.glob("*.run.parquet"))) < 2:
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    finished = {p.name: pd.read_parquet(p) for p in parts.glob("*.run.parquet")}
+    assert 2 <= len(finished) < 8, "the kill should land mid-experiment"
+    assert run([str(cfg), "--out", str(out), "--no-figures"]) == 0
+    runs = pd.read_parquet(out / "runs.parquet")
+    assert len(runs) == 8 and not runs.duplicated(["case", "algorithm", "run"]).any()
+    for name, row in finished.items():  # finished runs were kept, not redone
+        pd.testing.assert_frame_equal(row, pd.read_parquet(parts / name))
+
+
+def test_list_commands(capsys):
+    assert run(["--list"]) == 0
+    out = capsys.readouterr().out
+    for name in ("cs_folqi_qtp", "apso_iolqi_qtp", "thesis_heuristics", "sqp_folqi_qtp"):
+        assert name in out
+    assert run(["--list-algorithms"]) == 0
+    assert "sqp_multistart:" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("args, message", [
+    (["nope"], "unknown experiment 'nope'"),
+    (["cs_folqi_qtp", "--runs", "0"], "--runs must be >= 1"),
+    (["cs_folqi_qtp", "--backend", "mpi"], "unknown backend 'mpi'"),
+    (["cs_folqi_qtp", "--backend", "dask"], "--backend dask needs --scheduler"),
+    (["cs_folqi_qtp", "--plugin", "/no/such/file.py"], "does not exist"),
+    ([], "name an experiment"),
+])
+def test_command_errors_are_one_line(args, message, capsys):
+    assert run(args) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and message in err and err.count("\n") == 1
+
+
+def test_plan_change_is_refused(smoke, capsys):
+    assert run(["cs_folqi_qtp", "--out", str(smoke), "--max-epochs", "1"]) == 2
+    assert "different plan" in capsys.readouterr().err
+
+
+def test_all_shipped_experiments_plan(tmp_path):
+    from heurtune.runner.config import list_experiments
+    from heurtune.runner.experiment import plan
+
+    for name in list_experiments():
+        exp = heurtune.load_experiment(name)
+        specs = plan(exp, smoke=True)
+        assert specs and {s.case for s in specs} == set(exp.cases)
+    matrix = heurtune.load_experiment("thesis_heuristics")
+    assert set(matrix.cases) == {"min-folqi", "nmp-folqi", "min-iolqi", "nmp-iolqi"}
+    assert [o["name"] for o in matrix.optimisers] == ["cs", "apso", "firefly"]
+
+
+def test_compare_reads_two_smoke_experiments(smoke, tmp_path, capsys):
+    from heurtune.analysis import compare
+
+    other = tmp_path / "apso"
+    assert run(["apso_folqi_qtp", "--smoke", "--out", str(other), "--no-figures"]) == 0
+    capsys.readouterr()
+    assert compare.run([str(smoke), str(other)]) == 0
+    text = capsys.readouterr().out
+    assert "## Case min" in text and "## Case nmp" in text
+    assert "| cs |" in text and "| apso |" in text
+    # an IOLQI experiment is a different problem for the same case names: refused
+    iolqi = tmp_path / "iolqi"
+    assert run(["cs_iolqi_qtp", "--smoke", "--out", str(iolqi), "--no-figures"]) == 0
+    capsys.readouterr()
+    assert compare.run([str(smoke), str(iolqi)]) == 2
+    assert "problem_id" in capsys.readouterr().err
+
+
+def test_dask_backend_runs_whole_runs(smoke, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    out = tmp_path / "dask"
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        assert run(["cs_folqi_qtp", "--smoke", "--out", str(out), "--no-figures", "--backend", "dask",
+                    "--scheduler", cluster.scheduler_address]) == 0
+    a = pd.read_parquet(smoke / "runs.parquet").sort_values(["case", "run"]).reset_index(drop=True)
+    b = pd.read_parquet(out / "runs.parquet").sort_values(["case", "run"]).reset_index(drop=True)
+    pd.testing.assert_frame_equal(a[["case", "run", "best_f"] + GAINS], b[["case", "run", "best_f"] + GAINS])
+
+
+def test_summary_parquet_holds_the_printed_statistics_and_meta_says_where_it_ran(smoke):
+    runs = pd.read_parquet(smoke / "runs.parquet")
+    summary = pd.read_parquet(smoke / "summary.parquet")
+    assert list(summary["case"]) == ["min", "nmp"] and (summary["runs"] == 2).all()
+    for _, row in summary.iterrows():
+        grp = runs[(runs["case"] == row["case"]) & (runs["optimiser_index"] == row["optimiser_index"])]
+        ok = grp[(grp["status"] != "failed") & grp["feasible"]]["best_f"]
+        assert row["failed"] == (grp["status"] == "failed").sum() and row["feasible"] == grp["feasible"].sum()
+        assert row["successes"] == len(ok)
+        if len(ok):
+            assert row["best"] == ok.min() and row["mean"] == pytest.approx(ok.mean())
+            assert row["median"] == pytest.approx(ok.median())
+        assert row["n_evals"] == grp["n_evals"].mean() and row["wall_s"] == pytest.approx(grp["wall_time_s"].sum())
+        best = grp[grp["run"] == row["best_run"]].iloc[0]
+        assert all(row[n] == best[n] for n in GAINS)
+    meta = json.loads((smoke / "meta.json").read_text())
+    assert meta["platform"]["cpu_count"] >= 1 and meta["platform"]["cpu"] and meta["platform"]["system"]
+    assert isinstance(meta["platform"]["blas"], list)
+    assert meta["git_dirty"] in (True, False, None)

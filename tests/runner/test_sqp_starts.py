@@ -1,0 +1,122 @@
+"""starts.parquet of multistart SQP runs, and resuming an interrupted run start by start."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from heurtune.algorithms import sqp_multistart as sqp
+from heurtune.runner.experiment import run
+
+GAINS = ["Q11", "Q22", "Q33", "Q44", "R11", "R22", "Ki1", "Ki2", "alpha1", "alpha2"]
+START_COLUMNS = (["experiment", "case", "algorithm", "optimiser_index", "run", "start", "round", "cap"]
+                 + [f"x0_{n}" for n in GAINS] + GAINS
+                 + ["f", "violation", "feasible", "nit", "nfev", "success", "message"])
+# Numbers that must not change when a run is resumed (timings do).
+RUN_KEYS = ["case", "algorithm", "run", "best_f", "feasible", "violation", "n_evals", "n_epochs",
+            "convergence_epoch", "stop_reason", "status"] + GAINS
+HISTORY_KEYS = ["case", "run", "epoch", "n_evals", "best_f", "best_violation", "mean_f", "sd_f", "feasible_fraction"]
+STARTS = 5
+
+
+def _config(folder, name="sqp_small", max_iter=3, extra=""):
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{name}.toml"
+    path.write_text(
+        'extends = "sqp_folqi_qtp"\nruns = 1\n' + extra
+        + "[scenario]\nhorizon = 60.0\ndt = 0.05\n"
+        + f'[[optimisers]]\nname = "sqp_multistart"\nsettings = {{ starts = {STARTS}, max_iter = {max_iter}, batch = 3 }}\n')
+    return path
+
+
+def _read(out):
+    return {name: pd.read_parquet(out / f"{name}.parquet") for name in ("runs", "history", "starts")}
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """An uninterrupted run of both cases (min, nmp), one run each, no evaluation budget."""
+    tmp = tmp_path_factory.mktemp("sqp_starts")
+    out = tmp / "whole"
+    assert run([str(_config(tmp)), "--out", str(out), "--no-figures"]) == 0
+    return tmp, out, _read(out)
+
+
+def _same(a, b):
+    pd.testing.assert_frame_equal(a["runs"][RUN_KEYS], b["runs"][RUN_KEYS])
+    pd.testing.assert_frame_equal(a["history"][HISTORY_KEYS], b["history"][HISTORY_KEYS])
+    pd.testing.assert_frame_equal(a["starts"], b["starts"])
+
+
+def test_starts_parquet_lists_every_local_solve_and_matches_the_runs(reference):
+    _, out, res = reference
+    starts, runs = res["starts"], res["runs"]
+    assert list(starts.columns) == START_COLUMNS
+    assert len(starts) == 2 * STARTS and set(starts["case"]) == {"min", "nmp"}
+    assert (starts["feasible"] == (starts["violation"] == 0)).all()
+    assert starts["cap"].isna().all() and (starts["nit"] <= 3).all()
+    assert (starts["algorithm"] == "sqp_multistart").all() and (starts["experiment"] == "sqp_small").all()
+    for _, r in runs.iterrows():
+        s = starts[(starts["case"] == r["case"]) & (starts["run"] == r["run"])]
+        assert list(s["start"]) == list(range(STARTS)) and list(s["round"]) == [0, 0, 0, 1, 1]
+        assert s["nfev"].sum() == r["n_evals"]
+        feasible = s[s["feasible"]]
+        best = feasible.loc[feasible["f"].idxmin()] if len(feasible) else s.loc[s["violation"].idxmin()]
+        assert best["f"] == r["best_f"] and best["violation"] == r["violation"]
+        assert [best[n] for n in GAINS] == [r[n] for n in GAINS]
+        lower = np.array([0.01] * 4 + [0.1] * 4 + [0.1] * 2)
+        assert np.all(s[[f"x0_{n}" for n in GAINS]].to_numpy() >= lower)
+    assert not list(out.glob("**/.*"))  # no temporary files left
+
+
+def test_interrupted_run_resumes_without_resolving_finished_starts(reference, monkeypatch, capsys):
+    tmp, _, whole = reference
+    out = tmp / "interrupted"
+    solve = sqp._local_solve
+    calls = []
+
+    def stop_at_nmp_start_4(task, item):
+        if len(calls) == STARTS + 4:  # min is done, nmp has solved starts 0-3 (one of round 1)
+            raise KeyboardInterrupt
+        calls.append(item[0])
+        return solve(task, item)
+
+    monkeypatch.setattr(sqp, "_local_solve", stop_at_nmp_start_4)
+    assert run([str(_config(tmp)), "--out", str(out), "--no-figures"]) == 130
+    saved = pd.read_parquet(out / "parts" / "nmp__0-sqp_multistart__0000.starts.parquet")
+    assert list(saved["start"]) == [0, 1, 2, 3]
+    assert not (out / "parts" / "nmp__0-sqp_multistart__0000.run.parquet").exists()
+
+    # The same run under other settings refuses the saved solves, in one line.
+    changed = _config(tmp / "changed", max_iter=4)
+    assert run([str(changed), "--out", str(out), "--no-figures"]) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "another configuration of this run" in errors[0]
+
+    calls.clear()
+
+    def counted(task, item):
+        calls.append(item[0])
+        return solve(task, item)
+
+    monkeypatch.setattr(sqp, "_local_solve", counted)
+    assert run([str(_config(tmp)), "--out", str(out), "--no-figures"]) == 0
+    assert calls == [4]  # only the unfinished start of nmp was solved
+    _same(_read(out), whole)
+
+
+def test_same_starts_with_one_and_two_workers(reference):
+    tmp, _, whole = reference
+    out = tmp / "two"
+    assert run([str(_config(tmp)), "--out", str(out), "--jobs", "2", "--no-figures"]) == 0
+    _same(_read(out), whole)
+
+
+def test_no_starts_file_without_a_multistart_driver(tmp_path):
+    cfg = tmp_path / "cs_small.toml"
+    cfg.write_text('extends = "cs_folqi_qtp"\nruns = 1\n[plant]\ncases = ["min"]\n'
+                   "[scenario]\nhorizon = 60.0\ndt = 0.05\n"
+                   '[[optimisers]]\nname = "cs"\nsettings = { n = 4 }\nmax_epochs = 1\n')
+    out = tmp_path / "out"
+    assert run([str(cfg), "--out", str(out), "--no-figures"]) == 0
+    assert (out / "runs.parquet").is_file()
+    assert not (out / "starts.parquet").exists() and not list((out / "parts").glob("*.starts.parquet"))
