@@ -16,6 +16,10 @@ from __future__ import annotations
 
 import concurrent.futures
 import contextlib
+import hashlib
+import pickle
+
+import cloudpickle
 
 from heurtune.core.errors import ConfigError
 from heurtune.core.plugins import load_plugins, loaded
@@ -43,13 +47,25 @@ def _blas_one_thread():
     return _CONTROLLER[0].limit(limits=1, user_api="blas")
 
 
-def _init_worker(plugins, value):
-    """Loky worker initialiser: load the plugins, pin BLAS to one thread, keep ``value``."""
+def _install(plugins, key, payload):
+    """Make ``payload`` (the pickled shared object) this process's shared object, once per key.
+
+    The plugins are loaded first: the payload may hold objects of a plugin's classes, which a
+    fresh worker can only unpickle once the plugin's module exists there.
+    """
+    if _SHARED.get("key") != key:
+        load_plugins(plugins)
+        _SHARED["value"] = pickle.loads(payload) if payload is not None else None
+        _SHARED["key"] = key
+    return _SHARED["value"]
+
+
+def _init_worker(plugins, key, payload):
+    """Loky worker initialiser: pin BLAS to one thread, install the shared object, warm it."""
     from threadpoolctl import threadpool_limits
 
-    load_plugins(plugins)
     _SHARED["limits"] = threadpool_limits(1)
-    _SHARED["value"] = value
+    value = _install(plugins, key, payload)
     warm = getattr(value, "warm_up", None)  # an objective's jitted kernels, compiled once per worker
     if callable(warm):
         warm()
@@ -59,10 +75,9 @@ def _task(fn, item):
     return fn(item)
 
 
-def _task_with(plugins, value, fn, item):
-    """A task carrying its plugins and shared object (Dask, user executors)."""
-    load_plugins(plugins)
-    _SHARED["value"] = value
+def _task_with(plugins, key, payload, fn, item):
+    """A task that brings its plugins and shared object along (Dask, user executors)."""
+    _install(plugins, key, payload)
     with _blas_one_thread():
         return fn(item)
 
@@ -98,6 +113,8 @@ class Pool:
         self.scheduler = scheduler
         self.executor = executor
         self.value = shared
+        self._key = None  # names this pool's shared object in the workers (a hash of its pickle)
+        self._payload = None
         self._loky = None
         self._client = None
         self._owns_client = False
@@ -126,7 +143,13 @@ class Pool:
 
     def open(self):
         """Start the loky pool or connect to the Dask cluster (nothing for the others)."""
-        if self.executor is not None or self.in_process:
+        if self.in_process:
+            return self
+        if self._key is None:
+            # Pools of equal shared objects share a key, so that loky reuses its workers.
+            self._payload = None if self.value is None else cloudpickle.dumps(self.value)
+            self._key = hashlib.sha256(self._payload or b"").hexdigest()
+        if self.executor is not None:
             return self
         if self.backend == "dask":
             if self._client is None:
@@ -137,14 +160,14 @@ class Pool:
                 else:
                     self._client = Client(self.scheduler)
                     self._owns_client = True
-                self._remote = self._client.scatter(self.value, broadcast=True, hash=False)
+                self._remote = self._client.scatter(self._payload, broadcast=True, hash=False)
         elif self._loky is None:
             # joblib's process pool, reused across calls (and across pools with the same shared
             # object); the shared object travels once per worker, in the initialiser.
             from joblib.externals.loky import get_reusable_executor
 
             self._loky = get_reusable_executor(max_workers=self.n_jobs, initializer=_init_worker,
-                                               initargs=(loaded(), self.value))
+                                               initargs=(loaded(), self._key, self._payload))
         return self
 
     def close(self):
@@ -165,22 +188,23 @@ class Pool:
     # -- work ---------------------------------------------------------------------------------
     @contextlib.contextmanager
     def _here(self):
-        previous = _SHARED.get("value")
-        _SHARED["value"] = self.value
+        previous = _SHARED.get("value"), _SHARED.get("key")
+        _SHARED["value"], _SHARED["key"] = self.value, self._key
         try:
             with _blas_one_thread():
                 yield
         finally:
-            _SHARED["value"] = previous
+            _SHARED["value"], _SHARED["key"] = previous
 
     def _submit_all(self, fn, items):
         self.open()
+        n = len(items)
         if self._client is not None:
-            return self._client.map(_task_with, [()] * len(items), [self._remote] * len(items), [fn] * len(items),
+            return self._client.map(_task_with, [loaded()] * n, [self._key] * n, [self._remote] * n, [fn] * n,
                                     items, pure=False)
         if self._loky is not None:
             return [self._loky.submit(_task, fn, item) for item in items]
-        return [self.executor.submit(_task_with, loaded(), self.value, fn, item) for item in items]
+        return [self.executor.submit(_task_with, loaded(), self._key, self._payload, fn, item) for item in items]
 
     def map(self, fn, items) -> list:
         """``[fn(item) for item in items]``, run on the workers, in order."""
