@@ -18,8 +18,18 @@ _LOADED_FILES: dict = {}  # resolved path -> module name
 _MODULES: dict = {}  # module-name plugins (ordered set)
 
 
-def load_plugin(spec: str) -> None:
+def load_plugin(spec: str):
     """Import a plugin: a path to a ``.py`` file or a module name (each file once per process).
+
+    A file is imported under the name ``heurtune_plugin_<stem>_<hash of its path>``, the same in
+    every process: workers load it under that name before they unpickle anything, and numba's
+    on-disk cache (``cache=True``) finds the module of a cached kernel by that name. Load a
+    plugin file only through this function (not also with ``importlib`` under another name).
+
+    Returns
+    -------
+    module
+        The plugin's module.
 
     Raises
     ------
@@ -32,7 +42,7 @@ def load_plugin(spec: str) -> None:
         if not path.is_file():
             raise ConfigError(f"plugin file {spec!r} does not exist")
         if path in _LOADED_FILES:
-            return
+            return sys.modules[_LOADED_FILES[path]]
         # The same name in every process (workers load the file under it too), so that objects
         # of the plugin's classes pickle by reference.
         digest = hashlib.sha256(str(path).encode()).hexdigest()[:8]
@@ -47,12 +57,13 @@ def load_plugin(spec: str) -> None:
             del _LOADED_FILES[path]
             sys.modules.pop(module_name, None)
             raise
-        return
+        return module
     try:
-        importlib.import_module(spec)
+        module = importlib.import_module(spec)
     except ImportError as exc:
         raise ConfigError(f"cannot import plugin module {spec!r}: {exc}") from None
     _MODULES.setdefault(spec, None)
+    return module
 
 
 def load_plugins(specs) -> None:

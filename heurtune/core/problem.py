@@ -58,8 +58,9 @@ class Evaluation:
     ----------
     f : (n,) objective values (``FAILED_OBJECTIVE`` for failed candidates)
     g : (n, m) normalised constraint values ``metric / limit - 1``; ``g <= 0`` is feasible.
-        Failed candidates get ``FAILED_VIOLATION``; unstable ones ``FAILED_VIOLATION * (1 +
-        max Re(eig))``, so that less unstable candidates rank better
+        Failed candidates get ``FAILED_VIOLATION``; unstable ones ``FAILED_VIOLATION`` times a
+        factor above 1 that grows with how unstable they are (QTP: ``1 + max Re(eig)`` of the
+        closed loop), so that less unstable candidates rank better
     feasible : (n,) bool
     metrics : (n, k) metric values in the order of ``metric_names`` (NaN when not simulated)
     metric_names : tuple of str

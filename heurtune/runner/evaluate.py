@@ -4,7 +4,7 @@ Usage::
 
     python -m heurtune.evaluate cs_folqi_qtp --case min \\
         --x "Q11=0.4431,Q22=0.3027,Q33=0.4434,Q44=1.5722,R11=4.2253,R22=2.5994,Ki1=1.7411,Ki2=7.1716,alpha1=0.9814,alpha2=0.8437" \\
-        [--scenario nominal --scenario +30%] [--out traj.parquet] [--plot resp.png]
+        [--scenario nominal --scenario +30%] [--out traj.parquet] [--plot resp.png] [--plugin FILE]
 
 Prints one row per scenario: overshoot Mp (%), settling time ts (s) and steady-state error
 ess (%) per output, effort J per input and in total, the lowest and highest level (cm) and
@@ -29,6 +29,7 @@ import pandas as pd
 from heurtune.analysis.figures import plot_responses
 from heurtune.core.errors import ConfigError, DesignError
 from heurtune.core.io import write_parquet
+from heurtune.core.plugins import load_plugins
 from heurtune.core.problem import StructureWarning
 from heurtune.runner.config import load_experiment
 
@@ -42,6 +43,8 @@ def _parser() -> argparse.ArgumentParser:
                     help="scenario to evaluate (repeatable; default: all of the experiment's)")
     ap.add_argument("--out", help="write trajectories (scenario, t, h1..h4 or r1, r2, y1, y2, u1, u2) to this parquet file")
     ap.add_argument("--plot", help="draw levels and pump voltages to this PNG file")
+    ap.add_argument("--plugin", action="append", default=[],
+                    help="plugin (a plant family or optimisers): a .py file or module; repeatable")
     ap.add_argument("--outside-bounds", action="store_true",
                     help="evaluate values outside the experiment's bounds as given (one warning per variable)")
     return ap
@@ -70,6 +73,7 @@ def run(argv=None) -> int:
     """Entry point; returns the process exit code."""
     args = _parser().parse_args(argv)
     try:
+        load_plugins(args.plugin)
         exp = load_experiment(args.experiment)
         prob = exp.problem(args.case)
         x = prob.parse(args.x, check_bounds=False)

@@ -640,7 +640,7 @@ def _parser():
     ap.add_argument("--fresh", action="store_true", help="discard earlier results in the output folder")
     ap.add_argument("--backend", default="loky", help="loky (default) or dask")
     ap.add_argument("--scheduler", help="Dask scheduler address, with --backend dask")
-    ap.add_argument("--plugin", action="append", default=[], help="optimiser plugin: a .py file or module")
+    ap.add_argument("--plugin", action="append", default=[], help="plugin (optimisers or a plant family): a .py file or module; repeatable")
     ap.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     ap.add_argument("--list", action="store_true", help="list the experiments")
     ap.add_argument("--list-algorithms", action="store_true", help="list the optimisers with their settings")

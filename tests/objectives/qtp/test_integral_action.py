@@ -19,6 +19,7 @@ from heurtune.objectives.qtp.model import linearise, preset
 from heurtune.core.families import make_experiment
 from heurtune.core.problem import FAILED_OBJECTIVE
 from heurtune.objectives.qtp.problem import IntegralActionWarning
+from heurtune.objectives.qtp.thesis.printed import printed_row
 from heurtune.runner.config import load_config
 
 
@@ -333,11 +334,11 @@ def test_paired_nmp_experiment_reaches_feasible_runs(tmp_path):
 
 
 def test_ladr_anti_diagonal_swaps_the_regulated_lower_tanks():
-    from test_ladr import TABLE_4_7
-
+    printed = printed_row("4.7", "nmp-ladr")  # the thesis' Table 4.7 gains (as in test_ladr.py)
+    gains = {n: printed[n] for n in decision_names("ladr")}
     A, B, _ = linearise(preset("nmp"))
-    diag = build_controller("ladr", TABLE_4_7["nmp"], A, B)
-    anti = build_controller("ladr", TABLE_4_7["nmp"], A, B, pairing="anti-diagonal")
+    diag = build_controller("ladr", gains, A, B)
+    anti = build_controller("ladr", gains, A, B, pairing="anti-diagonal")
     # channel 1 (states 0..3) reads h1, h4 or h2, h4; channel 2 (4..7) reads h2, h3 or h1, h3
     assert set(np.flatnonzero(diag.B[:4].any(axis=0))) == {0, 3}
     assert set(np.flatnonzero(anti.B[:4].any(axis=0))) == {1, 3}

@@ -304,12 +304,12 @@ def test_physical_range_flags():
 # -- figures ---------------------------------------------------------------------------------
 
 def test_response_figure_marks_a_run_outside_the_physical_range(tmp_path, monkeypatch):
-    from heurtune.analysis import plots
+    from heurtune.analysis import figures
     from heurtune.analysis.figures import response_figure
 
     figs = []
-    close = plots.plt.close
-    monkeypatch.setattr(plots.plt, "close", lambda fig: (figs.append(fig), close(fig)))
+    close = figures.plt.close
+    monkeypatch.setattr(figures.plt, "close", lambda fig: (figs.append(fig), close(fig)))
     exp = heurtune.load_experiment("cs_folqi_qtp")
     prob = exp.problem("nmp")
     x = prob.parse(",".join(f"{k}={v}" for k, v in NMP_FOLQI.items()))
