@@ -905,22 +905,14 @@ class ConicalTanksExperiment(ExperimentBase):
         self.scenarios = self._scenarios(config.get("scenario", {}))
         prob = config.get("problem", {})
         self.objective = prob.get("objective", "iae")
-        self.constraints = {k: float(v) for k, v in prob.get("constraints", {}).items()}
-        for key, lim in self.constraints.items():
-            if not lim > 0:
-                raise ConfigError(f"{where}: problem.constraints.{key} must be > 0, got {lim:g}")
+        self.constraints = {k: float(v) for k, v in self._positive_limits(prob.get("constraints", {})).items()}
         shortest = min((k1 - k0) * sc.dt for sc in self.scenarios.values() for _, k0, k1, _ in sc.windows())
         if "ts" in self.constraints and not self.constraints["ts"] < shortest:
             raise ConfigError(f"{where}: problem.constraints.ts ({self.constraints['ts']:g} s) must be shorter "
                               f"than the shortest set-point step window ({shortest:g} s), or an unsettled "
                               "step would pass")
-        self.settling_band = float(prob.get("settling_band", 2.0))
-        if not 0.0 < self.settling_band < 100.0:
-            raise ConfigError(f"{where}: problem.settling_band must lie in (0, 100) %, got {self.settling_band:g}")
-        self.tuning_scenario = prob.get("tuning_scenario", "nominal")
-        if self.tuning_scenario not in self.scenarios:
-            raise ConfigError(f"{where}: problem.tuning_scenario: got {self.tuning_scenario!r}; allowed: "
-                              f"{', '.join(self.scenarios)}")
+        self.settling_band = float(self._settling_band(prob, 2.0))
+        self.tuning_scenario = self._tuning_scenario(prob)
         self._load_optimisers(config)  # (the runner asks for optimisers or baselines)
         for case in self.cases:
             self.problem(case)  # operating points reachable under every scenario, Ts on the grid

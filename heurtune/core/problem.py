@@ -259,6 +259,45 @@ class ExperimentBase:
                 self._variants[pc if len(self.controllers) == 1 else f"{pc}-{kind}"] = (pc, kind)
         self.cases = tuple(self._variants)
 
+    def _positive_limits(self, constraints: dict) -> dict:
+        """``problem.constraints`` checked: every limit positive (one-line ConfigError)."""
+        for key, lim in constraints.items():
+            if not lim > 0:
+                raise ConfigError(f"{self.name}: problem.constraints.{key} must be positive, got {lim}")
+        return dict(constraints)
+
+    def _tuning_scenario(self, problem: dict) -> str:
+        """``problem.tuning_scenario`` (default ``"nominal"``), one of ``self.scenarios``."""
+        name = problem.get("tuning_scenario", "nominal")
+        if name not in self.scenarios:
+            raise ConfigError(f"{self.name}: problem.tuning_scenario {name!r}; allowed: {', '.join(self.scenarios)}")
+        return name
+
+    def _settling_band(self, problem: dict, default: float) -> float:
+        """``problem.settling_band`` in percent, inside (0, 100)."""
+        band = problem.get("settling_band", default)
+        if not 0 < band < 100:
+            raise ConfigError(f"{self.name}: problem.settling_band must lie in (0, 100), got {band}")
+        return band
+
+    def _override_bounds(self, bounds: dict, given: dict, known, allowed) -> dict:
+        """``bounds`` (name -> (lo, hi)) with the config's ``problem.bounds`` over them.
+
+        A name in ``known`` but not in ``bounds`` (a variable of another controller type) is
+        ignored; a name outside ``known`` or lower > upper is a one-line ConfigError listing
+        ``allowed``.
+        """
+        out = dict(bounds)
+        for key, (lo, hi) in given.items():
+            if key not in known:
+                raise ConfigError(f"{self.name}: problem.bounds: unknown variable {key!r}; "
+                                  f"allowed: {', '.join(dict.fromkeys(allowed))}")
+            if not lo <= hi:
+                raise ConfigError(f"{self.name}: problem.bounds.{key}: lower {lo} > upper {hi}")
+            if key in out:
+                out[key] = (float(lo), float(hi))
+        return out
+
     def _load_optimisers(self, config: dict) -> None:
         """Load the config's plugins and validate each ``[[optimisers]]`` entry's settings."""
         load_plugins(config.get("plugins", []))

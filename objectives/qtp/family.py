@@ -145,16 +145,9 @@ class Experiment(ExperimentBase):
         self.constraints = prob.get("constraints", DEFAULT_CONSTRAINTS)
         if self.constraints == "none":
             self.constraints = {}
-        for key, lim in self.constraints.items():
-            if lim <= 0:
-                raise ConfigError(f"{self.name}: problem.constraints.{key} must be positive, got {lim}")
-        self.settling_band = prob.get("settling_band", 3.0)
-        if not 0 < self.settling_band < 100:
-            raise ConfigError(f"{self.name}: problem.settling_band must lie in (0, 100), got {self.settling_band}")
-        self.tuning_scenario = prob.get("tuning_scenario", "nominal")
-        if self.tuning_scenario not in self.scenarios:
-            raise ConfigError(f"{self.name}: problem.tuning_scenario {self.tuning_scenario!r}; "
-                              f"allowed: {', '.join(self.scenarios)}")
+        self.constraints = self._positive_limits(self.constraints)
+        self.settling_band = self._settling_band(prob, 3.0)
+        self.tuning_scenario = self._tuning_scenario(prob)
         names = [n for kind in self.controllers for n in decision_names(kind)]
         bounds = {}
         for kind in self.controllers:
@@ -162,15 +155,7 @@ class Experiment(ExperimentBase):
         # Bounds of variables no configured controller uses (e.g. alpha inherited by an IOLQI
         # config extending a FOLQI one) are ignored; a name no controller knows is an error.
         known = {n for kind in CONTROLLER_TYPES for n in decision_names(kind)}
-        for key, (lo, hi) in prob.get("bounds", {}).items():
-            if key not in known:
-                raise ConfigError(f"{self.name}: problem.bounds: unknown variable {key!r}; "
-                                  f"allowed: {', '.join(dict.fromkeys(names))}")
-            if not lo <= hi:
-                raise ConfigError(f"{self.name}: problem.bounds.{key}: lower {lo} > upper {hi}")
-            if key in bounds:
-                bounds[key] = (float(lo), float(hi))
-        self.bounds = bounds
+        self.bounds = self._override_bounds(bounds, prob.get("bounds", {}), known, names)
         self._load_optimisers(config)
         self.baselines = self._fixed_controllers(config.get("baselines", []))
         chapter = config.get("report", {}).get("thesis_chapter")

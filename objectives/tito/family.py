@@ -100,21 +100,15 @@ class TITOExperiment(ExperimentBase):
         prob = config.get("problem", {})
         self.objective = prob.get("objective", "iae")
         default_c = DEFAULT_BANDWIDTH_CONSTRAINTS if self.objective == "bandwidth" else {}
-        self.constraints = dict(prob.get("constraints", default_c))
-        for key, lim in self.constraints.items():
-            if not lim > 0:
-                raise ConfigError(f"{self.name}: problem.constraints.{key} must be positive, got {lim}")
+        self.constraints = self._positive_limits(prob.get("constraints", default_c))
         if self.objective == "bandwidth":
             for key in ("Am", "phim", "Mt"):
                 self.constraints.setdefault(key, DEFAULT_BANDWIDTH_CONSTRAINTS[key])
         if not self.constraints:
             # A tuning problem needs one constraint: the sensitivity peak, loose by default.
             self.constraints = {"Ms": 5.0}
-        self.tuning_scenario = prob.get("tuning_scenario", "nominal")
-        if self.tuning_scenario not in self.scenarios:
-            raise ConfigError(f"{self.name}: problem.tuning_scenario {self.tuning_scenario!r}; "
-                              f"allowed: {', '.join(self.scenarios)}")
-        self.settling_band = float(prob.get("settling_band", 2.0))
+        self.tuning_scenario = self._tuning_scenario(prob)
+        self.settling_band = float(self._settling_band(prob, 2.0))
         nominal = self.scenarios["nominal"]
         t_in = nominal.input_disturbance[0]
         default_windows = ({"servo": (0.0, t_in), "regulatory": (t_in, nominal.horizon)}
@@ -226,16 +220,7 @@ class TITOExperiment(ExperimentBase):
             gpm_x = np.array([v for c in chain.gpm for v in c.parallel()[:2]])
         signs = [float(np.real(chain.element(i)(np.array([1e-9]))[0])) for i in (1, 2)]
         bounds = default_bounds(kind, gpm_x, signs)
-        known = set(gain_names("pid"))
-        for key, pair in self.bounds_config.items():
-            if key not in known:
-                raise ConfigError(f"{self.name}: problem.bounds: unknown variable {key!r}; "
-                                  f"allowed: {', '.join(gain_names(kind))}")
-            lo, hi = pair
-            if not lo <= hi:
-                raise ConfigError(f"{self.name}: problem.bounds.{key}: lower {lo} > upper {hi}")
-            if key in bounds:
-                bounds[key] = (float(lo), float(hi))
+        bounds = self._override_bounds(bounds, self.bounds_config, set(gain_names("pid")), gain_names(kind))
         prob = TITOProblem(case, kind, chain, bounds, objective=self.objective, constraints=self.constraints,
                            scenarios=self.scenarios, tuning_scenario=self.tuning_scenario, N=self.N,
                            windows=self.windows, settling_band=self.settling_band, nonlinear=params,

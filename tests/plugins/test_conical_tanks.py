@@ -226,7 +226,7 @@ def test_configs_are_checked_with_one_line_errors(ct):
         ({"plant": {"levels": {"hungry": [60.0, 5.0]}, "cases": ["hungry"]}}, r"outside plant.u_range"),
         ({"controller": {"Ts": 1.5}}, r"controller.Ts \(1.5 s\) must be a whole number of scenario.dt"),
         ({"problem": {"constraints": {"ts": 700.0}}}, r"problem.constraints.ts \(700 s\) must be shorter"),
-        ({"problem": {"tuning_scenario": "worst"}}, r"tuning_scenario: got 'worst'; allowed: nominal, -20%, \+20%"),
+        ({"problem": {"tuning_scenario": "worst"}}, r"tuning_scenario 'worst'; allowed: nominal, -20%, \+20%"),
         ({"scenario": {"steps1": [[0.5, 5.0]], "dt": 1.0}},
          r"scenario.steps1: time 0.5 must lie in \[0, horizon\) on the dt grid"),
         ({"scenario": {"steps2": [[0.0, 45.0]]}}, r"scenario.steps2: the step of 45 cm"),
@@ -261,3 +261,8 @@ def test_plugin_end_to_end_resume_and_evaluate(ct, tmp_path):
     assert evaluate(["example_plugin_plant", "--case", "high", "--x", x, "--out", str(tmp_path / "traj.parquet")]) == 0
     traj = pd.read_parquet(tmp_path / "traj.parquet")
     assert {"t", "r1", "r2", "y1", "y2", "u1", "u2"} <= set(traj.columns)
+    # figures and the statistics of the finished experiment
+    assert {"convergence_low.png", "responses_high.png", "boxplot_best_f.png"} <= {p.name for p in out.iterdir()}
+    from heurtune.analysis.compare import run as compare
+
+    assert compare([str(out)]) == 0
