@@ -120,7 +120,8 @@ class Evaluator:
         X = np.ascontiguousarray(X, dtype=np.float64)
         if X.shape[0] == 0:
             return np.zeros(0), np.zeros((0, 0))
-        parts = self.pool.map(_evaluate_block, [X[a:b] for a, b in self._chunks(X.shape[0])])
+        chunks = [X] if self.pool.in_process else [X[a:b] for a, b in self._chunks(X.shape[0])]
+        parts = self.pool.map(_evaluate_block, chunks)
         f = np.concatenate([p[0] for p in parts])
         widths = {p[1].shape[1] for p in parts}
         if len(widths) != 1:

@@ -15,7 +15,6 @@ anything else, so objects of a plugin's classes reach them intact.
 from __future__ import annotations
 
 import concurrent.futures
-import contextlib
 import hashlib
 import pickle
 
@@ -186,13 +185,13 @@ class Pool:
             self._loky = None
 
     # -- work ---------------------------------------------------------------------------------
-    @contextlib.contextmanager
-    def _here(self):
+    def _run_here(self, fn, items) -> list:
+        """``[fn(item) ...]`` in this process, with this pool's shared object and BLAS on one thread."""
         previous = _SHARED.get("value"), _SHARED.get("key")
         _SHARED["value"], _SHARED["key"] = self.value, self._key
         try:
             with _blas_one_thread():
-                yield
+                return [fn(item) for item in items]
         finally:
             _SHARED["value"], _SHARED["key"] = previous
 
@@ -210,8 +209,7 @@ class Pool:
         """``[fn(item) for item in items]``, run on the workers, in order."""
         items = list(items)
         if self.in_process:
-            with self._here():
-                return [fn(item) for item in items]
+            return self._run_here(fn, items)
         futures = self._submit_all(fn, items)
         if self._client is not None:
             return self._client.gather(futures)
@@ -232,9 +230,7 @@ class Pool:
         items = list(items)
         if self.in_process:
             for i, item in enumerate(items):
-                with self._here():
-                    result = fn(item)
-                yield i, result
+                yield i, self._run_here(fn, [item])[0]
             return
         futures = self._submit_all(fn, items)
         if self._client is not None:
