@@ -107,6 +107,8 @@ class TuningProblem:
     structure_warning = None
     # Report columns the evaluate command prints (None: all of them).
     report_columns = None
+    # heurtune.core.robust.RobustTuning when the objective aggregates several tuning scenarios.
+    robust = None
     # Panel names and units of response figures (see DEFAULT_SIGNAL_LABELS).
     signal_labels = DEFAULT_SIGNAL_LABELS
 
@@ -267,8 +269,9 @@ class ExperimentBase:
         return dict(constraints)
 
     def _tuning_scenario(self, problem: dict) -> str:
-        """``problem.tuning_scenario`` (default ``"nominal"``), one of ``self.scenarios``."""
-        name = problem.get("tuning_scenario", "nominal")
+        """``problem.tuning_scenario``, one of ``self.scenarios``: by default ``"nominal"``, or
+        the first of ``problem.tuning_scenarios`` when the problem is tuned robustly."""
+        name = problem.get("tuning_scenario", (problem.get("tuning_scenarios") or ["nominal"])[0])
         if name not in self.scenarios:
             raise ConfigError(f"{self.name}: problem.tuning_scenario {name!r}; allowed: {', '.join(self.scenarios)}")
         return name

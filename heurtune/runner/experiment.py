@@ -294,12 +294,16 @@ def _status(reason, feasible) -> dict:
 
 
 def _add_report(row: dict, prob, x):
-    """The run's status (from its tuning scenario) and its metrics per scenario into ``row``."""
+    """The run's status (from its tuning scenario, or all of them aggregated when the problem
+    is tuned robustly) and its metrics per scenario into ``row``."""
     with warnings.catch_warnings():  # said once, when the experiment starts
         warnings.simplefilter("ignore", StructureWarning)
         table = prob.report(x)
-    tuning = table.loc[prob.tuning_scenario]
-    row.update(_status(tuning["reason"], tuning["feasible"]))
+    if prob.robust is None:
+        tuning = table.loc[prob.tuning_scenario]
+        row.update(_status(tuning["reason"], tuning["feasible"]))
+    else:
+        row.update(run_status(prob, x))
     for scenario, values in table.iterrows():
         for key, value in values.items():
             row[f"{key}@{scenario}"] = value

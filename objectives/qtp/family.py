@@ -13,6 +13,7 @@ import numpy as np
 from heurtune.core.errors import ConfigError
 from heurtune.core.families import register_family
 from heurtune.core.problem import ExperimentBase
+from heurtune.core.robust import ROBUST_SCHEMA, robust_tuning
 from heurtune.core.schema import COMMON_SCHEMA, NUMBER, PAIR
 from heurtune.objectives.qtp.controllers import (
     CONTROLLER_TYPES, PAIRED_TYPES, dc_gain, decision_names, default_bounds, integral_action_obstruction,
@@ -67,6 +68,8 @@ SCHEMA = dict(COMMON_SCHEMA, **{
         "weights": {name: NUMBER for name in WEIGHTED_METRICS},
         "settling_band": NUMBER,
         "tuning_scenario": str,
+        # robust tuning: the objective aggregated over these scenarios, constraints in all
+        **ROBUST_SCHEMA,
         # "none": no performance constraints (stability is always required)
         "constraints": ("oneof", ({"Mp": NUMBER, "ts": NUMBER, "ess": NUMBER}, ("none",))),
         "bounds": ("map", PAIR),
@@ -148,6 +151,7 @@ class Experiment(ExperimentBase):
         self.constraints = self._positive_limits(self.constraints)
         self.settling_band = self._settling_band(prob, 3.0)
         self.tuning_scenario = self._tuning_scenario(prob)
+        self.robust = robust_tuning(prob, self.scenarios, self.name)
         names = [n for kind in self.controllers for n in decision_names(kind)]
         bounds = {}
         for kind in self.controllers:
@@ -245,6 +249,7 @@ class Experiment(ExperimentBase):
                        scenarios=self.scenarios, tuning_scenario=self.tuning_scenario,
                        weights=self.weights, structure_warning=warning)
         prob.baselines = dict(self.baselines.get(case, {}))
+        prob.robust = self.robust
         return prob
 
     def write_outputs(self, out_dir, *, runs, history, best, figures: bool = True) -> None:

@@ -154,7 +154,8 @@ class Problem(TuningProblem):
         ----------
         X : array_like, shape (n, d) or (d,)
         scenario : str or Scenario, optional
-            Defaults to the tuning scenario.
+            Defaults to the tuning scenario, or to every tuning scenario aggregated when the
+            problem is tuned robustly (``robust``, :mod:`heurtune.core.robust`).
 
         Returns
         -------
@@ -162,6 +163,8 @@ class Problem(TuningProblem):
             Never raises for a bad candidate: unstable, undesignable or diverging candidates get
             ``FAILED_OBJECTIVE``, violations ``FAILED_VIOLATION`` and a reason.
         """
+        if scenario is None and self.robust is not None:  # every tuning scenario, aggregated
+            return self.robust.evaluate(self, X)
         X = self.batch(X)
         sc = self.scenario(self.tuning_scenario if scenario is None else scenario)
         n = X.shape[0]
@@ -225,6 +228,8 @@ class Problem(TuningProblem):
             payload["scenario"].pop("limits", None)
         if self.loop.plant_model != "qtp":
             payload["plant"]["model"] = self.loop.plant_model
+        if self.robust is not None:
+            payload["robust"] = self.robust.identity()
         return payload
 
     def margins(self, x) -> pd.DataFrame | None:

@@ -13,6 +13,7 @@ import numpy as np
 from heurtune.core.errors import ConfigError
 from heurtune.core.families import register_family
 from heurtune.core.problem import ExperimentBase
+from heurtune.core.robust import ROBUST_SCHEMA, robust_tuning
 from heurtune.core.schema import COMMON_SCHEMA, NUMBER, PAIR
 from heurtune.objectives.tito import model as tito
 from heurtune.objectives.tito import report, two_tank
@@ -56,6 +57,7 @@ SCHEMA = dict(COMMON_SCHEMA, **{
     "problem": {
         "objective": OBJECTIVES,
         "tuning_scenario": str,
+        **ROBUST_SCHEMA,
         "settling_band": NUMBER,
         "windows": ("map", PAIR),
         "constraints": {"Am": NUMBER, "phim": NUMBER, "Mt": NUMBER, "Ms": NUMBER},
@@ -108,6 +110,7 @@ class TITOExperiment(ExperimentBase):
             # A tuning problem needs one constraint: the sensitivity peak, loose by default.
             self.constraints = {"Ms": 5.0}
         self.tuning_scenario = self._tuning_scenario(prob)
+        self.robust = robust_tuning(prob, self.scenarios, self.name)
         self.settling_band = float(self._settling_band(prob, 2.0))
         nominal = self.scenarios["nominal"]
         t_in = nominal.input_disturbance[0]
@@ -225,6 +228,7 @@ class TITOExperiment(ExperimentBase):
                            scenarios=self.scenarios, tuning_scenario=self.tuning_scenario, N=self.N,
                            windows=self.windows, settling_band=self.settling_band, nonlinear=params,
                            robustness=self.robustness, gpm_spec=self.gpm)
+        prob.robust = self.robust
         return prob
 
     def write_outputs(self, out_dir, *, runs, history, best, figures: bool = True) -> None:

@@ -337,6 +337,8 @@ class TITOProblem(TuningProblem):
             ``reason``: "" when evaluated, else ``invalid_parameter``, ``unstable``,
             ``diverged`` or ``non_finite``.
         """
+        if scenario is None and self.robust is not None:  # every tuning scenario, aggregated
+            return self.robust.evaluate(self, X, with_time=with_time)
         X = self.batch(X)
         sc = self.scenario(self.tuning_scenario if scenario is None else scenario)
         n = X.shape[0]
@@ -455,7 +457,7 @@ class TITOProblem(TuningProblem):
     def identity(self) -> dict:
         """Everything that defines the tuning problem (hashed into the runner's problem_id)."""
         p = self.chain.plant
-        return dict(
+        payload = dict(
             plant={k: dataclasses.asdict(getattr(p, k)) for k in ("g11", "g12", "g21", "g22")},
             nonlinear=dataclasses.asdict(self.nonlinear) if self.nonlinear is not None else None,
             decoupler=None if self.chain.decoupler is None else dict(
@@ -464,6 +466,9 @@ class TITOProblem(TuningProblem):
             scenario=dataclasses.asdict(self.scenario(self.tuning_scenario)), windows=self.windows,
             bounds=dict(zip(self.names, zip(self.lower.tolist(), self.upper.tolist()))),
         )
+        if self.robust is not None:
+            payload["robust"] = self.robust.identity()
+        return payload
 
     def design_table(self) -> pd.DataFrame:
         """Per loop: the FOPDT fit, the GPM design and its exact margins next to the specified."""
