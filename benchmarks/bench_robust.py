@@ -1,0 +1,80 @@
+"""Cost of robust tuning: one batch evaluated on the nominal problem and worst-case over three
+plants, side by side in this process, for the QTP (cs_folqi_qtp / robust_cs_folqi_qtp, case
+min) and the TITO CCTS (ga_pi_ccts / robust_ga_pi_ccts).
+
+Run with ``python benchmarks/bench_robust.py [--repeats N]`` (part of ``make bench``). BLAS is
+pinned to one thread. Each batch is 25 candidates around a good design (the thesis' CS/FOLQI
+minimum-phase gains; the GPM PI of the CCTS), each gain times a factor in [0.9, 1.1], all of
+which pass the stability check and are simulated in every scenario: the work a user waits for,
+not early rejections. Reported: milliseconds per candidate on each problem, per scenario of
+the robust one, and the ratio robust / nominal.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import platform  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+from threadpoolctl import threadpool_limits  # noqa: E402
+
+import heurtune  # noqa: E402
+
+GAINS = dict(Q11=0.4431, Q22=0.3027, Q33=0.4434, Q44=1.5722, R11=4.2253, R22=2.5994,
+             Ki1=1.7411, Ki2=7.1716, alpha1=0.9814, alpha2=0.8437)
+
+
+def _cpu() -> str:
+    try:
+        with open("/proc/cpuinfo") as fh:
+            return next(line.split(":", 1)[1].strip() for line in fh if line.startswith("model name"))
+    except (OSError, StopIteration):
+        return platform.processor() or platform.machine()
+
+
+def _ms_per_candidate(fn, n, repeats) -> float:
+    fn()  # warm
+    runs = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        runs.append(time.perf_counter() - t0)
+    return 1e3 * float(np.median(runs)) / n
+
+
+def _compare(label, nominal, robust, X, repeats):
+    assert np.all(robust.evaluate(X).reason == ""), "every candidate must be simulated"
+    base = _ms_per_candidate(lambda: nominal.evaluate(X), len(X), repeats)
+    total = _ms_per_candidate(lambda: robust.evaluate(X), len(X), repeats)
+    per = {s: _ms_per_candidate(lambda s=s: robust.evaluate(X, s), len(X), repeats) for s in robust.robust.scenarios}
+    print(f"{label}: nominal problem {base:.2f} ms per candidate; robust ({robust.robust.aggregate} over "
+          f"{len(per)} scenarios) {total:.2f} ms, ratio {total / base:.2f}")
+    print("    per scenario: " + ", ".join(f"{s} {v:.2f} ms" for s, v in per.items())
+          + f"; aggregation and Python overhead {total - sum(per.values()):+.2f} ms")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--repeats", type=int, default=5, help="timed evaluations of each batch")
+    args = ap.parse_args(argv)
+    rng = np.random.default_rng(0)
+    print(f"CPU: {_cpu()}; 25 simulated candidates per batch, median of {args.repeats}; BLAS threads = 1")
+    with threadpool_limits(1):
+        nominal = heurtune.load_experiment("cs_folqi_qtp").problem("min")
+        robust = heurtune.load_experiment("robust_cs_folqi_qtp").problem("min")
+        x = np.array([GAINS[n] for n in nominal.names])
+        _compare("QTP min FOLQI", nominal, robust, x * rng.uniform(0.9, 1.1, (25, x.size)), args.repeats)
+        nominal = heurtune.load_experiment("ga_pi_ccts").problem("ccts")
+        robust = heurtune.load_experiment("robust_ga_pi_ccts").problem("ccts")
+        x = nominal.baseline("gpm")
+        _compare("TITO CCTS PI", nominal, robust, x * rng.uniform(0.9, 1.1, (25, x.size)), args.repeats)
+
+
+if __name__ == "__main__":
+    main()
