@@ -463,4 +463,3 @@ def run(argv=None) -> int:
 
 def main() -> None:
     sys.exit(run())
-

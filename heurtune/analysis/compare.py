@@ -1532,4 +1532,3 @@ def run(argv=None) -> int:
 def main() -> None:
     """Run the command line and exit with its code."""
     sys.exit(run())
-

@@ -370,4 +370,3 @@ def run(argv=None) -> int:
 
 def main() -> None:
     sys.exit(run())
-

@@ -88,7 +88,6 @@ class Evaluation:
         return df
 
 
-
 class TuningProblem:
     """One case's tuning problem: the protocol the runner, the optimisers and the reports use.
 
@@ -223,7 +222,6 @@ class TuningProblem:
         return np.array([vals[n] for n in self.names])
 
 
-
 class ExperimentBase:
     """An experiment config of one plant family: cases per (plant, controller type), optimisers.
 
@@ -332,7 +330,6 @@ class ExperimentBase:
             return self._variants[case]
         except KeyError:
             raise ConfigError(f"unknown case {case!r} for {self.name}; allowed: {', '.join(self.cases)}") from None
-
 
 
 def problem_fingerprint(prob) -> str:

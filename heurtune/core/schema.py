@@ -122,5 +122,3 @@ def check(value, spec, where: str, src: str):
         return
     if not isinstance(value, spec):
         fail(f"expected {_describe(spec)}, got {value!r}")
-
-

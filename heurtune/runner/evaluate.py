@@ -123,4 +123,3 @@ def run(argv=None) -> int:
 
 def main() -> None:
     sys.exit(run())
-

@@ -688,4 +688,3 @@ def run(argv=None) -> int:
 
 def main() -> None:
     sys.exit(run())
-

@@ -56,6 +56,7 @@ _DGEES = scipy.linalg.lapack.get_lapack_funcs("gees", dtype=np.float64)
 def _left_half_plane(re, im):
     return re < 0.0
 
+
 _PUMP_ROWS = np.array([[False], [True]])  # row r is the unit vector of pump r where unit1 == r
 _SEGMENT_KEYS = np.arange(4)
 # Largest eigenvector condition number for which a block is simulated in modal form.

@@ -123,7 +123,6 @@ def bode_figure(problem, x, path, title: str = "", omega=None) -> None:
     """
     import control
 
-
     loops = _loops(problem, x)
     if omega is None:
         omega = frequency_grid(np.concatenate([control.poles(sys) for sys in loops.values()]))
