@@ -138,6 +138,12 @@ class TuningProblem:
         """Compile or load the jitted kernels (called in the parent before workers start)."""
 
     # -- optional -----------------------------------------------------------------------------
+    def evaluate_scenarios(self, X, scenarios, **options) -> list:
+        """One :class:`Evaluation` of ``X`` per scenario (robust tuning evaluates a candidate's
+        scenarios through this; ``options`` go to :meth:`evaluate`). A family overrides it to
+        share work across the scenarios."""
+        return [self.evaluate(X, s, **options) for s in scenarios]
+
     def margins(self, x) -> pd.DataFrame | None:
         """Stability margins of one design, one row per loop, or None when the family has none."""
         return None

@@ -92,9 +92,8 @@ class RobustTuning:
     level: float = DEFAULT_CVAR_LEVEL
 
     def evaluate(self, problem, X, **kwargs) -> Evaluation:
-        """``problem.evaluate(X, s)`` for every tuning scenario ``s``, aggregated."""
-        return aggregate_evaluations([problem.evaluate(X, s, **kwargs) for s in self.scenarios],
-                                     self.aggregate, self.level)
+        """``problem.evaluate_scenarios(X, scenarios)``, aggregated."""
+        return aggregate_evaluations(problem.evaluate_scenarios(X, self.scenarios, **kwargs), self.aggregate, self.level)
 
     def identity(self) -> dict:
         """What enters the problem_id."""

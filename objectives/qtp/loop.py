@@ -307,7 +307,7 @@ class ClosedLoop:
         return height, lo, hi
 
     def run(self, ctrl: LinearController, scenario: Scenario, *, settling_band: float = 3.0,
-            record: bool = True, record_levels: bool | None = None) -> SimulationResult:
+            record: bool = True, record_levels: bool | None = None, discrete=None) -> SimulationResult:
         """Simulate the nonlinear loop and its metrics (kernel :func:`simulate_loop`).
 
         Parameters
@@ -324,6 +324,9 @@ class ClosedLoop:
         record_levels : bool, optional
             Keep the true levels h1..h4 as well (and, for the bond-graph model, the pressures
             P1..P4); default: as ``record``.
+        discrete : optional
+            ``ctrl.discretise(scenario.dt)`` when the caller has it already (several scenarios
+            of one controller).
 
         Returns
         -------
@@ -345,7 +348,7 @@ class ClosedLoop:
         y, u = np.empty((rows, 2)), np.empty((rows, 2))
         h = np.empty((n + 1 if record_levels else 0, 4))
         metrics = np.empty(_kernels.N_METRICS)
-        dc = ctrl.discretise(scenario.dt)
+        dc = ctrl.discretise(scenario.dt) if discrete is None else discrete
         out_dist, in_dist, noise = self._scenario_arrays(scenario)
         sat = scenario.saturation
         clip = scenario.limits == "physical"

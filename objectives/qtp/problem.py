@@ -126,26 +126,32 @@ class Problem(TuningProblem):
                 f"objective={self.objective!r}, constraints={self.constraints})")
 
     # -- evaluation -------------------------------------------------------------------
-    def _evaluate_one(self, x, scenario: Scenario, metrics_row: np.ndarray):
-        """Reason ("" when simulated) and, for an unstable loop, its eigenvalue margin."""
+    def _evaluate_one(self, x, scenarios: list, metrics_rows: np.ndarray) -> tuple:
+        """Per scenario, the reason ("" when simulated), and for an unstable loop its
+        eigenvalue margin. The controller is designed, checked for stability (on the nominal
+        linearisation, which no scenario changes) and discretised once for all scenarios."""
         if not np.all(np.isfinite(x)):
-            return "invalid_parameter", 0.0
+            return ["invalid_parameter"] * len(scenarios), 0.0
         try:
             ctrl = self.loop.controller(dict(zip(self.names, x.tolist())))
         except ControllerDesignError as exc:
-            return exc.reason, 0.0
+            return [exc.reason] * len(scenarios), 0.0
         except ConfigError:
-            return "invalid_parameter", 0.0
+            return ["invalid_parameter"] * len(scenarios), 0.0
         margin = self.loop.stability_margin(ctrl)
         if not margin < 0.0:
-            return "unstable", margin
-        sim = self.loop.run(ctrl, scenario, settling_band=self.settling_band, record=False)
-        if sim.diverged:
-            return "diverged", 0.0
-        metrics_row[:] = sim.metrics
-        if not np.all(np.isfinite(metrics_row)):
-            return "non_finite", 0.0
-        return "", 0.0
+            return ["unstable"] * len(scenarios), margin
+        reasons, discrete = [], {}
+        for sc, row in zip(scenarios, metrics_rows):
+            if sc.dt not in discrete:
+                discrete[sc.dt] = ctrl.discretise(sc.dt)
+            sim = self.loop.run(ctrl, sc, settling_band=self.settling_band, record=False, discrete=discrete[sc.dt])
+            if sim.diverged:
+                reasons.append("diverged")
+                continue
+            row[:] = sim.metrics
+            reasons.append("" if np.all(np.isfinite(row)) else "non_finite")
+        return reasons, 0.0
 
     def evaluate(self, X, scenario=None) -> Evaluation:
         """Evaluate a batch of candidates.
@@ -165,31 +171,40 @@ class Problem(TuningProblem):
         """
         if scenario is None and self.robust is not None:  # every tuning scenario, aggregated
             return self.robust.evaluate(self, X)
+        return self.evaluate_scenarios(X, [self.tuning_scenario if scenario is None else scenario])[0]
+
+    def evaluate_scenarios(self, X, scenarios) -> list:
+        """One :class:`Evaluation` per scenario, each candidate's controller designed, checked
+        and discretised once for all of them (the results equal :meth:`evaluate` per scenario)."""
         X = self.batch(X)
-        sc = self.scenario(self.tuning_scenario if scenario is None else scenario)
-        n = X.shape[0]
+        scs = [self.scenario(s) for s in scenarios]
+        n, k = X.shape[0], len(scs)
         m = len(self.constraint_names)
-        metrics = np.full((n, len(METRIC_NAMES)), np.nan)
-        f = np.full(n, FAILED_OBJECTIVE)
-        g = np.full((n, m), FAILED_VIOLATION)
-        reason = np.empty(n, dtype=object)
+        metrics = np.full((k, n, len(METRIC_NAMES)), np.nan)
+        f = np.full((k, n), FAILED_OBJECTIVE)
+        g = np.full((k, n, m), FAILED_VIOLATION)
+        reason = np.empty((k, n), dtype=object)
         for i in range(n):
-            reason[i], margin = self._evaluate_one(X[i], sc, metrics[i])
-            if reason[i] == "":
-                if self._objective_w is None:
-                    f[i] = metrics[i, self._objective_idx].sum()
+            reason[:, i], margin = self._evaluate_one(X[i], scs, metrics[:, i])
+            for s in range(k):
+                if reason[s, i] == "":
+                    if self._objective_w is None:
+                        f[s, i] = metrics[s, i, self._objective_idx].sum()
+                    else:
+                        f[s, i] = metrics[s, i, self._objective_idx] @ self._objective_w
+                    g[s, i] = 0.0 if self._stability_only else (
+                        metrics[s, i, self._constraint_idx] / self._constraint_limit - 1.0)
                 else:
-                    f[i] = metrics[i, self._objective_idx] @ self._objective_w
-                g[i] = 0.0 if self._stability_only else (
-                    metrics[i, self._constraint_idx] / self._constraint_limit - 1.0)
-            else:
-                metrics[i] = np.nan
-                if reason[i] == "unstable":
-                    # Graded: the less unstable, the smaller the violation, so Deb's rules and
-                    # SLSQP both see a way back to stability.
-                    g[i] = FAILED_VIOLATION * (1.0 + min(margin, UNSTABLE_MARGIN_CAP))
-        feasible = (reason == "") & np.all(g <= 0.0, axis=1)
-        return Evaluation(f, g, feasible, metrics, METRIC_NAMES, self.constraint_names, reason)
+                    metrics[s, i] = np.nan
+                    if reason[s, i] == "unstable":
+                        # Graded: the less unstable, the smaller the violation, so Deb's rules
+                        # and SLSQP both see a way back to stability.
+                        g[s, i] = FAILED_VIOLATION * (1.0 + min(margin, UNSTABLE_MARGIN_CAP))
+        out = []
+        for s in range(k):
+            feasible = (reason[s] == "") & np.all(g[s] <= 0.0, axis=1)
+            out.append(Evaluation(f[s], g[s], feasible, metrics[s], METRIC_NAMES, self.constraint_names, reason[s]))
+        return out
 
     def baseline(self, name: str) -> np.ndarray:
         """Decision vector of a fixed controller named in the config's ``[[baselines]]``.

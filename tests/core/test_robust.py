@@ -115,3 +115,22 @@ def test_robust_smoke_run_reports_the_aggregated_status(tmp_path):
         expected = "failed" if ev.reason[0] else ("feasible" if ev.feasible[0] else "infeasible")
         assert r["status"] == expected
         assert r["problem_id"] == problem_fingerprint(prob)
+
+
+def test_qtp_scenarios_together_equal_one_by_one():
+    """The QTP designs, checks and discretises a candidate's controller once for all its
+    scenarios; every number equals the scenario's own evaluation."""
+    prob = heurtune.load_experiment("robust_cs_folqi_qtp").problem("min")
+    rng = np.random.default_rng(5)
+    X = prob.lower + rng.random((12, prob.dim)) * (prob.upper - prob.lower)
+    X[0] = np.nan
+    good = prob.parse("Q11=0.4431,Q22=0.3027,Q33=0.4434,Q44=1.5722,R11=4.2253,R22=2.5994,Ki1=1.7411,"
+                      "Ki2=7.1716,alpha1=0.9814,alpha2=0.8437")  # the thesis' CS/FOLQI gains
+    X[1:4] = good * rng.uniform(0.95, 1.05, (3, prob.dim))
+    names = ["nominal", "-30%", "+30%"]
+    for together, name in zip(prob.evaluate_scenarios(X, names), names):
+        alone = prob.evaluate(X, name)
+        for field in ("f", "g", "metrics", "feasible"):
+            np.testing.assert_array_equal(getattr(together, field), getattr(alone, field))
+        assert list(together.reason) == list(alone.reason)
+    assert {"invalid_parameter", ""} <= set(prob.evaluate(X).reason)
