@@ -2,7 +2,8 @@
 
     python benchmarks/robust_side_by_side.py results/cs_folqi_qtp results/robust_cs_folqi_qtp
 
-For each case, the best run of each folder (heurtune.analysis.compare.best_runs) and its
+For each case and optimiser (fixed designs such as the GPM baseline left out), the best run of
+each folder (heurtune.analysis.compare.best_runs) and its
 re-evaluation under every scenario, as ``runs.parquet`` holds it (``<metric>@<scenario>``):
 the objective, the constrained metrics, feasibility, and whether it is feasible in every
 scenario. Prints a markdown table (the one in docs/robust.md).
@@ -28,10 +29,12 @@ def rows(folder: Path) -> list:
     limits = problem.get("constraints", {})
     scenarios = [c[2:] for c in runs.columns if c.startswith("f@")]
     out = []
-    for _, r in best_runs(runs).iterrows():
+    tuned_runs = runs[runs["stop_reason"] != "analytic design"]
+    for _, r in best_runs(tuned_runs).iterrows():
         feasible_all = all(bool(r[f"feasible@{s}"]) for s in scenarios)
         for s in scenarios:
-            row = {"case": r["case"], "tuned for": tuned, "run": int(r["run"]), "scenario": s, "f": r[f"f@{s}"]}
+            row = {"case": r["case"], "algorithm": r["algorithm"], "tuned for": tuned, "run": int(r["run"]),
+                   "scenario": s, "f": r[f"f@{s}"]}
             for key in limits:  # the worst of the two loops, and the limit
                 vals = [r.get(f"{key}{i}@{s}") for i in (1, 2)]
                 row[f"{key} (<= {limits[key]:g})"] = max(v for v in vals if v is not None)
