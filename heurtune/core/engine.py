@@ -20,6 +20,7 @@ import pandas as pd
 from heurtune.core import registry
 from heurtune.core.errors import ConfigError
 from heurtune.core.evaluator import Evaluator
+from heurtune.core.pareto import asf_choice, hypervolume, update_front
 
 __all__ = ["SearchSpace", "Comparator", "Optimizer", "Driver", "RunContext", "Checkpoint", "Result", "minimize",
            "run", "convergence_epoch", "CONSTRAINT_HANDLING", "BOUND_HANDLING"]
@@ -172,6 +173,9 @@ class Result:
     history : DataFrame, one row per epoch: epoch, n_evals, best_f, best_violation, mean_f,
         sd_f, feasible_fraction, wall_time_s
     details : DataFrame or None, optimiser-specific records (e.g. every SQP local solve)
+    front : dict or None, several objectives only: the final front, arrays ``X`` (p, d),
+        ``F`` (p, k), ``v`` (p,), ``g`` (p, m), and ``chosen`` (the index of ``x`` in it);
+        ``f`` is then minus its hypervolume and ``objectives`` the chosen point's objectives
     """
 
     x: np.ndarray
@@ -189,6 +193,8 @@ class Result:
     seed: object
     wall_time_s: float
     details: pd.DataFrame | None = None
+    front: dict | None = None
+    objectives: np.ndarray | None = None
 
 
 def convergence_epoch(best_f, tol: float = DEFAULT_TOL) -> int:
@@ -249,8 +255,13 @@ class RunContext:
     """
 
     def __init__(self, evaluator: Evaluator, space: SearchSpace, compare: Comparator, *,
-                 max_evals, max_epochs, max_time, tol, tol_window, checkpoint: Checkpoint | None = None):
+                 max_evals, max_epochs, max_time, tol, tol_window, checkpoint: Checkpoint | None = None,
+                 reference_point=None, multi_objective: bool = False):
         self.evaluator = evaluator
+        self.reference_point = reference_point
+        self.multi_objective = multi_objective
+        self.front = None  # several objectives: (X, F, v, g) of the best candidates seen
+        self.best_objectives = None
         self.checkpoint = checkpoint if checkpoint is not None else Checkpoint()
         self.space = space
         self.compare = compare
@@ -311,8 +322,18 @@ class RunContext:
         self.n_evals += int(n)
 
     def offer(self, X, f, v, g):
-        """Update the best-so-far with evaluated candidates."""
+        """Update the best-so-far with evaluated candidates.
+
+        With several objectives (``f`` of shape (n, k)) the run keeps the front of the best
+        candidates seen (:func:`heurtune.core.pareto.update_front`); its best candidate is the
+        decision step's pick from the front (:func:`heurtune.core.pareto.asf_choice`) and its
+        ``best_f`` minus the front's hypervolume with respect to ``reference_point`` (0 while
+        nothing is feasible), so that lower is better as for one objective.
+        """
         if len(f) == 0:
+            return
+        if np.ndim(f) == 2:
+            self._offer_front(X, f, v, g)
             return
         i = self.compare.best(f, v)
         if self.best_x is None or self.compare.better(f[i], v[i], self.best_f, self.best_v):
@@ -320,10 +341,29 @@ class RunContext:
             self.best_f, self.best_v = float(f[i]), float(v[i])
             self.best_g = np.array(g[i], dtype=np.float64)
 
+    def _offer_front(self, X, F, v, g):
+        if not self.multi_objective:
+            raise ConfigError(f"the problem has {F.shape[1]} objectives; this optimiser takes one "
+                              "(use a multi-objective optimiser, e.g. nsga2)")
+        if self.reference_point is None:
+            raise ConfigError("a problem with several objectives needs a reference point for the "
+                              "hypervolume (problem.reference_point)")
+        self.front = update_front(self.front, np.asarray(X, dtype=np.float64), F, v, np.asarray(g, dtype=np.float64))
+        FX, FF, Fv, Fg = self.front
+        feasible = bool(Fv[0] <= 0)
+        i = asf_choice(FF) if feasible else 0
+        self.best_x, self.best_g = np.array(FX[i]), np.array(Fg[i])
+        self.best_v, self.best_objectives = float(Fv[i]), np.array(FF[i])
+        volume = hypervolume(FF, self.reference_point) if feasible else 0.0
+        self.best_f = -volume if volume > 0 else 0.0
+
     def record_epoch(self, pop_f, pop_v) -> bool:
-        """Close an epoch: append a history row; return True when the run must stop."""
+        """Close an epoch: append a history row; return True when the run must stop. With
+        several objectives ``mean_f`` and ``sd_f`` are those of the first objective."""
         self.epoch += 1
         pop_f = np.asarray(pop_f, dtype=np.float64)
+        if pop_f.ndim == 2:
+            pop_f = pop_f[:, 0]
         pop_v = np.asarray(pop_v, dtype=np.float64)
         finite = pop_f[np.isfinite(pop_f)]
         self.rows.append(dict(
@@ -378,7 +418,7 @@ def _population_loop(opt: Optimizer, ctx: RunContext) -> None:
             return
         k = len(f)
         if k < len(X):  # budget cut the batch: unevaluated candidates rank last
-            f = np.concatenate([f, np.full(len(X) - k, np.inf)])
+            f = np.concatenate([f, np.full((len(X) - k,) + f.shape[1:], np.inf)])
             v = np.concatenate([v, np.full(len(X) - k, np.inf)])
         generation_done = opt.tell(X, f, v)
         if generation_done or k < len(X) or ctx.remaining == 0:
@@ -391,7 +431,8 @@ def _population_loop(opt: Optimizer, ctx: RunContext) -> None:
 
 def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=None, seed=0,
         max_evals=None, max_epochs=None, max_time=None, tol=None, tol_window=DEFAULT_TOL_WINDOW,
-        constraint_handling="deb", penalty=1e6, checkpoint: Checkpoint | None = None) -> Result:
+        constraint_handling="deb", penalty=1e6, checkpoint: Checkpoint | None = None,
+        reference_point=None) -> Result:
     """Run one optimisation with an open evaluator.
 
     Parameters
@@ -404,6 +445,9 @@ def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=No
         Lets a driver (e.g. ``sqp_multistart``) save its finished local solves as it goes and,
         on a rerun with the same seed, take them from there instead of solving them again; the
         result is the same as an uninterrupted run's. Population optimisers ignore it.
+    reference_point : array_like, optional
+        For a problem with several objectives (``fun`` returning f of shape (n, k)): the point
+        bounding the hypervolume of the front (needed then, see :class:`RunContext`).
 
     Returns
     -------
@@ -427,7 +471,8 @@ def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=No
     seed_seq = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
     rng = np.random.default_rng(seed_seq)
     ctx = RunContext(evaluator, space, compare, max_evals=max_evals, max_epochs=max_epochs,
-                     max_time=max_time, tol=tol, tol_window=tol_window, checkpoint=checkpoint)
+                     max_time=max_time, tol=tol, tol_window=tol_window, checkpoint=checkpoint,
+                     reference_point=reference_point, multi_objective=info.multi_objective)
     opt = info.cls(space, settings, rng, compare)
     details = None
     if info.kind == "driver":
@@ -445,15 +490,25 @@ def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=No
         n_evals=ctx.n_evals, n_epochs=max(ctx.epoch, 0), convergence_epoch=conv,
         stop_reason=ctx.stop_reason, history=hist, algorithm=algorithm, settings=settings,
         seed=seed_seq.entropy if isinstance(seed, np.random.SeedSequence) else seed,
-        wall_time_s=time.perf_counter() - ctx.t0, details=details,
+        wall_time_s=time.perf_counter() - ctx.t0, details=details, front=_front(ctx),
+        objectives=ctx.best_objectives,
     )
+
+
+def _front(ctx: RunContext) -> dict | None:
+    """The final front of a run with several objectives (None otherwise)."""
+    if ctx.front is None:
+        return None
+    X, F, v, g = ctx.front
+    chosen = int(np.flatnonzero(np.all(X == ctx.best_x, axis=1))[0])
+    return dict(X=X, F=F, v=v, g=g, chosen=chosen)
 
 
 def minimize(fun, lower, upper, algorithm: str = "cs", *, constraints=None, max_evals=None,
              max_epochs=None, tol=None, seed=0, n_jobs: int = 1, settings=None, max_time=None,
              tol_window: int = DEFAULT_TOL_WINDOW, constraint_handling: str = "deb",
              penalty: float = 1e6, bound_handling: str = "clip", backend: str = "loky",
-             scheduler=None) -> Result:
+             scheduler=None, reference_point=None) -> Result:
     """Minimise ``fun`` over the box ``[lower, upper]`` with a registered optimiser.
 
     Parameters
@@ -461,6 +516,8 @@ def minimize(fun, lower, upper, algorithm: str = "cs", *, constraints=None, max_
     fun : callable
         ``fun(X)`` maps an (n, d) array to (n,) objective values, or to ``(f, g)`` with
         constraint values g (n, m), ``g <= 0`` feasible. Must be picklable for ``n_jobs > 1``.
+        With several objectives f is (n, k): a multi-objective optimiser (``nsga2``) and a
+        ``reference_point`` are then needed, and the result holds the front.
     lower, upper : array_like (d,)
     algorithm : str
         A registered name (``python -m heurtune.algorithms`` lists them).
@@ -481,6 +538,8 @@ def minimize(fun, lower, upper, algorithm: str = "cs", *, constraints=None, max_
     bound_handling : {"clip", "reflect"}
     backend : {"loky", "dask"}; scheduler : str or distributed.Client
         ``backend="dask"`` evaluates on the cluster at ``scheduler``.
+    reference_point : array_like, optional
+        Several objectives: the point bounding the hypervolume (``Result.f`` is minus it).
 
     Returns
     -------
@@ -498,4 +557,4 @@ def minimize(fun, lower, upper, algorithm: str = "cs", *, constraints=None, max_
     with Evaluator(fun, constraints, n_jobs=n_jobs, backend=backend, scheduler=scheduler) as ev:
         return run(algorithm, ev, space, settings=settings, seed=seed, max_evals=max_evals,
                    max_epochs=max_epochs, max_time=max_time, tol=tol, tol_window=tol_window,
-                   constraint_handling=constraint_handling, penalty=penalty)
+                   constraint_handling=constraint_handling, penalty=penalty, reference_point=reference_point)

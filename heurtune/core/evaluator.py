@@ -16,7 +16,8 @@ CHUNKS_PER_WORKER = 4
 
 
 def normalise(result, constraints, X):
-    """``(f, g)`` from a user function's output: f (n,), g (n, m) with m >= 0."""
+    """``(f, g)`` from a user function's output: f (n,), or (n, k) for k >= 2 objectives, and
+    g (n, m) with m >= 0."""
     n = X.shape[0]
     if isinstance(result, tuple):
         if len(result) != 2:
@@ -28,9 +29,13 @@ def normalise(result, constraints, X):
         if g is not None:
             raise ValueError("give constraints either as fun's second output or as constraints=, not both")
         g = constraints(X)
-    f = np.asarray(f, dtype=np.float64).reshape(-1)
-    if f.shape != (n,):
-        raise ValueError(f"the objective returned {f.size} values for {n} candidates")
+    f = np.asarray(f, dtype=np.float64)
+    if f.ndim == 2 and f.shape[0] == n and f.shape[1] > 1:
+        pass  # several objectives: (n, k)
+    else:
+        f = f.reshape(-1)
+        if f.shape != (n,):
+            raise ValueError(f"the objective returned {f.size} values for {n} candidates")
     g = np.zeros((n, 0)) if g is None else np.asarray(g, dtype=np.float64).reshape(n, -1)
     return f, g
 

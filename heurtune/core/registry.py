@@ -35,10 +35,11 @@ class AlgorithmInfo:
     description: str
     source: str
     kind: str  # "population" (ask/tell) or "driver" (owns its loop)
+    multi_objective: bool = False  # takes objectives (n, k) in tell
 
 
 def register(name: str, *, settings: type, description: str, source: str = "",
-             kind: str = "population"):
+             kind: str = "population", multi_objective: bool = False):
     """Class decorator adding an optimiser to the registry.
 
     Parameters
@@ -53,6 +54,9 @@ def register(name: str, *, settings: type, description: str, source: str = "",
         The reference the implementation follows.
     kind : {"population", "driver"}
         A population optimiser implements ``ask``/``tell``; a driver implements ``run(ctx)``.
+    multi_objective : bool
+        The optimiser's ``tell`` takes an (n, k) array of objectives (a problem with several
+        objectives can only be run by such an optimiser).
     """
     if not name or name != name.lower() or not name.replace("_", "").isalnum():
         raise ValueError(f"optimiser name {name!r} must be lowercase letters, digits and '_'")
@@ -64,7 +68,7 @@ def register(name: str, *, settings: type, description: str, source: str = "",
     def decorate(cls):
         if name in _REGISTRY:
             raise ValueError(f"optimiser {name!r} is already registered (by {_REGISTRY[name].cls.__module__})")
-        _REGISTRY[name] = AlgorithmInfo(name, cls, settings, description, source, kind)
+        _REGISTRY[name] = AlgorithmInfo(name, cls, settings, description, source, kind, multi_objective)
         cls.registry_name = name
         return cls
 

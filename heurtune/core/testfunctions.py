@@ -10,7 +10,8 @@ import math
 
 import numpy as np
 
-__all__ = ["SHIFT", "sphere", "rosenbrock", "rastrigin", "ackley", "pressure_vessel", "PROBLEMS", "BUDGETS"]
+__all__ = ["SHIFT", "sphere", "rosenbrock", "rastrigin", "ackley", "pressure_vessel", "zdt1", "ZDT1_HYPERVOLUME",
+           "PROBLEMS", "BUDGETS"]
 
 SHIFT = 1.3  # optimum of the shifted functions at x_i = 1.3 (inside [-5, 5])
 
@@ -68,3 +69,17 @@ PROBLEMS = {
 # Evaluation budgets of the quality table (docs/quality.md) and tests/test_quality.py.
 BUDGETS = {"sphere": 10_000, "rosenbrock": 50_000, "rastrigin": 50_000, "ackley": 20_000,
            "pressure_vessel": 20_000}
+
+
+def zdt1(X):
+    """ZDT1 (Zitzler, Deb & Thiele 2000), two objectives on [0, 1]^d: ``f1 = x1``,
+    ``f2 = g (1 - sqrt(x1 / g))`` with ``g = 1 + 9 mean(x2..xd)``. The Pareto front is
+    ``f2 = 1 - sqrt(f1)``, reached with ``x2..xd = 0``."""
+    f1 = X[:, 0]
+    g = 1.0 + 9.0 * X[:, 1:].mean(axis=1)
+    return np.column_stack([f1, g * (1.0 - np.sqrt(f1 / g))])
+
+
+# Hypervolume of ZDT1's Pareto front with respect to (1.1, 1.1): the integral over f1 in [0, 1]
+# of 1.1 - (1 - sqrt(f1)), plus the strip f1 in [1, 1.1] of height 1.1.
+ZDT1_HYPERVOLUME = 0.1 + 2.0 / 3.0 + 0.11
