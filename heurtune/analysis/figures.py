@@ -24,7 +24,8 @@ import pandas as pd  # noqa: E402
 from heurtune.core.io import atomic_path  # noqa: E402
 from heurtune.core.problem import DEFAULT_SIGNAL_LABELS, RANGE_RTOL  # noqa: E402
 
-__all__ = ["convergence_figure", "boxplot_figure", "response_figure", "plot_responses", "FAILED_THRESHOLD"]
+__all__ = ["convergence_figure", "boxplot_figure", "response_figure", "plot_responses", "pareto_figure",
+           "FAILED_THRESHOLD"]
 
 # Objective values at or above this are the problem's failure sentinel (FAILED_OBJECTIVE = 1e10,
 # see heurtune.objectives.qtp.problem): they are left out of medians and boxes, which they would otherwise swamp.
@@ -336,3 +337,39 @@ def plot_responses(traj, path, title: str = "", limits=None, labels=None) -> Non
         fig.suptitle(title)
     fig.tight_layout()
     _save(fig, path)
+
+
+def pareto_figure(fronts, path, objectives, title: str = "") -> None:
+    """The final fronts of several runs in the plane of the first two objectives.
+
+    Parameters
+    ----------
+    fronts : pandas.DataFrame
+        Rows of ``pareto.parquet`` (one front per ``algorithm`` and ``run``) with columns
+        ``f_<objective>``, ``feasible`` and ``chosen``.
+    path : str or Path
+        PNG written atomically.
+    objectives : sequence of str
+        The objective names; the first two are drawn.
+    title : str
+        Figure title.
+    """
+    fig, ax = plt.subplots(figsize=(6.5, 5))
+    a, b = (f"f_{name}" for name in objectives[:2])
+    for (alg, run), front in fronts.groupby(["algorithm", "run"], sort=False):
+        front = front.sort_values(a)
+        ok = front["feasible"].to_numpy(bool)
+        line, = ax.plot(front[a][ok], front[b][ok], marker=".", lw=0.8, label=f"{alg} (run {run})")
+        if (~ok).any():
+            ax.plot(front[a][~ok], front[b][~ok], "x", color=line.get_color(), label=f"{alg}: infeasible")
+        chosen = front[front["chosen"]]
+        ax.plot(chosen[a], chosen[b], "*", ms=14, color=line.get_color(), markeredgecolor="k",
+                label=f"{alg}: chosen")
+    ax.set_xlabel(objectives[0])
+    ax.set_ylabel(objectives[1])
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=10)
+    _save(fig, path)
+

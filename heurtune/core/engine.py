@@ -256,9 +256,10 @@ class RunContext:
 
     def __init__(self, evaluator: Evaluator, space: SearchSpace, compare: Comparator, *,
                  max_evals, max_epochs, max_time, tol, tol_window, checkpoint: Checkpoint | None = None,
-                 reference_point=None, multi_objective: bool = False):
+                 reference_point=None, decision_weights=None, multi_objective: bool = False):
         self.evaluator = evaluator
         self.reference_point = reference_point
+        self.decision_weights = decision_weights
         self.multi_objective = multi_objective
         self.front = None  # several objectives: (X, F, v, g) of the best candidates seen
         self.best_objectives = None
@@ -351,7 +352,7 @@ class RunContext:
         self.front = update_front(self.front, np.asarray(X, dtype=np.float64), F, v, np.asarray(g, dtype=np.float64))
         FX, FF, Fv, Fg = self.front
         feasible = bool(Fv[0] <= 0)
-        i = asf_choice(FF) if feasible else 0
+        i = asf_choice(FF, self.decision_weights) if feasible else 0
         self.best_x, self.best_g = np.array(FX[i]), np.array(Fg[i])
         self.best_v, self.best_objectives = float(Fv[i]), np.array(FF[i])
         volume = hypervolume(FF, self.reference_point) if feasible else 0.0
@@ -432,7 +433,7 @@ def _population_loop(opt: Optimizer, ctx: RunContext) -> None:
 def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=None, seed=0,
         max_evals=None, max_epochs=None, max_time=None, tol=None, tol_window=DEFAULT_TOL_WINDOW,
         constraint_handling="deb", penalty=1e6, checkpoint: Checkpoint | None = None,
-        reference_point=None) -> Result:
+        reference_point=None, decision_weights=None) -> Result:
     """Run one optimisation with an open evaluator.
 
     Parameters
@@ -448,6 +449,9 @@ def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=No
     reference_point : array_like, optional
         For a problem with several objectives (``fun`` returning f of shape (n, k)): the point
         bounding the hypervolume of the front (needed then, see :class:`RunContext`).
+    decision_weights : array_like, optional
+        Several objectives: the weights of the decision step that picks ``Result.x`` from the
+        front (:func:`heurtune.core.pareto.asf_choice`; equal by default).
 
     Returns
     -------
@@ -472,7 +476,8 @@ def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=No
     rng = np.random.default_rng(seed_seq)
     ctx = RunContext(evaluator, space, compare, max_evals=max_evals, max_epochs=max_epochs,
                      max_time=max_time, tol=tol, tol_window=tol_window, checkpoint=checkpoint,
-                     reference_point=reference_point, multi_objective=info.multi_objective)
+                     reference_point=reference_point, decision_weights=decision_weights,
+                     multi_objective=info.multi_objective)
     opt = info.cls(space, settings, rng, compare)
     details = None
     if info.kind == "driver":

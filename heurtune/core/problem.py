@@ -65,6 +65,9 @@ class Evaluation:
     metrics : (n, k) metric values in the order of ``metric_names`` (NaN when not simulated)
     metric_names : tuple of str
     constraint_names : tuple of str
+    F : (n, k) or None, a problem with several objectives (``objective_names``): their values
+        (``FAILED_OBJECTIVE`` for failed candidates); ``f`` is then the first of them
+    objective_names : tuple of str
     reason : (n,) object array: "" for a simulated candidate, else ``invalid_parameter``,
         ``riccati_failed``, ``invalid_controller``, ``unstable``, ``diverged`` or ``non_finite``
     """
@@ -76,6 +79,8 @@ class Evaluation:
     metric_names: tuple
     constraint_names: tuple
     reason: np.ndarray
+    F: np.ndarray | None = None
+    objective_names: tuple = ()
 
     def to_frame(self) -> pd.DataFrame:
         """One row per candidate: f, feasible, reason, the constraints (g_*) and metrics."""
@@ -108,6 +113,11 @@ class TuningProblem:
     report_columns = None
     # heurtune.core.robust.RobustTuning when the objective aggregates several tuning scenarios.
     robust = None
+    # Several objectives (config problem.objectives): their names, the reference point of the
+    # hypervolume and the weights of the decision step; None for one objective.
+    objective_names = None
+    reference_point = None
+    decision_weights = None
     # Panel names and units of response figures (see DEFAULT_SIGNAL_LABELS).
     signal_labels = DEFAULT_SIGNAL_LABELS
 
@@ -164,9 +174,10 @@ class TuningProblem:
 
     # -- shared -------------------------------------------------------------------------------
     def __call__(self, X):
-        """``(f, g)`` of a batch, the form :func:`heurtune.minimize` and the evaluators take."""
+        """``(f, g)`` of a batch, the form :func:`heurtune.minimize` and the evaluators take
+        (``f`` is (n, k) for a problem with several objectives)."""
         ev = self.evaluate(X)
-        return ev.f, ev.g
+        return (ev.f if ev.F is None else ev.F), ev.g
 
     @property
     def dim(self) -> int:
@@ -286,6 +297,45 @@ class ExperimentBase:
         if not 0 < band < 100:
             raise ConfigError(f"{self.name}: problem.settling_band must lie in (0, 100), got {band}")
         return band
+
+    def _objectives(self, problem: dict, allowed) -> None:
+        """``problem.objectives`` (two or three of ``allowed``), ``reference_point`` (one value
+        per objective, required with them) and ``decision_weights`` (optional, positive) into
+        ``self.objective_names``, ``self.reference_point``, ``self.decision_weights`` (None for
+        one objective)."""
+        names = problem.get("objectives")
+        self.objective_names = self.reference_point = self.decision_weights = None
+        if names is None:
+            for key in ("reference_point", "decision_weights"):
+                if key in problem:
+                    raise ConfigError(f"{self.name}: problem.{key} needs problem.objectives")
+            return
+        if not 2 <= len(names) <= 3 or len(set(names)) != len(names):
+            raise ConfigError(f"{self.name}: problem.objectives must name two or three distinct objectives, got {names}")
+        unknown = [n for n in names if n not in allowed]
+        if unknown:
+            raise ConfigError(f"{self.name}: problem.objectives: unknown objective {unknown[0]!r}; "
+                              f"allowed: {', '.join(allowed)}")
+        ref = problem.get("reference_point")
+        if ref is None or len(ref) != len(names):
+            raise ConfigError(f"{self.name}: problem.reference_point must give one value per objective "
+                              f"({', '.join(names)}): the point bounding the hypervolume")
+        weights = problem.get("decision_weights")
+        if weights is not None and (len(weights) != len(names) or not all(w > 0 for w in weights)):
+            raise ConfigError(f"{self.name}: problem.decision_weights must give one positive weight per objective")
+        self.objective_names = tuple(names)
+        self.reference_point = tuple(float(r) for r in ref)
+        self.decision_weights = None if weights is None else tuple(float(w) for w in weights)
+
+    def _check_multi_objective_optimisers(self) -> None:
+        """With several objectives every ``[[optimisers]]`` entry must take them."""
+        if self.objective_names is None:
+            return
+        for i, opt in enumerate(self.optimisers):
+            if not registry.get(opt["name"]).multi_objective:
+                raise ConfigError(f"{self.name}: optimisers[{i}]: {opt['name']!r} takes one objective and "
+                                  f"problem.objectives names {len(self.objective_names)}; use a multi-objective "
+                                  "optimiser (e.g. nsga2)")
 
     def _override_bounds(self, bounds: dict, given: dict, known, allowed) -> dict:
         """``bounds`` (name -> (lo, hi)) with the config's ``problem.bounds`` over them.

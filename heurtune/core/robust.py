@@ -65,22 +65,30 @@ def aggregate_evaluations(evaluations, aggregate: str = "worst", level: float = 
     n = F.shape[1]
     failed = R != ""
     any_failed = failed.any(axis=0)
-    if aggregate == "worst":
-        f = F.max(axis=0)
-    elif aggregate == "mean":
-        f = F.mean(axis=0)
-    else:
-        k = _tail_count(F.shape[0], level)
-        f = np.sort(F, axis=0)[-k:].mean(axis=0)
     first_failed = np.argmax(failed, axis=0)
     which = np.where(any_failed, first_failed, np.argmax(F, axis=0))
     reason = R[which, np.arange(n)]
-    f = np.where(any_failed, FAILED_OBJECTIVE, f)
+    f = np.where(any_failed, FAILED_OBJECTIVE, _combine(F, aggregate, level))
     g = G.max(axis=0)
     feasible = np.all(np.stack([e.feasible for e in evaluations]), axis=0)
     metrics = np.stack([e.metrics for e in evaluations])[which, np.arange(n)]
     first = evaluations[0]
-    return Evaluation(f, g, feasible, metrics, first.metric_names, first.constraint_names, reason)
+    objectives = None
+    if first.F is not None:  # several objectives: each aggregated the same way
+        objectives = np.where(any_failed[:, None], FAILED_OBJECTIVE,
+                              _combine(np.stack([e.F for e in evaluations]), aggregate, level))
+    return Evaluation(f, g, feasible, metrics, first.metric_names, first.constraint_names, reason,
+                      objectives, first.objective_names)
+
+
+def _combine(values: np.ndarray, aggregate: str, level: float) -> np.ndarray:
+    """Aggregate ``values`` (S, ...) over its first axis (the scenarios)."""
+    if aggregate == "worst":
+        return values.max(axis=0)
+    if aggregate == "mean":
+        return values.mean(axis=0)
+    k = _tail_count(values.shape[0], level)
+    return np.sort(values, axis=0)[-k:].mean(axis=0)
 
 
 @dataclasses.dataclass(frozen=True)

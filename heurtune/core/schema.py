@@ -15,7 +15,7 @@ import math
 
 from heurtune.core.errors import ConfigError
 
-__all__ = ["NUMBER", "PAIR", "OPTIMISERS", "COMMON_SCHEMA", "check"]
+__all__ = ["NUMBER", "PAIR", "OPTIMISERS", "COMMON_SCHEMA", "MULTI_OBJECTIVE_SCHEMA", "check"]
 
 NUMBER = (int, float)
 PAIR = ("pair", NUMBER)
@@ -41,6 +41,10 @@ COMMON_SCHEMA = {
     "plugins": ("list", str),
     "optimisers": OPTIMISERS,
 }
+
+# Keys of a family's [problem] table for several objectives (ExperimentBase._objectives).
+MULTI_OBJECTIVE_SCHEMA = {"objectives": ("list", str), "reference_point": ("list", NUMBER),
+                          "decision_weights": ("list", NUMBER)}
 
 
 def _describe(spec) -> str:

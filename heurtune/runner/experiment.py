@@ -182,7 +182,8 @@ def execute(config: dict, spec: RunSpec, evaluator: Evaluator | None = None, *, 
         checkpoint = None if parts is None else StartsFile(
             Path(parts) / f"{spec.part_name}.starts.parquet", prob.names, _run_key(prob, spec))
         res = run_optimiser(spec.algorithm, ev, space, settings=spec.settings, seed=seed,
-                            checkpoint=checkpoint, **budget)
+                            checkpoint=checkpoint, reference_point=prob.reference_point,
+                            decision_weights=prob.decision_weights, **budget)
     finally:
         if own:
             ev.close()
@@ -196,7 +197,27 @@ def execute(config: dict, spec: RunSpec, evaluator: Evaluator | None = None, *, 
     _add_report(row, prob, res.x)
     hist = res.history.assign(case=spec.case, algorithm=spec.algorithm, optimiser_index=spec.optimiser_index,
                               run=spec.run)
+    if res.front is not None:  # several objectives: the chosen point, the hypervolume, the front
+        row.update({f"f_{name}": float(v) for name, v in zip(prob.objective_names, res.objectives)})
+        row["hypervolume"] = 0.0 - float(res.f)
+        hist["hypervolume"] = 0.0 - hist["best_f"]
+        if parts is not None:
+            write_parquet(_front_table(prob, res.front), Path(parts) / f"{spec.part_name}.pareto.parquet")
     return row, hist
+
+
+def _front_table(prob, front: dict) -> pd.DataFrame:
+    """The final front of a run: the gains, ``f_<objective>``, ``g_<constraint>``, violation,
+    feasible and ``chosen`` (the decision step's pick)."""
+    table = pd.DataFrame(front["X"], columns=list(prob.names))
+    for j, name in enumerate(prob.objective_names):
+        table[f"f_{name}"] = front["F"][:, j]
+    for j, name in enumerate(prob.constraint_names):
+        table[f"g_{name}"] = front["g"][:, j]
+    table["violation"] = front["v"]
+    table["feasible"] = front["v"] <= 0
+    table["chosen"] = np.arange(len(table)) == front["chosen"]
+    return table
 
 
 def _run_key(prob, spec: RunSpec) -> str:
@@ -521,6 +542,9 @@ def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warning
     write_parquet(runs, out_dir / "runs.parquet")
     write_parquet(history, out_dir / "history.parquet")
     _gather_starts(exp, specs, parts, out_dir)
+    pareto = _gather_parts(exp, specs, parts, "pareto")
+    if pareto is not None:
+        write_parquet(pareto, out_dir / "pareto.parquet")
     meta = dict(experiment=exp.name, config=config, plan=plan_key, root_seed=specs[0].root_seed,
                 structure_warnings=structure_warnings,
                 seeds={s.part_name: dict(seed=s.root_seed, spawn_key=list(s.spawn_key)) for s in specs},
@@ -547,25 +571,32 @@ def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warning
     print_summary(runs, exp)
 
 
+def _gather_parts(exp, specs, parts, kind: str) -> pd.DataFrame | None:
+    """The ``parts/<run>.<kind>.parquet`` tables of the finished runs in one table, led by
+    experiment, case, algorithm, optimiser_index, run (None when there are none)."""
+    tables = []
+    for spec in specs:
+        path = parts / f"{spec.part_name}.{kind}.parquet"
+        if (parts / f"{spec.part_name}.run.parquet").exists() and path.exists():
+            tables.append(pd.read_parquet(path).assign(experiment=exp.name, case=spec.case, algorithm=spec.algorithm,
+                                                       optimiser_index=spec.optimiser_index, run=spec.run))
+    if not tables:
+        return None
+    table = pd.concat(tables, ignore_index=True)
+    lead = ["experiment", "case", "algorithm", "optimiser_index", "run"]
+    return table[lead + [c for c in table.columns if c not in lead]]
+
+
 def _gather_starts(exp, specs, parts, out_dir):
     """``starts.parquet``: every local solve of the finished multistart runs (none: no file).
 
     Columns: experiment, case, algorithm, optimiser_index, run, start, round, cap, x0_<name>
     (start point), <name> (the point kept), f, violation, feasible, nit, nfev, success, message.
     """
-    tables = []
-    for spec in specs:
-        path = parts / f"{spec.part_name}.starts.parquet"
-        if (parts / f"{spec.part_name}.run.parquet").exists() and path.exists():
-            t = pd.read_parquet(path)
-            t = t.drop(columns=[c for c in t.columns if c == "run_key" or (c.startswith("g_") and c[2:].isdigit())])
-            tables.append(t.assign(experiment=exp.name, case=spec.case, algorithm=spec.algorithm,
-                                   optimiser_index=spec.optimiser_index, run=spec.run))
-    if not tables:
-        return
-    starts = pd.concat(tables, ignore_index=True)
-    lead = ["experiment", "case", "algorithm", "optimiser_index", "run"]
-    write_parquet(starts[lead + [c for c in starts.columns if c not in lead]], out_dir / "starts.parquet")
+    starts = _gather_parts(exp, specs, parts, "starts")
+    if starts is not None:
+        starts = starts.drop(columns=[c for c in starts.columns if c == "run_key" or (c.startswith("g_") and c[2:].isdigit())])
+        write_parquet(starts, out_dir / "starts.parquet")
 
 
 def _figures(exp, runs, history, best, out_dir):
@@ -581,6 +612,16 @@ def _figures(exp, runs, history, best, out_dir):
             figures.response_figure(prob, x, out_dir / f"responses_{_slug(case)}.png",
                                     scenarios=tuple(prob.scenarios), title=title)
     figures.boxplot_figure(runs, out_dir / "boxplot_best_f.png")
+    if (out_dir / "pareto.parquet").exists():  # several objectives: the best front per optimiser
+        fronts = pd.read_parquet(out_dir / "pareto.parquet")
+        for case in exp.cases:
+            keys = best.loc[best["case"] == case, ["algorithm", "run"]].itertuples(index=False)
+            sel = fronts[(fronts["case"] == case)
+                         & pd.Series(list(zip(fronts["algorithm"], fronts["run"])), index=fronts.index).isin(list(keys))]
+            if len(sel):
+                prob = exp.problem(case)
+                figures.pareto_figure(sel, out_dir / f"pareto_{_slug(case)}.png", prob.objective_names,
+                                      title=f"{exp.name} / {case}: final fronts of the best runs (star: chosen)")
 
 
 def _slug(text: str) -> str:

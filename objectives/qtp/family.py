@@ -14,7 +14,7 @@ from heurtune.core.errors import ConfigError
 from heurtune.core.families import register_family
 from heurtune.core.problem import ExperimentBase
 from heurtune.core.robust import ROBUST_SCHEMA, robust_tuning
-from heurtune.core.schema import COMMON_SCHEMA, NUMBER, PAIR
+from heurtune.core.schema import COMMON_SCHEMA, MULTI_OBJECTIVE_SCHEMA, NUMBER, PAIR
 from heurtune.objectives.qtp.controllers import (
     CONTROLLER_TYPES, PAIRED_TYPES, dc_gain, decision_names, default_bounds, integral_action_obstruction,
 )
@@ -70,6 +70,9 @@ SCHEMA = dict(COMMON_SCHEMA, **{
         "tuning_scenario": str,
         # robust tuning: the objective aggregated over these scenarios, constraints in all
         **ROBUST_SCHEMA,
+        # several objectives (names of `objective`), the hypervolume's reference point, the
+        # decision step's weights
+        **MULTI_OBJECTIVE_SCHEMA,
         # "none": no performance constraints (stability is always required)
         "constraints": ("oneof", ({"Mp": NUMBER, "ts": NUMBER, "ess": NUMBER}, ("none",))),
         "bounds": ("map", PAIR),
@@ -149,6 +152,12 @@ class Experiment(ExperimentBase):
         if self.constraints == "none":
             self.constraints = {}
         self.constraints = self._positive_limits(self.constraints)
+        self._objectives(prob, tuple(OBJECTIVES))
+        if self.objective_names is not None:
+            if "objective" in prob and prob["objective"] != self.objective_names[0]:
+                raise ConfigError(f"{self.name}: problem.objective must be the first of problem.objectives "
+                                  f"({self.objective_names[0]!r}) or left out")
+            self.objective = self.objective_names[0]
         self.settling_band = self._settling_band(prob, 3.0)
         self.tuning_scenario = self._tuning_scenario(prob)
         self.robust = robust_tuning(prob, self.scenarios, self.name)
@@ -161,6 +170,7 @@ class Experiment(ExperimentBase):
         known = {n for kind in CONTROLLER_TYPES for n in decision_names(kind)}
         self.bounds = self._override_bounds(bounds, prob.get("bounds", {}), known, names)
         self._load_optimisers(config)
+        self._check_multi_objective_optimisers()
         self.baselines = self._fixed_controllers(config.get("baselines", []))
         chapter = config.get("report", {}).get("thesis_chapter")
         if chapter is not None and chapter not in THESIS_CHAPTERS:
@@ -250,6 +260,8 @@ class Experiment(ExperimentBase):
                        weights=self.weights, structure_warning=warning)
         prob.baselines = dict(self.baselines.get(case, {}))
         prob.robust = self.robust
+        if self.objective_names is not None:
+            prob.set_objectives(self.objective_names, self.reference_point, self.decision_weights)
         return prob
 
     def write_outputs(self, out_dir, *, runs, history, best, figures: bool = True) -> None:

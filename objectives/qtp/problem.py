@@ -203,8 +203,21 @@ class Problem(TuningProblem):
         out = []
         for s in range(k):
             feasible = (reason[s] == "") & np.all(g[s] <= 0.0, axis=1)
-            out.append(Evaluation(f[s], g[s], feasible, metrics[s], METRIC_NAMES, self.constraint_names, reason[s]))
+            F = None
+            if self.objective_names is not None:
+                F = np.column_stack([metrics[s][:, idx].sum(axis=1) for idx in self._objectives_idx])
+                F[reason[s] != ""] = FAILED_OBJECTIVE
+            out.append(Evaluation(f[s], g[s], feasible, metrics[s], METRIC_NAMES, self.constraint_names, reason[s],
+                                  F, self.objective_names or ()))
         return out
+
+    def set_objectives(self, names, reference_point, decision_weights=None) -> None:
+        """Make this a problem of several objectives (names of :data:`OBJECTIVES`, the first
+        being ``self.objective``): ``evaluate`` then also gives their values as ``F``."""
+        self.objective_names = tuple(names)
+        self.reference_point = tuple(reference_point)
+        self.decision_weights = None if decision_weights is None else tuple(decision_weights)
+        self._objectives_idx = [[_METRIC_INDEX[m] for m in OBJECTIVES[name]] for name in self.objective_names]
 
     def baseline(self, name: str) -> np.ndarray:
         """Decision vector of a fixed controller named in the config's ``[[baselines]]``.
@@ -245,6 +258,9 @@ class Problem(TuningProblem):
             payload["plant"]["model"] = self.loop.plant_model
         if self.robust is not None:
             payload["robust"] = self.robust.identity()
+        if self.objective_names is not None:
+            payload.update(objectives=list(self.objective_names), reference_point=list(self.reference_point),
+                           decision_weights=self.decision_weights and list(self.decision_weights))
         return payload
 
     def margins(self, x) -> pd.DataFrame | None:

@@ -14,11 +14,11 @@ from heurtune.core.errors import ConfigError
 from heurtune.core.families import register_family
 from heurtune.core.problem import ExperimentBase
 from heurtune.core.robust import ROBUST_SCHEMA, robust_tuning
-from heurtune.core.schema import COMMON_SCHEMA, NUMBER, PAIR
+from heurtune.core.schema import COMMON_SCHEMA, MULTI_OBJECTIVE_SCHEMA, NUMBER, PAIR
 from heurtune.objectives.tito import model as tito
 from heurtune.objectives.tito import report, two_tank
 from heurtune.objectives.tito.problem import (
-    DEFAULT_GPM, OBJECTIVES, DesignChain, TITOProblem, default_bounds, fopdt_fit, gain_names,
+    DEFAULT_GPM, MULTI_OBJECTIVES, OBJECTIVES, DesignChain, TITOProblem, default_bounds, fopdt_fit, gain_names,
 )
 from heurtune.objectives.tito.sim import TITOScenario
 
@@ -58,6 +58,7 @@ SCHEMA = dict(COMMON_SCHEMA, **{
         "objective": OBJECTIVES,
         "tuning_scenario": str,
         **ROBUST_SCHEMA,
+        **MULTI_OBJECTIVE_SCHEMA,
         "settling_band": NUMBER,
         "windows": ("map", PAIR),
         "constraints": {"Am": NUMBER, "phim": NUMBER, "Mt": NUMBER, "Ms": NUMBER},
@@ -101,6 +102,13 @@ class TITOExperiment(ExperimentBase):
         self.scenarios = self._scenarios(config.get("scenario", {}))
         prob = config.get("problem", {})
         self.objective = prob.get("objective", "iae")
+        self._objectives(prob, MULTI_OBJECTIVES)
+        if self.objective_names is not None:
+            first = self.objective_names[0]
+            if first not in OBJECTIVES or ("objective" in prob and prob["objective"] != first):
+                raise ConfigError(f"{self.name}: the first of problem.objectives is the problem's objective: one of "
+                                  f"{', '.join(OBJECTIVES)}, equal to problem.objective if given")
+            self.objective = first
         default_c = DEFAULT_BANDWIDTH_CONSTRAINTS if self.objective == "bandwidth" else {}
         self.constraints = self._positive_limits(prob.get("constraints", default_c))
         if self.objective == "bandwidth":
@@ -120,6 +128,7 @@ class TITOExperiment(ExperimentBase):
         self.bounds_config = prob.get("bounds", {})
         self.robustness = dict(config.get("robustness", {}))
         self._load_optimisers(config)
+        self._check_multi_objective_optimisers()
         if not self.optimisers and not self.baselines:
             raise ConfigError(f"{self.name}: give [[optimisers]] or controller.baselines (e.g. [\"gpm\"])")
         self._chains = {}
@@ -229,6 +238,8 @@ class TITOExperiment(ExperimentBase):
                            windows=self.windows, settling_band=self.settling_band, nonlinear=params,
                            robustness=self.robustness, gpm_spec=self.gpm)
         prob.robust = self.robust
+        if self.objective_names is not None:
+            prob.set_objectives(self.objective_names, self.reference_point, self.decision_weights)
         return prob
 
     def write_outputs(self, out_dir, *, runs, history, best, figures: bool = True) -> None:

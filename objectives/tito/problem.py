@@ -50,6 +50,9 @@ from heurtune.core.problem import FAILED_OBJECTIVE, FAILED_VIOLATION, Evaluation
 __all__ = ["TITOProblem", "DesignChain", "gain_names", "default_bounds", "fopdt_fit", "DEFAULT_GPM"]
 
 OBJECTIVES = ("iae", "ise", "itae", "bandwidth")
+TIME_OBJECTIVES = ("iae", "ise", "itae")  # need a simulation
+# What problem.objectives may name: the objectives, and Mt (the larger |T| peak of the loops).
+MULTI_OBJECTIVES = OBJECTIVES + ("Mt",)
 DEFAULT_GPM = {"Am": 3.0, "phim": 60.0}
 DEFAULT_ROBUSTNESS = {"uncertainty": 0.2, "variation": 0.2, "pade_order": 2}
 LOOP_METRICS = ("IAE", "ISE", "ITAE", "ts", "max_u", "rms_e", "tv_u", "Am", "phim", "w_b", "Mt", "Ms")
@@ -369,7 +372,10 @@ class TITOProblem(TuningProblem):
                 except ConfigError:
                     stable[k] = False
         reason[finite & ~stable] = "unstable"
-        time_needed = self.objective != "bandwidth" if with_time is None else with_time or self.objective != "bandwidth"
+        names = self.objective_names or (self.objective,)
+        in_time = any(name in TIME_OBJECTIVES for name in names)
+        time_needed = in_time if with_time is None else with_time or in_time
+        F = np.full((n, len(names)), FAILED_OBJECTIVE)
         for k in range(n):
             if reason[k]:
                 continue
@@ -383,15 +389,12 @@ class TITOProblem(TuningProblem):
                     reason[k] = "diverged"
                     continue
                 self._time_metrics(t, r, y, u, metrics[k])
-            if self.objective == "bandwidth":
-                f[k] = freq[0][0][k] + freq[1][0][k]
-            else:
-                key = self.objective.upper()
-                f[k] = metrics[k, self._midx[f"{key}1"]] + metrics[k, self._midx[f"{key}2"]]
+            F[k] = [self._objective_value(name, metrics[k], freq, k) for name in names]
+            f[k] = F[k, 0]
             g[k] = self._constraint_values(metrics[k])
-            if not (np.isfinite(f[k]) and np.all(np.isfinite(g[k]))):
+            if not (np.all(np.isfinite(F[k])) and np.all(np.isfinite(g[k]))):
                 reason[k] = "non_finite"
-                f[k], g[k] = FAILED_OBJECTIVE, FAILED_VIOLATION
+                F[k], f[k], g[k] = FAILED_OBJECTIVE, FAILED_OBJECTIVE, FAILED_VIOLATION
         # Unstable candidates: graded by how far their margins are from the specification
         # (the design evaluator's violations), so that the search finds its way back.
         for k in np.flatnonzero(reason == "unstable"):
@@ -400,7 +403,27 @@ class TITOProblem(TuningProblem):
         bad = reason != ""
         metrics[bad & (reason != "unstable")] = np.nan
         feasible = ~bad & np.all(g <= 0.0, axis=1)
-        return Evaluation(f, g, feasible, metrics, self.metric_names, self.constraint_names, reason)
+        if self.objective_names is None:
+            return Evaluation(f, g, feasible, metrics, self.metric_names, self.constraint_names, reason)
+        return Evaluation(f, g, feasible, metrics, self.metric_names, self.constraint_names, reason, F,
+                          self.objective_names)
+
+    def _objective_value(self, name: str, row: np.ndarray, freq, k: int) -> float:
+        """One objective of candidate ``k``: ``bandwidth`` is ``-(w_b1 + w_b2)``, ``Mt`` the
+        larger closed-loop peak of the two loops, the others the sum over both loops."""
+        if name == "bandwidth":
+            return float(freq[0][0][k] + freq[1][0][k])
+        if name == "Mt":
+            return float(max(row[self._midx["Mt1"]], row[self._midx["Mt2"]]))
+        key = name.upper()
+        return float(row[self._midx[f"{key}1"]] + row[self._midx[f"{key}2"]])
+
+    def set_objectives(self, names, reference_point, decision_weights=None) -> None:
+        """Make this a problem of several objectives (:data:`MULTI_OBJECTIVES`, the first being
+        ``self.objective``): ``evaluate`` then also gives their values as ``F``."""
+        self.objective_names = tuple(names)
+        self.reference_point = tuple(reference_point)
+        self.decision_weights = None if decision_weights is None else tuple(decision_weights)
 
     def _constraint_values(self, row: np.ndarray) -> np.ndarray:
         out = []
@@ -468,6 +491,9 @@ class TITOProblem(TuningProblem):
         )
         if self.robust is not None:
             payload["robust"] = self.robust.identity()
+        if self.objective_names is not None:
+            payload.update(objectives=list(self.objective_names), reference_point=list(self.reference_point),
+                           decision_weights=self.decision_weights and list(self.decision_weights))
         return payload
 
     def design_table(self) -> pd.DataFrame:

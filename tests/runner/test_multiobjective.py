@@ -1,0 +1,103 @@
+"""Several objectives through the whole runner: config, problems (QTP and TITO), NSGA-II runs,
+pareto.parquet, the decision step and the hypervolume."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import heurtune
+from heurtune.core.errors import ConfigError
+from heurtune.core.families import make_experiment
+from heurtune.core.pareto import hypervolume
+from heurtune.runner.config import load_config
+from heurtune.runner.experiment import run_experiment
+
+THESIS_MIN = ("Q11=0.4431,Q22=0.3027,Q33=0.4434,Q44=1.5722,R11=4.2253,R22=2.5994,Ki1=1.7411,Ki2=7.1716,"
+              "alpha1=0.9814,alpha2=0.8437")
+
+
+def test_qtp_objectives_are_the_named_metric_sums():
+    prob = heurtune.load_experiment("nsga2_folqi_qtp").problem("min")
+    x = prob.parse(THESIS_MIN)
+    X = np.vstack([x, x * 1.03, np.full(prob.dim, np.nan)])
+    ev = prob.evaluate(X)
+    m = pd.DataFrame(ev.metrics, columns=ev.metric_names)
+    np.testing.assert_allclose(ev.F[:2, 0], (m["J1"] + m["J2"])[:2], rtol=0, atol=0)
+    np.testing.assert_allclose(ev.F[:2, 1], (m["IAE1"] + m["IAE2"])[:2], rtol=0, atol=0)
+    assert ev.objective_names == ("effort", "iae") and np.array_equal(ev.f, ev.F[:, 0])
+    assert ev.F[2].tolist() == [1e10, 1e10] and ev.reason[2] == "invalid_parameter"
+    f, g = prob(X)
+    assert f.shape == (3, 2)
+
+
+def test_tito_objectives_bandwidth_and_peak():
+    prob = heurtune.load_experiment("nsga2_pid_qts").problem("qts")
+    single = heurtune.load_experiment("optimal_pid_qts").problem("qts")
+    x = 0.5 * (prob.lower + prob.upper)
+    X = np.vstack([x, 0.3 * prob.lower + 0.7 * prob.upper])
+    ev, ref = prob.evaluate(X), single.evaluate(X)
+    ok = ev.reason == ""
+    assert ok.any()
+    np.testing.assert_array_equal(ev.F[ok, 0], ref.f[ok])  # -(w_b1 + w_b2), as the bandwidth problem's f
+    m = pd.DataFrame(ev.metrics, columns=ev.metric_names)
+    np.testing.assert_array_equal(ev.F[ok, 1], np.maximum(m["Mt1"], m["Mt2"])[ok])
+
+
+def test_robust_and_several_objectives_aggregate_each_objective():
+    config = load_config("nsga2_folqi_qtp")
+    config["problem"].update(tuning_scenarios=["nominal", "+30%"])
+    prob = make_experiment(config).problem("min")
+    x = prob.parse(THESIS_MIN)
+    ev = prob.evaluate(x)
+    per = [prob.evaluate(x, s) for s in ("nominal", "+30%")]
+    np.testing.assert_array_equal(ev.F, np.maximum(per[0].F, per[1].F))
+
+
+@pytest.mark.parametrize("problem, message", [
+    (dict(objectives=["effort", "speed"], reference_point=[1, 1]), "unknown objective 'speed'; allowed: effort"),
+    (dict(objectives=["effort", "iae"]), "reference_point must give one value per objective"),
+    (dict(objectives=["effort"], reference_point=[1]), "two or three distinct objectives"),
+    (dict(reference_point=[1, 1]), "problem.reference_point needs problem.objectives"),
+    (dict(objectives=["effort", "iae"], reference_point=[1, 1], decision_weights=[1, 0]), "one positive weight"),
+    (dict(objectives=["iae", "effort"], reference_point=[1, 1], objective="effort"), "first of problem.objectives"),
+])
+def test_config_errors(problem, message):
+    config = load_config("nsga2_folqi_qtp")
+    config["problem"] = {k: v for k, v in config["problem"].items()
+                         if k not in ("objectives", "reference_point", "objective")}
+    config["problem"].update(problem)
+    with pytest.raises(ConfigError, match=message):
+        make_experiment(config)
+
+
+def test_single_objective_optimisers_are_refused():
+    config = load_config("nsga2_folqi_qtp")
+    config["optimisers"] = [{"name": "cs", "settings": {"n": 5}}]
+    with pytest.raises(ConfigError, match="optimisers\\[0\\]: 'cs' takes one objective"):
+        make_experiment(config)
+
+
+def test_nsga2_run_writes_the_front_and_reports_the_chosen_controller(tmp_path):
+    out = run_experiment("nsga2_folqi_qtp", smoke=True, out=tmp_path / "mo", progress_stream=open("/dev/null", "w"))
+    runs = pd.read_parquet(out / "runs.parquet")
+    fronts = pd.read_parquet(out / "pareto.parquet")
+    history = pd.read_parquet(out / "history.parquet")
+    exp = heurtune.load_experiment("nsga2_folqi_qtp")
+    assert (out / "pareto_min.png").exists()
+    for _, r in runs.iterrows():
+        front = fronts[(fronts["case"] == r["case"]) & (fronts["run"] == r["run"])]
+        chosen = front[front["chosen"]]
+        assert len(chosen) == 1
+        prob = exp.problem(r["case"])
+        x = np.array([r[n] for n in prob.names])
+        np.testing.assert_array_equal(chosen[list(prob.names)].to_numpy()[0], x)
+        assert r["hypervolume"] == -r["best_f"] + 0.0
+        if r["feasible"]:
+            assert r["hypervolume"] == pytest.approx(hypervolume(front[["f_effort", "f_iae"]].to_numpy(),
+                                                                 prob.reference_point))
+            ev = prob.evaluate(x)  # the chosen controller, re-evaluated
+            assert [r["f_effort"], r["f_iae"]] == ev.F[0].tolist()
+        h = history[(history["case"] == r["case"]) & (history["run"] == r["run"])]["hypervolume"].to_numpy()
+        assert np.all(np.diff(h) >= 0)
