@@ -59,6 +59,36 @@ def _compare(label, nominal, robust, X, repeats):
           + f"; robust minus their sum {total - sum(per.values()):+.2f} ms")
 
 
+def _python_overhead(prob, x, scenario, repeats=40):
+    """Milliseconds per simulation spent in ``ClosedLoop.run`` outside the jitted kernel: what
+    one kernel call for several scenarios could save at most."""
+    from heurtune.objectives.qtp import kernels
+
+    ctrl = prob.loop.controller(prob.values(x))
+    sc = prob.scenario(scenario)
+    dc = ctrl.discretise(sc.dt)
+    kernel, spent = kernels.simulate_loop, [0.0]
+
+    def timed(*args):
+        t0 = time.perf_counter()
+        out = kernel(*args)
+        spent[0] += time.perf_counter() - t0
+        return out
+
+    kernels.simulate_loop = timed
+    try:
+        for _ in range(5):
+            prob.loop.run(ctrl, sc, record=False, discrete=dc)
+        spent[0] = 0.0
+        t0 = time.perf_counter()
+        for _ in range(repeats):
+            prob.loop.run(ctrl, sc, record=False, discrete=dc)
+        total = time.perf_counter() - t0
+    finally:
+        kernels.simulate_loop = kernel
+    return 1e3 * total / repeats, 1e3 * (total - spent[0]) / repeats
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeats", type=int, default=5, help="timed evaluations of each batch")
@@ -70,6 +100,9 @@ def main(argv=None):
         robust = heurtune.load_experiment("robust_cs_folqi_qtp").problem("min")
         x = np.array([GAINS[n] for n in nominal.names])
         _compare("QTP min FOLQI", nominal, robust, x * rng.uniform(0.9, 1.1, (25, x.size)), args.repeats)
+        run_ms, outside_ms = _python_overhead(robust, x, "+30%")
+        print(f"    one simulation (ClosedLoop.run) {run_ms:.3f} ms, of which outside the jitted kernel "
+              f"{outside_ms:.3f} ms ({100 * outside_ms / run_ms:.1f} %)")
         nominal = heurtune.load_experiment("ga_pi_ccts").problem("ccts")
         robust = heurtune.load_experiment("robust_ga_pi_ccts").problem("ccts")
         x = nominal.baseline("gpm")

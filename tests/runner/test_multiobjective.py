@@ -101,3 +101,11 @@ def test_nsga2_run_writes_the_front_and_reports_the_chosen_controller(tmp_path):
             assert [r["f_effort"], r["f_iae"]] == ev.F[0].tolist()
         h = history[(history["case"] == r["case"]) & (history["run"] == r["run"])]["hypervolume"].to_numpy()
         assert np.all(np.diff(h) >= 0)
+
+
+@pytest.mark.parametrize("name", ["nsga2_pid_qts", "robust_ga_pi_ccts"])
+def test_tito_robust_and_multiobjective_experiments_run(name, tmp_path):
+    out = run_experiment(name, smoke=True, out=tmp_path / name, figures=False, progress_stream=open("/dev/null", "w"))
+    runs = pd.read_parquet(out / "runs.parquet")
+    assert len(runs) and runs["problem_id"].nunique() == 1
+    assert (out / "pareto.parquet").exists() == (name == "nsga2_pid_qts")
