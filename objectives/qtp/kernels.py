@@ -590,3 +590,26 @@ def simulate_loop(c, level_per_state, h_init, h_op, u_op, ad, bd, state_input, A
     for i in range(N_METRICS):
         metrics[i] = np.nan
     return STATUS_DIVERGED, diverged_at
+
+
+@njit(cache=True, fastmath=_FAST)
+def simulate_scenarios(c, level_per_state, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel,
+                       segments, dt, n_steps, i_out_dist, out_dist, i_in_dist, in_dist, noise,
+                       saturate, u_min, u_max, clip_levels, h_max, band_pct, metrics, status):
+    """:func:`simulate_loop` of one controller under ``S`` scenarios in one call (metrics only).
+
+    The per-scenario inputs are stacked on a first axis of length ``S``: ``c`` (S, 10),
+    ``u_op`` (S, 2), ``i_out_dist``, ``i_in_dist`` (S,) int64, ``out_dist``, ``in_dist`` (S, 2),
+    ``noise`` (S, n_steps + 1, 4) or (S, 0, 4), ``saturate``, ``clip_levels`` (S,) bool,
+    ``u_min``, ``u_max`` (S,), ``h_max`` (S, 4); the controller, ``h_init``, ``h_op``, ``dt``,
+    ``n_steps`` and ``band_pct`` are shared. Writes ``metrics`` (S, N_METRICS) and ``status``
+    (S,), each row exactly what :func:`simulate_loop` gives for that scenario.
+    """
+    y_rec = np.empty((0, 2))
+    u_rec = np.empty((0, 2))
+    h_rec = np.empty((0, 4))
+    for s in range(c.shape[0]):
+        status[s], _ = simulate_loop(c[s], level_per_state, h_init, h_op, u_op[s], ad, bd, state_input, Ad, Bd, Cc,
+                                     Dc, state_channel, segments, dt, n_steps, i_out_dist[s], out_dist[s],
+                                     i_in_dist[s], in_dist[s], noise[s], saturate[s], u_min[s], u_max[s],
+                                     clip_levels[s], h_max[s], band_pct, metrics[s], y_rec, u_rec, h_rec)

@@ -342,7 +342,7 @@ class ClosedLoop:
         """
         if record_levels is None:
             record_levels = record
-        coef, u_op = self._perturbed(scenario.uncertainty)
+        coef, u_op, (saturate, u_lo, u_hi), clip, h_max = self._kernel_inputs(scenario)
         n = scenario.n_steps
         rows = n + 1 if record else 0
         y, u = np.empty((rows, 2)), np.empty((rows, 2))
@@ -350,24 +350,14 @@ class ClosedLoop:
         metrics = np.empty(_kernels.N_METRICS)
         dc = ctrl.discretise(scenario.dt) if discrete is None else discrete
         out_dist, in_dist, noise = self._scenario_arrays(scenario)
-        sat = scenario.saturation
-        clip = scenario.limits == "physical"
         pressure = self.plant_model == "qtp_bond_graph"
         x_op = self.op.h * self._rho_g if pressure else self.op.h  # initial plant state
-        if clip:
-            h_max, u_lo, u_hi = self._physical_limits(u_op)
-            sat = (u_lo, u_hi)
-            if pressure:
-                h_max = h_max * self._rho_g  # tank heights as pressures
-        else:
-            h_max = self.op.h  # not read by the kernel
         status, _ = _kernels.simulate_loop(
             coef, self._level_per_state, x_op, self.op.h, u_op, dc.ad, dc.bd, dc.state_input,
             dc.Ad, dc.Bd, dc.Cc, dc.Dc, dc.state_channel, dc.segments,
             scenario.dt, n, scenario.disturbance_index, out_dist,
             scenario.input_disturbance_index, in_dist,
-            noise, sat is not None, sat[0] if sat else 0.0, sat[1] if sat else 0.0,
-            clip, h_max, float(settling_band), metrics, y, u, h,
+            noise, saturate, u_lo, u_hi, clip, h_max, float(settling_band), metrics, y, u, h,
         )
         t = np.arange(n + 1) * scenario.dt if record or record_levels else None
         P = None
@@ -376,6 +366,56 @@ class ClosedLoop:
         return SimulationResult(t, y if record else None, u if record else None,
                                 h if record_levels else None, status != _kernels.STATUS_OK,
                                 self.op.h.copy(), u_op.copy(), metrics, P)
+
+    def _kernel_inputs(self, scenario: Scenario):
+        """The scenario-dependent kernel inputs of :meth:`run`: plant coefficients, operating
+        voltages, saturation (on, low, high), level clipping and the heights it clips at."""
+        coef, u_op = self._perturbed(scenario.uncertainty)
+        sat = scenario.saturation
+        clip = scenario.limits == "physical"
+        if clip:
+            h_max, u_lo, u_hi = self._physical_limits(u_op)
+            sat = (u_lo, u_hi)
+            if self.plant_model == "qtp_bond_graph":
+                h_max = h_max * self._rho_g  # tank heights as pressures
+        else:
+            h_max = self.op.h  # not read by the kernel
+        return coef, u_op, (sat is not None, sat[0] if sat else 0.0, sat[1] if sat else 0.0), clip, h_max
+
+    def run_scenarios(self, ctrl: LinearController, scenarios, *, settling_band: float = 3.0,
+                      discrete=None) -> list:
+        """Metrics of one controller under several scenarios, in one kernel call
+        (:func:`simulate_scenarios`) when they share ``dt``, the horizon and the form of their
+        noise, else one :meth:`run` each. Returns ``[(diverged, metrics), ...]``, each equal to
+        what :meth:`run` gives with ``record=False``."""
+        scenarios = list(scenarios)
+        first = scenarios[0]
+        noises = [self._scenario_arrays(sc)[2] for sc in scenarios]
+        if len(scenarios) == 1 or any(sc.dt != first.dt or sc.n_steps != first.n_steps for sc in scenarios) \
+                or len({nz.shape for nz in noises}) != 1:
+            out = []
+            for sc in scenarios:
+                sim = self.run(ctrl, sc, settling_band=settling_band, record=False, discrete=discrete)
+                out.append((sim.diverged, sim.metrics))
+            return out
+        dc = ctrl.discretise(first.dt) if discrete is None else discrete
+        inputs = [self._kernel_inputs(sc) for sc in scenarios]
+        arrays = [self._scenario_arrays(sc) for sc in scenarios]
+        S = len(scenarios)
+        metrics = np.empty((S, _kernels.N_METRICS))
+        status = np.empty(S, dtype=np.int64)
+        x_op = self.op.h * self._rho_g if self.plant_model == "qtp_bond_graph" else self.op.h
+        _kernels.simulate_scenarios(
+            np.array([i[0] for i in inputs]), self._level_per_state, x_op, self.op.h, np.array([i[1] for i in inputs]),
+            dc.ad, dc.bd, dc.state_input, dc.Ad, dc.Bd, dc.Cc, dc.Dc, dc.state_channel, dc.segments,
+            first.dt, first.n_steps,
+            np.array([sc.disturbance_index for sc in scenarios], dtype=np.int64), np.array([a[0] for a in arrays]),
+            np.array([sc.input_disturbance_index for sc in scenarios], dtype=np.int64), np.array([a[1] for a in arrays]),
+            np.ascontiguousarray(np.stack(noises)), np.array([i[2][0] for i in inputs]),
+            np.array([i[2][1] for i in inputs], dtype=np.float64), np.array([i[2][2] for i in inputs], dtype=np.float64),
+            np.array([i[3] for i in inputs]), np.array([i[4] for i in inputs], dtype=np.float64),
+            float(settling_band), metrics, status)
+        return [(bool(status[s] != _kernels.STATUS_OK), metrics[s]) for s in range(S)]
 
     def metrics(self, sim: SimulationResult, scenario: Scenario, settling_band: float) -> np.ndarray:
         """Metrics recomputed from a recorded run (:func:`loop_metrics`; NaN when diverged).

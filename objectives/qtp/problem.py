@@ -128,8 +128,10 @@ class Problem(TuningProblem):
     # -- evaluation -------------------------------------------------------------------
     def _evaluate_one(self, x, scenarios: list, metrics_rows: np.ndarray) -> tuple:
         """Per scenario, the reason ("" when simulated), and for an unstable loop its
-        eigenvalue margin. The controller is designed, checked for stability (on the nominal
-        linearisation, which no scenario changes) and discretised once for all scenarios."""
+        eigenvalue margin. The controller is designed and checked for stability (on the nominal
+        linearisation, which no scenario changes) once for all scenarios, discretised once per
+        time step, and simulated under all scenarios of a step in one kernel call
+        (:meth:`~heurtune.objectives.qtp.loop.ClosedLoop.run_scenarios`)."""
         if not np.all(np.isfinite(x)):
             return ["invalid_parameter"] * len(scenarios), 0.0
         try:
@@ -141,17 +143,16 @@ class Problem(TuningProblem):
         margin = self.loop.stability_margin(ctrl)
         if not margin < 0.0:
             return ["unstable"] * len(scenarios), margin
-        reasons, discrete = [], {}
-        for sc, row in zip(scenarios, metrics_rows):
-            if sc.dt not in discrete:
-                discrete[sc.dt] = ctrl.discretise(sc.dt)
-            sim = self.loop.run(ctrl, sc, settling_band=self.settling_band, record=False, discrete=discrete[sc.dt])
-            if sim.diverged:
-                reasons.append("diverged")
-                continue
-            row[:] = sim.metrics
-            reasons.append("" if np.all(np.isfinite(row)) else "non_finite")
-        return reasons, 0.0
+        reasons = []
+        for by_dt in _groups_by_dt(scenarios):  # scenarios sharing a step share the discretisation
+            dc = ctrl.discretise(scenarios[by_dt[0]].dt)
+            runs = self.loop.run_scenarios(ctrl, [scenarios[s] for s in by_dt], settling_band=self.settling_band,
+                                           discrete=dc)
+            for s, (diverged, values) in zip(by_dt, runs):
+                if not diverged:
+                    metrics_rows[s] = values
+                reasons.append((s, "diverged" if diverged else ("" if np.all(np.isfinite(values)) else "non_finite")))
+        return [reason for _, reason in sorted(reasons)], 0.0
 
     def evaluate(self, X, scenario=None) -> Evaluation:
         """Evaluate a batch of candidates.
@@ -331,3 +332,11 @@ class Problem(TuningProblem):
             row["range"] = "; ".join(physical_range_flags(ev.metrics[0], self.loop.plant))
             rows.append(row)
         return pd.DataFrame(rows).set_index("scenario")
+
+
+def _groups_by_dt(scenarios) -> list:
+    """Indices of ``scenarios`` grouped by time step, in order of first appearance."""
+    groups = {}
+    for i, sc in enumerate(scenarios):
+        groups.setdefault(sc.dt, []).append(i)
+    return list(groups.values())

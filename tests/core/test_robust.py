@@ -134,3 +134,28 @@ def test_qtp_scenarios_together_equal_one_by_one():
             np.testing.assert_array_equal(getattr(together, field), getattr(alone, field))
         assert list(together.reason) == list(alone.reason)
     assert {"invalid_parameter", ""} <= set(prob.evaluate(X).reason)
+
+
+@pytest.mark.parametrize("model", ["qtp", "qtp_bond_graph"])
+def test_qtp_kernel_call_for_several_scenarios_equals_one_call_each(model):
+    """ClosedLoop.run_scenarios: one kernel call for scenarios that share dt, horizon and the
+    form of their noise (here uncertainty, physical limits, saturation, disturbances), one
+    call each otherwise (a noisy scenario); every metric equals ClosedLoop.run's."""
+    import dataclasses
+
+    config = load_config("cs_folqi_qtp")
+    config["plant"]["model"] = model
+    prob = make_experiment(config).problem("min")
+    x = prob.parse("Q11=0.4431,Q22=0.3027,Q33=0.4434,Q44=1.5722,R11=4.2253,R22=2.5994,Ki1=1.7411,Ki2=7.1716,"
+                   "alpha1=0.9814,alpha2=0.8437")
+    ctrl = prob.loop.controller(prob.values(x))
+    base = prob.scenario("nominal")
+    scenarios = [base, prob.scenario("+30%"), prob.scenario("-30%"),
+                 dataclasses.replace(base, limits="physical"),
+                 dataclasses.replace(base, saturation=(1.0, 4.0), input_disturbance=(0.2, -0.1))]
+    for group in (scenarios, scenarios[:2] + [dataclasses.replace(base, noise_sd=0.01, noise_seed=3)]):
+        together = prob.loop.run_scenarios(ctrl, group, settling_band=3.0)
+        for sc, (diverged, metrics) in zip(group, together):
+            alone = prob.loop.run(ctrl, sc, settling_band=3.0, record=False)
+            assert diverged == alone.diverged
+            np.testing.assert_array_equal(metrics, alone.metrics)
