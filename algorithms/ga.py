@@ -47,14 +47,20 @@ class GASettings:
             raise ValueError(f"n must be >= 2, got {self.n}")
         if self.n_offspring < 0:
             raise ValueError(f"n_offspring must be >= 0 (0 = n), got {self.n_offspring}")
-        if not self.eta_c >= 0:
-            raise ValueError(f"eta_c must be >= 0, got {self.eta_c}")
-        if not 0 <= self.p_c <= 1:
-            raise ValueError(f"p_c must lie in [0, 1], got {self.p_c}")
-        if not self.eta_m >= 0:
-            raise ValueError(f"eta_m must be >= 0, got {self.eta_m}")
-        if not 0 <= self.p_m <= 1:
-            raise ValueError(f"p_m must lie in [0, 1] (0 = 1/d), got {self.p_m}")
+        check_variation(self)
+
+
+def check_variation(settings) -> None:
+    """The checks of the SBX and mutation settings (``eta_c``, ``p_c``, ``eta_m``, ``p_m``)
+    shared by the optimisers built on these operators (ValueError naming the setting)."""
+    if not settings.eta_c >= 0:
+        raise ValueError(f"eta_c must be >= 0, got {settings.eta_c}")
+    if not 0 <= settings.p_c <= 1:
+        raise ValueError(f"p_c must lie in [0, 1], got {settings.p_c}")
+    if not settings.eta_m >= 0:
+        raise ValueError(f"eta_m must be >= 0, got {settings.eta_m}")
+    if not 0 <= settings.p_m <= 1:
+        raise ValueError(f"p_m must lie in [0, 1] (0 = 1/d), got {settings.p_m}")
 
 
 def tournament(f, v, a, b, coin, compare):

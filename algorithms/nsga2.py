@@ -25,7 +25,7 @@ import dataclasses
 
 import numpy as np
 
-from heurtune.algorithms.ga import polynomial_mutation, sbx
+from heurtune.algorithms.ga import check_variation, polynomial_mutation, sbx
 from heurtune.core.engine import Optimizer
 from heurtune.core.pareto import constrained_ranks, crowding_distance
 from heurtune.core.registry import register
@@ -42,12 +42,7 @@ class NSGA2Settings:
     def __post_init__(self):
         if self.n < 4 or self.n % 2:
             raise ValueError(f"n must be an even number >= 4, got {self.n}")
-        if not self.eta_c >= 0 or not self.eta_m >= 0:
-            raise ValueError(f"eta_c and eta_m must be >= 0, got {self.eta_c}, {self.eta_m}")
-        if not 0 <= self.p_c <= 1:
-            raise ValueError(f"p_c must lie in [0, 1], got {self.p_c}")
-        if not 0 <= self.p_m <= 1:
-            raise ValueError(f"p_m must lie in [0, 1] (0 = 1/d), got {self.p_m}")
+        check_variation(self)
 
 
 def rank_and_crowding(F, v):

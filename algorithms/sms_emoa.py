@@ -25,7 +25,7 @@ import dataclasses
 import moocore
 import numpy as np
 
-from heurtune.algorithms.ga import polynomial_mutation, sbx
+from heurtune.algorithms.ga import check_variation, polynomial_mutation, sbx
 from heurtune.core.engine import Optimizer
 from heurtune.core.pareto import constrained_ranks
 from heurtune.core.registry import register
@@ -42,12 +42,7 @@ class SMSEMOASettings:
     def __post_init__(self):
         if self.n < 3:
             raise ValueError(f"n must be >= 3, got {self.n}")
-        if not self.eta_c >= 0 or not self.eta_m >= 0:
-            raise ValueError(f"eta_c and eta_m must be >= 0, got {self.eta_c}, {self.eta_m}")
-        if not 0 <= self.p_c <= 1:
-            raise ValueError(f"p_c must lie in [0, 1], got {self.p_c}")
-        if not 0 <= self.p_m <= 1:
-            raise ValueError(f"p_m must lie in [0, 1] (0 = 1/d), got {self.p_m}")
+        check_variation(self)
 
 
 def contributions(F) -> np.ndarray:

@@ -372,4 +372,3 @@ def pareto_figure(fronts, path, objectives, title: str = "") -> None:
     if title:
         ax.set_title(title, fontsize=10)
     _save(fig, path)
-

@@ -148,6 +148,24 @@ class TuningProblem:
         """Compile or load the jitted kernels (called in the parent before workers start)."""
 
     # -- optional -----------------------------------------------------------------------------
+    def set_objectives(self, names, reference_point, decision_weights=None) -> None:
+        """Make this a problem of several objectives (the family's names, the first being
+        ``self.objective``): its ``evaluate`` then gives their values as ``F``."""
+        self.objective_names = tuple(names)
+        self.reference_point = tuple(reference_point)
+        self.decision_weights = None if decision_weights is None else tuple(decision_weights)
+
+    def tuning_identity(self) -> dict:
+        """The robust and multi-objective parts of :meth:`identity` (empty when unused, so that
+        problems without them keep their problem_id)."""
+        out = {}
+        if self.robust is not None:
+            out["robust"] = self.robust.identity()
+        if self.objective_names is not None:
+            out.update(objectives=list(self.objective_names), reference_point=list(self.reference_point),
+                       decision_weights=self.decision_weights and list(self.decision_weights))
+        return out
+
     def evaluate_scenarios(self, X, scenarios, **options) -> list:
         """One :class:`Evaluation` of ``X`` per scenario (robust tuning evaluates a candidate's
         scenarios through this; ``options`` go to :meth:`evaluate`). A family overrides it to

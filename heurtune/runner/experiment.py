@@ -595,7 +595,8 @@ def _gather_starts(exp, specs, parts, out_dir):
     """
     starts = _gather_parts(exp, specs, parts, "starts")
     if starts is not None:
-        starts = starts.drop(columns=[c for c in starts.columns if c == "run_key" or (c.startswith("g_") and c[2:].isdigit())])
+        kept_apart = [c for c in starts.columns if c == "run_key" or (c.startswith("g_") and c[2:].isdigit())]
+        starts = starts.drop(columns=kept_apart)
         write_parquet(starts, out_dir / "starts.parquet")
 
 

@@ -87,7 +87,8 @@ SCHEMA = dict(COMMON_SCHEMA, **{
 
 
 @register_family("qtp", models=MODELS, schema=SCHEMA,
-                 description="quadruple tank process (nonlinear, minimum and non-minimum phase) under FOLQI, IOLQI, LQI or LADR")
+                 description="quadruple tank process (nonlinear, minimum and non-minimum phase) under "
+                             "FOLQI, IOLQI, LQI or LADR")
 class Experiment(ExperimentBase):
     """A named experiment config: plant cases, controller, scenario, problem (and optimisers).
 

@@ -213,11 +213,8 @@ class Problem(TuningProblem):
         return out
 
     def set_objectives(self, names, reference_point, decision_weights=None) -> None:
-        """Make this a problem of several objectives (names of :data:`OBJECTIVES`, the first
-        being ``self.objective``): ``evaluate`` then also gives their values as ``F``."""
-        self.objective_names = tuple(names)
-        self.reference_point = tuple(reference_point)
-        self.decision_weights = None if decision_weights is None else tuple(decision_weights)
+        """Several objectives, names of :data:`OBJECTIVES` (see :meth:`TuningProblem.set_objectives`)."""
+        super().set_objectives(names, reference_point, decision_weights)
         self._objectives_idx = [[_METRIC_INDEX[m] for m in OBJECTIVES[name]] for name in self.objective_names]
 
     def baseline(self, name: str) -> np.ndarray:
@@ -257,11 +254,7 @@ class Problem(TuningProblem):
             payload["scenario"].pop("limits", None)
         if self.loop.plant_model != "qtp":
             payload["plant"]["model"] = self.loop.plant_model
-        if self.robust is not None:
-            payload["robust"] = self.robust.identity()
-        if self.objective_names is not None:
-            payload.update(objectives=list(self.objective_names), reference_point=list(self.reference_point),
-                           decision_weights=self.decision_weights and list(self.decision_weights))
+        payload.update(self.tuning_identity())
         return payload
 
     def margins(self, x) -> pd.DataFrame | None:

@@ -418,13 +418,6 @@ class TITOProblem(TuningProblem):
         key = name.upper()
         return float(row[self._midx[f"{key}1"]] + row[self._midx[f"{key}2"]])
 
-    def set_objectives(self, names, reference_point, decision_weights=None) -> None:
-        """Make this a problem of several objectives (:data:`MULTI_OBJECTIVES`, the first being
-        ``self.objective``): ``evaluate`` then also gives their values as ``F``."""
-        self.objective_names = tuple(names)
-        self.reference_point = tuple(reference_point)
-        self.decision_weights = None if decision_weights is None else tuple(decision_weights)
-
     def _constraint_values(self, row: np.ndarray) -> np.ndarray:
         out = []
         for key, lim in self.constraints.items():
@@ -489,11 +482,7 @@ class TITOProblem(TuningProblem):
             scenario=dataclasses.asdict(self.scenario(self.tuning_scenario)), windows=self.windows,
             bounds=dict(zip(self.names, zip(self.lower.tolist(), self.upper.tolist()))),
         )
-        if self.robust is not None:
-            payload["robust"] = self.robust.identity()
-        if self.objective_names is not None:
-            payload.update(objectives=list(self.objective_names), reference_point=list(self.reference_point),
-                           decision_weights=self.decision_weights and list(self.decision_weights))
+        payload.update(self.tuning_identity())
         return payload
 
     def design_table(self) -> pd.DataFrame:

@@ -87,7 +87,8 @@ def test_nsga2_run_writes_the_front_and_reports_the_chosen_controller(tmp_path):
     exp = heurtune.load_experiment("nsga2_folqi_qtp")
     assert (out / "pareto_min.png").exists()
     for _, r in runs.iterrows():
-        front = fronts[(fronts["case"] == r["case"]) & (fronts["run"] == r["run"])]
+        front = fronts[(fronts["case"] == r["case"]) & (fronts["algorithm"] == r["algorithm"])
+                       & (fronts["run"] == r["run"])]
         chosen = front[front["chosen"]]
         assert len(chosen) == 1
         prob = exp.problem(r["case"])
@@ -99,7 +100,8 @@ def test_nsga2_run_writes_the_front_and_reports_the_chosen_controller(tmp_path):
                                                                  prob.reference_point))
             ev = prob.evaluate(x)  # the chosen controller, re-evaluated
             assert [r["f_effort"], r["f_iae"]] == ev.F[0].tolist()
-        h = history[(history["case"] == r["case"]) & (history["run"] == r["run"])]["hypervolume"].to_numpy()
+        h = history[(history["case"] == r["case"]) & (history["algorithm"] == r["algorithm"])
+                    & (history["run"] == r["run"])]["hypervolume"].to_numpy()
         assert np.all(np.diff(h) >= 0)
 
 
