@@ -112,7 +112,8 @@ def test_commands_run_from_their_documented_names():
     command run some of them as subprocesses)."""
     commands = {"experiment": "heurtune.runner.experiment", "evaluate": "heurtune.runner.evaluate",
                 "compare": "heurtune.analysis.compare", "anytime": "heurtune.analysis.anytime",
-                "export": "heurtune.analysis.export", "report": "heurtune.analysis.report"}
+                "export": "heurtune.analysis.export", "report": "heurtune.analysis.report",
+                "check_plugin": "heurtune.runner.check_plugin"}
     for command, module in commands.items():
         shim = importlib.import_module(f"heurtune.{command}")
         assert shim.main is importlib.import_module(module).main, command

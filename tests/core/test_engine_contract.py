@@ -1,9 +1,10 @@
 """Contract tests over every registered optimiser (and a toy plugin defined here).
 
-Every optimiser, merely by being registered, must: keep its evaluations inside the bounds,
-survive NaN and inf objective values, give the same history for the same seed (even after the
-global NumPy RNG is disturbed), different histories for different seeds, and spend a budget of
-evaluations exactly.
+Every optimiser, merely by being registered, must pass the checks of heurtune.core.contract:
+keep its evaluations inside the bounds, survive NaN and inf objective values, give the same
+history for the same seed (even after the global NumPy RNG is disturbed) and different
+histories for different seeds, spend a budget of evaluations exactly, respect a constraint,
+and give the same history on one and two workers.
 """
 
 import dataclasses
@@ -13,12 +14,9 @@ import pytest
 
 import heurtune
 from heurtune.core import registry
+from heurtune.core.contract import CHECKS, LOWER, UPPER, run_checks, sphere
 from heurtune.core.engine import Optimizer
 from heurtune.core.plugins import load_plugin
-
-LOWER = np.array([-2.0, -1.0, 0.0, 5.0])
-UPPER = np.array([3.0, 1.0, 0.5, 6.0])
-
 
 @dataclasses.dataclass(frozen=True)
 class ToySettings:
@@ -49,78 +47,22 @@ def budgets(name):
 NAMES = registry.available()
 
 
-class Recorder:
-    """Objective that remembers every point it saw."""
-
-    def __init__(self, fun):
-        self.fun = fun
-        self.seen = []
-
-    def __call__(self, X):
-        self.seen.append(np.array(X))
-        return self.fun(X)
-
-
-def sphere(X):
-    return ((X - 0.3) ** 2).sum(axis=1)
-
-
+@pytest.mark.parametrize("check", sorted(CHECKS))
 @pytest.mark.parametrize("name", NAMES)
-def test_bounds_are_respected(name):
-    rec = Recorder(sphere)
-    heurtune.minimize(rec, LOWER, UPPER, name, max_evals=300, seed=1, settings=budgets(name))
-    X = np.vstack(rec.seen)
-    assert np.all(X >= LOWER) and np.all(X <= UPPER)
+def test_contract(name, check):
+    """heurtune.core.contract's checks (bounds, NaN/inf, seeds, exact budgets, constraints, one
+    and two workers) on every registered optimiser."""
+    CHECKS[check](name, budgets(name))
 
 
-@pytest.mark.parametrize("name", NAMES)
-def test_nan_and_inf_values_are_survived(name):
-    def nasty(X):
-        f = sphere(X)
-        f[X[:, 0] > 1.0] = np.nan
-        f[X[:, 1] > 0.5] = np.inf
-        return f
+def test_a_broken_optimiser_fails_the_checks():
+    @registry.register("toy_broken", settings=ToySettings, description="test plugin breaking the contract")
+    class Broken(ToyRandomSearch):
+        def ask(self):
+            return np.random.default_rng().uniform(-10, 10, (self.settings.n, self.space.dim))  # unseeded
 
-    res = heurtune.minimize(nasty, LOWER, UPPER, name, max_evals=300, seed=2, settings=budgets(name))
-    assert np.isfinite(res.f) and np.all(res.x >= LOWER) and np.all(res.x <= UPPER)
-    assert res.x[0] <= 1.0 and res.x[1] <= 0.5
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_same_seed_same_history_different_seed_different_history(name):
-    kw = dict(max_evals=200, settings=budgets(name))
-    a = heurtune.minimize(sphere, LOWER, UPPER, name, seed=5, **kw)
-    np.random.seed(123)
-    np.random.random(10)  # a global-RNG poke must change nothing
-    b = heurtune.minimize(sphere, LOWER, UPPER, name, seed=5, **kw)
-    c = heurtune.minimize(sphere, LOWER, UPPER, name, seed=6, **kw)
-    cols = ["epoch", "n_evals", "best_f", "mean_f", "sd_f"]
-    assert a.history[cols].equals(b.history[cols])
-    np.testing.assert_array_equal(a.x, b.x)
-    assert not a.history[cols].equals(c.history[cols])
-
-
-@pytest.mark.parametrize("name", NAMES)
-@pytest.mark.parametrize("budget", [1, 37, 250])
-def test_evaluation_budget_is_exact(name, budget):
-    calls = []
-
-    def counting(X):
-        calls.append(len(X))
-        return sphere(X)
-
-    res = heurtune.minimize(counting, LOWER, UPPER, name, max_evals=budget, seed=3, settings=budgets(name))
-    assert sum(calls) == res.n_evals == budget
-    assert res.stop_reason == "max_evals"
-    assert res.history["n_evals"].iloc[-1] == budget
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_constraints_steer_to_the_feasible_side(name):
-    # minimise x0 subject to x0 >= 1 (g = 1 - x0 <= 0): the optimum sits on the constraint
-    res = heurtune.minimize(lambda X: (X[:, 0], (1.0 - X[:, 0])[:, None]), LOWER, UPPER, name,
-                            max_evals=400, seed=4, settings=budgets(name))
-    assert res.feasible and res.x[0] >= 1.0 and res.f < 2.5
+    failed = {check for check, ok, _ in run_checks("toy_broken") if not ok}
+    assert {"seeds", "workers"} <= failed and "budget" not in failed
 
 
 def test_registry_is_strict():

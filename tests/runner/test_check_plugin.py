@@ -1,0 +1,51 @@
+"""python -m heurtune.check_plugin: the optimiser contract on an out-of-tree plugin."""
+
+import io
+from pathlib import Path
+
+from heurtune.runner.check_plugin import run
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _guide_plugin(tmp_path) -> Path:
+    text = (ROOT / "docs" / "optimisers.md").read_text()
+    start = text.index('```python\n"""Greedy random walk') + len("```python\n")
+    path = tmp_path / "guide_walk.py"
+    path.write_text(text[start:text.index("```", start)].replace('"random_walk"', '"guide_walk"'))
+    return path
+
+
+def test_the_guides_plugin_passes_every_check(tmp_path):
+    out = io.StringIO()
+    assert run([str(_guide_plugin(tmp_path))], stream=out) == 0
+    lines = out.getvalue().splitlines()
+    assert [ln.split()[0] for ln in lines[:-1]] == ["PASS"] * 6
+    assert lines[-1] == "6 of 6 checks passed"
+
+
+def test_a_plugin_breaking_the_contract_fails_with_the_reason(tmp_path):
+    path = tmp_path / "unseeded.py"
+    path.write_text(_guide_plugin(tmp_path).read_text()
+                    .replace('"guide_walk"', '"unseeded_walk"')
+                    .replace("self.rng.normal(size=self.X.shape)", "__import__('numpy').random.normal(size=self.X.shape)"))
+    out = io.StringIO()
+    assert run([str(path)], stream=out) == 1
+    text = out.getvalue()
+    assert "FAIL  unseeded_walk: seeds: the same seed gave another history" in text
+    assert "PASS  unseeded_walk: bounds" in text
+
+
+def test_mistakes_are_one_line_errors(tmp_path, capsys):
+    empty = tmp_path / "empty.py"
+    empty.write_text("x = 1\n")
+    plugin = _guide_plugin(tmp_path)
+    for argv, message in (([str(tmp_path / "nope.py")], "does not exist"),
+                          ([str(empty)], "registers no optimiser"),
+                          ([str(plugin).replace("guide_walk", "guide_walk2"), "--settings", "{"], None)):
+        if message is None:  # a second copy under another name, with bad settings JSON
+            Path(argv[0]).write_text(plugin.read_text().replace('"guide_walk"', '"guide_walk2"'))
+            message = "--settings is not JSON"
+        assert run(argv) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("error: ") and message in err and "\n" not in err
