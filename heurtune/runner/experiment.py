@@ -4,7 +4,7 @@ Usage::
 
     python -m heurtune.experiment NAME [--runs N] [--max-epochs E] [--jobs J] [--seed S]
         [--out DIR] [--smoke] [--fresh] [--backend loky|dask --scheduler ADDRESS]
-        [--plugin FILE_OR_MODULE ...] [--list] [--list-algorithms]
+        [--plugin FILE_OR_MODULE ...] [--list] [--list-algorithms] [--status]
 
 Every (case, optimiser, run) is one tuning run with its own seed,
 ``SeedSequence(root_seed, spawn_key=(case index, optimiser index, run))``, so a run's result
@@ -56,6 +56,7 @@ from heurtune.core.problem import StructureWarning, problem_fingerprint
 from heurtune.runner.config import list_experiments, load_config
 
 __all__ = ["RunSpec", "plan", "execute", "problem_id", "run_status", "RUN_STATUSES", "run_experiment", "summary_table",
+           "status_table",
            "main"]
 
 # Budgets of --smoke: the same problem, a quick check.
@@ -437,6 +438,48 @@ class Progress:
             self.stream.write("\n")
 
 
+PLANNED_FILE = "planned.json"
+
+
+def status_table(root, name: str | None = None) -> pd.DataFrame:
+    """The result folders under ``root`` (those with a ``parts/`` folder; only ``root/name``
+    when a name is given): runs done, runs planned by the last command that ran there, and
+    whether all of them are done and gathered into ``runs.parquet``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns folder, experiment, done, planned (None when the folder predates
+        ``planned.json``), complete.
+    """
+    root = Path(root)
+    folders = [root / name] if name else sorted(p for p in root.iterdir() if (p / "parts").is_dir()) \
+        if root.is_dir() else []
+    rows = []
+    for folder in folders:
+        if not (folder / "parts").is_dir():
+            raise ConfigError(f"{folder} holds no experiment results (no parts/ folder)")
+        done = _finished(folder / "parts")
+        planned_file = folder / PLANNED_FILE
+        planned = json.loads(planned_file.read_text()) if planned_file.exists() else None
+        runs = None if planned is None else planned["runs"]
+        rows.append(dict(folder=str(folder), experiment=planned["experiment"] if planned else folder.name,
+                         done=len(done) if runs is None else len(done & set(runs)),
+                         planned=None if runs is None else len(runs),
+                         complete=runs is not None and set(runs) <= done and (folder / "runs.parquet").exists()))
+    return pd.DataFrame(rows, columns=["folder", "experiment", "done", "planned", "complete"])
+
+
+def _print_status(table: pd.DataFrame, stream=None) -> None:
+    stream = stream or sys.stdout
+    if table.empty:
+        print("no result folders", file=stream)
+    for r in table.itertuples(index=False):
+        planned = "?" if r.planned is None or pd.isna(r.planned) else int(r.planned)
+        state = "complete" if r.complete else "incomplete: run the same command to resume"
+        print(f"{r.folder:40s} {r.experiment:24s} {r.done}/{planned} runs  {state}", file=stream)
+
+
 def _finished(parts: Path) -> set:
     return {p.name[:-len(".run.parquet")] for p in parts.glob("*.run.parquet")}
 
@@ -476,6 +519,8 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     else:
         with atomic_path(meta_path) as tmp:
             tmp.write_text(json.dumps(plan_key))
+    with atomic_path(out_dir / PLANNED_FILE) as tmp:  # what --status compares the parts with
+        tmp.write_text(json.dumps(dict(experiment=exp.name, runs=[s.part_name for s in specs])))
     structure_warnings = exp.structure_warnings()
     for case, msg in structure_warnings.items():
         print(f"warning: {case}: {msg}", file=sys.stderr)
@@ -689,6 +734,9 @@ def _parser():
     ap.add_argument("--plugin", action="append", default=[], help="plugin (optimisers or a plant family): a .py file or module; repeatable")
     ap.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     ap.add_argument("--list", action="store_true", help="list the experiments")
+    ap.add_argument("--status", action="store_true",
+                    help="list the result folders under results/ (or --out) with runs done / planned; "
+                         "with NAME only that experiment's")
     ap.add_argument("--list-algorithms", action="store_true", help="list the optimisers with their settings")
     return ap
 
@@ -701,6 +749,14 @@ def run(argv=None) -> int:
         if args.list:
             for name in list_experiments():
                 print(f"{name:24s} {load_config(name).get('description', '')}")
+            return 0
+        if args.status:
+            root = Path(args.out) if args.out else Path("results")
+            if args.out and (root / "parts").is_dir():  # --out names one result folder
+                root, only = root.parent, root.name
+            else:
+                only = args.name
+            _print_status(status_table(root, only))
             return 0
         if args.list_algorithms:
             for name in registry.available():

@@ -182,3 +182,24 @@ def test_summary_parquet_holds_the_printed_statistics_and_meta_says_where_it_ran
     assert meta["platform"]["cpu_count"] >= 1 and meta["platform"]["cpu"] and meta["platform"]["system"]
     assert isinstance(meta["platform"]["blas"], list)
     assert meta["git_dirty"] in (True, False, None)
+
+
+def test_status_lists_result_folders_with_runs_done_and_planned(tmp_path, capsys):
+    from heurtune.runner.experiment import status_table
+
+    root = tmp_path / "results"
+    assert run(["cs_folqi_qtp", "--smoke", "--out", str(root / "a"), "--no-figures"]) == 0
+    assert run(["ga_pi_ccts", "--smoke", "--out", str(root / "b"), "--no-figures"]) == 0
+    capsys.readouterr()
+    table = status_table(root)
+    assert list(table["experiment"]) == ["cs_folqi_qtp", "ga_pi_ccts"]
+    assert list(table["done"]) == list(table["planned"]) and table["complete"].all()
+    # a lost run and no gathered table: incomplete, and what is missing is counted
+    next((root / "a" / "parts").glob("*.run.parquet")).unlink()
+    (root / "a" / "runs.parquet").unlink()
+    (root / "b" / "planned.json").unlink()  # a folder written before planned.json existed
+    assert run(["--status", "--out", str(root)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert "3/4 runs  incomplete: run the same command to resume" in lines[0]
+    assert "/? runs" in lines[1]
+    assert run(["--status", "--out", str(root / "a")]) == 0 and len(capsys.readouterr().out.splitlines()) == 1
