@@ -74,7 +74,9 @@ def convergence_figure(history: pd.DataFrame, path, case=None) -> None:
 
     One PNG with one panel per case (side by side, at most three per row), one line per
     algorithm: the median over runs of ``best_f`` against ``epoch``, shaded between the 25th and
-    75th percentiles.
+    75th percentiles. When the algorithms of a case spend different numbers of evaluations per
+    epoch (e.g. CS 50, FF 100), the x axis is the number of evaluations instead, so that equal
+    abscissas mean equal work, and each algorithm's line ends where its budget ends.
 
     Runs of different lengths are aligned on the union of the case's epochs: each run's
     ``best_f`` is carried forward from its last recorded epoch (a stopped run keeps its final
@@ -107,15 +109,18 @@ def convergence_figure(history: pd.DataFrame, path, case=None) -> None:
     fig, axes = _panel_grid(len(cases))
     for ax, name in zip(axes, cases):
         d = data[data["case"] == name]
-        epochs = np.sort(pd.unique(d["epoch"]))
+        x = _x_axis(d)
+        epochs = np.sort(pd.unique(d[x]))
         plotted = []
         for alg, g in d.groupby("algorithm", sort=False):
             # A failed best (the sentinel) ranks worst, as +inf: the median stays an order
             # statistic over all runs, so it never rises when a run finds its first candidate.
             f = g["best_f"].astype(float).where(lambda s: s < FAILED_THRESHOLD, np.inf)
-            wide = (g.assign(best_f=f).pivot_table(index="epoch", columns="run", values="best_f",
+            # On evaluations each algorithm spans its own budget (no flat tail past its end).
+            grid = epochs if x == "epoch" else np.sort(pd.unique(g[x]))
+            wide = (g.assign(best_f=f).pivot_table(index=x, columns="run", values="best_f",
                                                    aggfunc="last", dropna=False)
-                    .reindex(epochs).ffill())
+                    .reindex(grid).ffill())
             vals = wide.to_numpy()
             with np.errstate(all="ignore"):
                 q25, q50, q75 = np.nanpercentile(vals, [25, 50, 75], axis=1)
@@ -124,8 +129,8 @@ def convergence_figure(history: pd.DataFrame, path, case=None) -> None:
                 continue
             q25, q50, q75 = q25[ok], q50[ok], np.where(np.isfinite(q75[ok]), q75[ok], np.nan)
             n_runs = wide.shape[1]
-            ax.plot(epochs[ok], q50, color=colors[alg], lw=1.6, label=f"{alg} (n={n_runs})")
-            ax.fill_between(epochs[ok], q25, q75, color=colors[alg], alpha=0.2, lw=0)
+            ax.plot(grid[ok], q50, color=colors[alg], lw=1.6, label=f"{alg} (n={n_runs})")
+            ax.fill_between(grid[ok], q25, q75, color=colors[alg], alpha=0.2, lw=0)
             plotted.append(np.concatenate([q25, q75[np.isfinite(q75)]]))
         ax.grid(alpha=0.3)
         if not plotted:
@@ -135,11 +140,21 @@ def convergence_figure(history: pd.DataFrame, path, case=None) -> None:
             ax.set_yscale("log")
             ax.grid(alpha=0.1, which="minor")
         ax.set_title(f"case {name}")
-        ax.set_xlabel("epoch")
+        ax.set_xlabel("epoch" if x == "epoch" else "evaluations")
         ax.set_ylabel("best objective (median, IQR band)")
         if plotted:
             ax.legend(fontsize=8)
     _save(fig, path)
+
+
+def _x_axis(history: pd.DataFrame) -> str:
+    """``"epoch"``, or ``"n_evals"`` when the algorithms of a case spend different numbers of
+    evaluations per epoch (CS 2n, FF n^2 ...): then epochs would compare unequal work."""
+    if "n_evals" not in history or history["algorithm"].nunique() < 2:
+        return "epoch"
+    per_epoch = history.groupby(["algorithm", "epoch"])["n_evals"].median().unstack("algorithm")
+    common = per_epoch.dropna()
+    return "epoch" if len(common) and (common.nunique(axis=1) == 1).all() else "n_evals"
 
 
 def boxplot_figure(runs: pd.DataFrame, path, metric: str = "best_f") -> None:

@@ -655,6 +655,8 @@ def _figures(exp, runs, history, best, out_dir):
             r = b.iloc[0]
             x = np.array([r[n] for n in prob.names])
             title = f"{exp.name} / {case}: best of {r['algorithm']} (run {r['run']})"
+            if r.get("status", "feasible") != "feasible":  # say so: the "best" is not a solution
+                title += f": {r['status']}" + (f" ({r['failure']})" if r.get("failure") else "")
             figures.response_figure(prob, x, out_dir / f"responses_{_slug(case)}.png",
                                     scenarios=tuple(prob.scenarios), title=title)
     figures.boxplot_figure(runs, out_dir / "boxplot_best_f.png")

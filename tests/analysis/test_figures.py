@@ -102,3 +102,24 @@ def test_response_figure(tmp_path):
     out = tmp_path / "resp.png"
     response_figure(prob, prob.parse(THESIS_X), out, title="CS / FOLQI / min")
     check_png(out)
+
+
+def test_convergence_uses_evaluations_when_epochs_are_unequal_work(tmp_path, monkeypatch):
+    from heurtune.analysis import figures
+
+    figs = []
+    close = figures.plt.close
+    monkeypatch.setattr(figures.plt, "close", lambda fig: (figs.append(fig), close(fig)))
+    rows = []
+    for alg, per_epoch in (("cs", 50), ("firefly", 100)):
+        for run in range(3):
+            for epoch in range(5):
+                rows.append(dict(case="min", algorithm=alg, run=run, epoch=epoch, n_evals=per_epoch * (epoch + 1),
+                                 best_f=10.0 / (epoch + 1) + run))
+    history = pd.DataFrame(rows)
+    convergence_figure(history, tmp_path / "unequal.png")
+    convergence_figure(history.assign(n_evals=50 * (history["epoch"] + 1)), tmp_path / "equal.png")
+    assert figs[0].axes[0].get_xlabel() == "evaluations" and figs[1].axes[0].get_xlabel() == "epoch"
+    # the firefly line ends at 500 evaluations, the CS line at 250
+    ends = sorted(line.get_xdata()[-1] for line in figs[0].axes[0].get_lines())
+    assert ends == [250, 500]
