@@ -403,23 +403,29 @@ def _versions() -> dict:
 
 
 class Progress:
-    """One status line: runs done, evaluations per second, best so far per case."""
+    """One status line: runs done, evaluations per second (of this invocation), and the best so
+    far per case over every finished run, those of an earlier invocation included."""
 
-    def __init__(self, total: int, done: int, stream=sys.stdout):
+    def __init__(self, total: int, done: int, stream=sys.stdout, finished_rows=()):
         self.total, self.done = total, done
         self.stream = stream
         self.tty = stream.isatty()
         self.t0 = time.perf_counter()
         self.evals = 0
         self.best = {}
+        for row in finished_rows:  # runs kept from before a resume
+            self._offer(row)
 
-    def update(self, row: dict):
-        self.done += 1
-        self.evals += row["n_evals"]
+    def _offer(self, row) -> None:
         key = row["case"]
         cand = (not row["feasible"], row["best_f"] if row["feasible"] else row["violation"])
         if key not in self.best or cand < self.best[key][0]:
             self.best[key] = (cand, row["algorithm"])
+
+    def update(self, row: dict):
+        self.done += 1
+        self.evals += row["n_evals"]
+        self._offer(row)
         rate = self.evals / max(time.perf_counter() - self.t0, 1e-9)
         width = 24
         filled = int(width * self.done / max(self.total, 1))
@@ -526,7 +532,8 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
         print(f"warning: {case}: {msg}", file=sys.stderr)
     done = _finished(parts)
     pending = [s for s in specs if s.part_name not in done]
-    bar = Progress(len(specs), len(specs) - len(pending), progress_stream)
+    kept = [pd.read_parquet(parts / f"{s.part_name}.run.parquet").iloc[0] for s in specs if s.part_name in done]
+    bar = Progress(len(specs), len(specs) - len(pending), progress_stream, finished_rows=kept)
     ids = {case: problem_id(exp, case) for case in exp.cases}
     if pending:
         print(f"{exp.name}: {len(pending)} of {len(specs)} runs to do ({len(done)} already done), "

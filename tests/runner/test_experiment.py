@@ -203,3 +203,18 @@ def test_status_lists_result_folders_with_runs_done_and_planned(tmp_path, capsys
     assert "3/4 runs  incomplete: run the same command to resume" in lines[0]
     assert "/? runs" in lines[1]
     assert run(["--status", "--out", str(root / "a")]) == 0 and len(capsys.readouterr().out.splitlines()) == 1
+
+
+def test_progress_shows_the_best_including_runs_kept_from_before_a_resume():
+    import io
+
+    from heurtune.runner.experiment import Progress
+
+    stream = io.StringIO()
+    kept = [pd.Series(dict(case="min", algorithm="cs", feasible=True, best_f=10.0, violation=0.0, n_evals=5))]
+    bar = Progress(3, 1, stream, finished_rows=kept)
+    bar.update(dict(case="min", algorithm="pso", feasible=True, best_f=12.0, violation=0.0, n_evals=5))
+    bar.update(dict(case="nmp", algorithm="pso", feasible=False, best_f=1e10, violation=3.0, n_evals=5))
+    lines = stream.getvalue().splitlines()
+    assert lines[0].startswith("[################........] 2/3 runs") and "best min: 10 [cs]" in lines[0]
+    assert "nmp: 3 (infeasible) [pso]" in lines[1]
