@@ -536,8 +536,10 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     bar = Progress(len(specs), len(specs) - len(pending), progress_stream, finished_rows=kept)
     ids = {case: problem_id(exp, case) for case in exp.cases}
     if pending:
+        where = (f"{jobs} worker(s)" if backend != "dask" and executor is None else
+                 f"the Dask cluster at {scheduler}" if executor is None else "the given executor")
         print(f"{exp.name}: {len(pending)} of {len(specs)} runs to do ({len(done)} already done), "
-              f"{jobs} worker(s), output {out_dir}", file=progress_stream)
+              f"{where}, output {out_dir}", file=progress_stream)
         _run_pending(config, pending, parts, bar, jobs=jobs, backend=backend, scheduler=scheduler, executor=executor)
     bar.close()
     _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, figures=figures)
