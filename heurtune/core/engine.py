@@ -262,6 +262,7 @@ class RunContext:
         self.decision_weights = decision_weights
         self.multi_objective = multi_objective
         self.front = None  # several objectives: (X, F, v, g) of the best candidates seen
+        self.front_chosen = None  # the decision step's pick in it
         self.best_objectives = None
         self.checkpoint = checkpoint if checkpoint is not None else Checkpoint()
         self.space = space
@@ -353,6 +354,7 @@ class RunContext:
         FX, FF, Fv, Fg = self.front
         feasible = bool(Fv[0] <= 0)
         i = asf_choice(FF, self.decision_weights) if feasible else 0
+        self.front_chosen = i
         self.best_x, self.best_g = np.array(FX[i]), np.array(Fg[i])
         self.best_v, self.best_objectives = float(Fv[i]), np.array(FF[i])
         volume = hypervolume(FF, self.reference_point) if feasible else 0.0
@@ -505,8 +507,7 @@ def _front(ctx: RunContext) -> dict | None:
     if ctx.front is None:
         return None
     X, F, v, g = ctx.front
-    chosen = int(np.flatnonzero(np.all(X == ctx.best_x, axis=1))[0])
-    return dict(X=X, F=F, v=v, g=g, chosen=chosen)
+    return dict(X=X, F=F, v=v, g=g, chosen=ctx.front_chosen)
 
 
 def minimize(fun, lower, upper, algorithm: str = "cs", *, constraints=None, max_evals=None,

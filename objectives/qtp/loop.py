@@ -382,40 +382,44 @@ class ClosedLoop:
             h_max = self.op.h  # not read by the kernel
         return coef, u_op, (sat is not None, sat[0] if sat else 0.0, sat[1] if sat else 0.0), clip, h_max
 
-    def run_scenarios(self, ctrl: LinearController, scenarios, *, settling_band: float = 3.0,
-                      discrete=None) -> list:
-        """Metrics of one controller under several scenarios, in one kernel call
-        (:func:`simulate_scenarios`) when they share ``dt``, the horizon and the form of their
-        noise, else one :meth:`run` each. Returns ``[(diverged, metrics), ...]``, each equal to
-        what :meth:`run` gives with ``record=False``."""
+    def run_scenarios(self, ctrl: LinearController, scenarios, *, settling_band: float = 3.0) -> list:
+        """Metrics of one controller under several scenarios. The controller is discretised once
+        per time step, and the scenarios that share the step, the horizon and the form of their
+        noise run in one kernel call (:func:`simulate_scenarios`); a scenario alone in its group
+        runs by :meth:`run`. Returns ``[(diverged, metrics), ...]`` in the order of
+        ``scenarios``, each equal to what :meth:`run` gives with ``record=False``."""
         scenarios = list(scenarios)
-        first = scenarios[0]
-        noises = [self._scenario_arrays(sc)[2] for sc in scenarios]
-        if len(scenarios) == 1 or any(sc.dt != first.dt or sc.n_steps != first.n_steps for sc in scenarios) \
-                or len({nz.shape for nz in noises}) != 1:
-            out = []
-            for sc in scenarios:
-                sim = self.run(ctrl, sc, settling_band=settling_band, record=False, discrete=discrete)
-                out.append((sim.diverged, sim.metrics))
-            return out
-        dc = ctrl.discretise(first.dt) if discrete is None else discrete
-        inputs = [self._kernel_inputs(sc) for sc in scenarios]
-        arrays = [self._scenario_arrays(sc) for sc in scenarios]
-        S = len(scenarios)
-        metrics = np.empty((S, _kernels.N_METRICS))
-        status = np.empty(S, dtype=np.int64)
-        x_op = self.op.h * self._rho_g if self.plant_model == "qtp_bond_graph" else self.op.h
-        _kernels.simulate_scenarios(
-            np.array([i[0] for i in inputs]), self._level_per_state, x_op, self.op.h, np.array([i[1] for i in inputs]),
-            dc.ad, dc.bd, dc.state_input, dc.Ad, dc.Bd, dc.Cc, dc.Dc, dc.state_channel, dc.segments,
-            first.dt, first.n_steps,
-            np.array([sc.disturbance_index for sc in scenarios], dtype=np.int64), np.array([a[0] for a in arrays]),
-            np.array([sc.input_disturbance_index for sc in scenarios], dtype=np.int64), np.array([a[1] for a in arrays]),
-            np.ascontiguousarray(np.stack(noises)), np.array([i[2][0] for i in inputs]),
-            np.array([i[2][1] for i in inputs], dtype=np.float64), np.array([i[2][2] for i in inputs], dtype=np.float64),
-            np.array([i[3] for i in inputs]), np.array([i[4] for i in inputs], dtype=np.float64),
-            float(settling_band), metrics, status)
-        return [(bool(status[s] != _kernels.STATUS_OK), metrics[s]) for s in range(S)]
+        groups = {}
+        for i, sc in enumerate(scenarios):
+            groups.setdefault((sc.dt, sc.n_steps, self._scenario_arrays(sc)[2].shape), []).append(i)
+        discrete, out = {}, [None] * len(scenarios)
+        for (dt, n_steps, _), members in groups.items():
+            if dt not in discrete:
+                discrete[dt] = ctrl.discretise(dt)
+            dc = discrete[dt]
+            if len(members) == 1:
+                sim = self.run(ctrl, scenarios[members[0]], settling_band=settling_band, record=False, discrete=dc)
+                out[members[0]] = (sim.diverged, sim.metrics)
+                continue
+            group = [scenarios[i] for i in members]
+            inputs = [self._kernel_inputs(sc) for sc in group]
+            arrays = [self._scenario_arrays(sc) for sc in group]
+            metrics = np.empty((len(group), _kernels.N_METRICS))
+            status = np.empty(len(group), dtype=np.int64)
+            x_op = self.op.h * self._rho_g if self.plant_model == "qtp_bond_graph" else self.op.h
+            _kernels.simulate_scenarios(
+                np.array([i[0] for i in inputs]), self._level_per_state, x_op, self.op.h,
+                np.array([i[1] for i in inputs]), dc.ad, dc.bd, dc.state_input, dc.Ad, dc.Bd, dc.Cc, dc.Dc,
+                dc.state_channel, dc.segments, dt, n_steps,
+                np.array([sc.disturbance_index for sc in group], dtype=np.int64), np.array([a[0] for a in arrays]),
+                np.array([sc.input_disturbance_index for sc in group], dtype=np.int64),
+                np.array([a[1] for a in arrays]), np.ascontiguousarray(np.stack([a[2] for a in arrays])),
+                np.array([i[2][0] for i in inputs]), np.array([i[2][1] for i in inputs], dtype=np.float64),
+                np.array([i[2][2] for i in inputs], dtype=np.float64), np.array([i[3] for i in inputs]),
+                np.array([i[4] for i in inputs], dtype=np.float64), float(settling_band), metrics, status)
+            for k, i in enumerate(members):
+                out[i] = (bool(status[k] != _kernels.STATUS_OK), metrics[k])
+        return out
 
     def metrics(self, sim: SimulationResult, scenario: Scenario, settling_band: float) -> np.ndarray:
         """Metrics recomputed from a recorded run (:func:`loop_metrics`; NaN when diverged).

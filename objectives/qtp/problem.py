@@ -129,9 +129,9 @@ class Problem(TuningProblem):
     def _evaluate_one(self, x, scenarios: list, metrics_rows: np.ndarray) -> tuple:
         """Per scenario, the reason ("" when simulated), and for an unstable loop its
         eigenvalue margin. The controller is designed and checked for stability (on the nominal
-        linearisation, which no scenario changes) once for all scenarios, discretised once per
-        time step, and simulated under all scenarios of a step in one kernel call
-        (:meth:`~heurtune.objectives.qtp.loop.ClosedLoop.run_scenarios`)."""
+        linearisation, which no scenario changes) once for all scenarios, then simulated by
+        :meth:`~heurtune.objectives.qtp.loop.ClosedLoop.run_scenarios` (one discretisation per
+        time step, one kernel call per group of like scenarios)."""
         if not np.all(np.isfinite(x)):
             return ["invalid_parameter"] * len(scenarios), 0.0
         try:
@@ -144,15 +144,12 @@ class Problem(TuningProblem):
         if not margin < 0.0:
             return ["unstable"] * len(scenarios), margin
         reasons = []
-        for by_dt in _groups_by_dt(scenarios):  # scenarios sharing a step share the discretisation
-            dc = ctrl.discretise(scenarios[by_dt[0]].dt)
-            runs = self.loop.run_scenarios(ctrl, [scenarios[s] for s in by_dt], settling_band=self.settling_band,
-                                           discrete=dc)
-            for s, (diverged, values) in zip(by_dt, runs):
-                if not diverged:
-                    metrics_rows[s] = values
-                reasons.append((s, "diverged" if diverged else ("" if np.all(np.isfinite(values)) else "non_finite")))
-        return [reason for _, reason in sorted(reasons)], 0.0
+        for row, (diverged, values) in zip(metrics_rows, self.loop.run_scenarios(ctrl, scenarios,
+                                                                                 settling_band=self.settling_band)):
+            if not diverged:
+                row[:] = values
+            reasons.append("diverged" if diverged else ("" if np.all(np.isfinite(values)) else "non_finite"))
+        return reasons, 0.0
 
     def evaluate(self, X, scenario=None) -> Evaluation:
         """Evaluate a batch of candidates.
@@ -325,11 +322,3 @@ class Problem(TuningProblem):
             row["range"] = "; ".join(physical_range_flags(ev.metrics[0], self.loop.plant))
             rows.append(row)
         return pd.DataFrame(rows).set_index("scenario")
-
-
-def _groups_by_dt(scenarios) -> list:
-    """Indices of ``scenarios`` grouped by time step, in order of first appearance."""
-    groups = {}
-    for i, sc in enumerate(scenarios):
-        groups.setdefault(sc.dt, []).append(i)
-    return list(groups.values())
