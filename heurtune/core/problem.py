@@ -120,6 +120,10 @@ class TuningProblem:
     decision_weights = None
     # Panel names and units of response figures (see DEFAULT_SIGNAL_LABELS).
     signal_labels = DEFAULT_SIGNAL_LABELS
+    # Where the simulations of an evaluation run (set_device): the devices this family offers,
+    # and the chosen one.
+    devices = ("cpu",)
+    device = "cpu"
 
     # -- what a family implements ---------------------------------------------------------------
     def evaluate(self, X, scenario=None) -> Evaluation:
@@ -148,6 +152,24 @@ class TuningProblem:
         """Compile or load the jitted kernels (called in the parent before workers start)."""
 
     # -- optional -----------------------------------------------------------------------------
+    def set_device(self, device: str) -> None:
+        """Run this problem's simulations on ``device``, one of :attr:`devices`.
+
+        ``"cpu"`` simulates one candidate at a time (the numbers of the shipped experiments);
+        a family may offer ``"cpu-batch"`` (candidates side by side in the CPU's vector lanes)
+        and ``"gpu"`` (one GPU thread per candidate and scenario), whose metrics equal the
+        ``"cpu"`` ones within a stated rounding tolerance.
+
+        Raises
+        ------
+        ConfigError
+            For a device this family does not offer, or one this machine lacks.
+        """
+        if not isinstance(device, str) or device not in self.devices:
+            raise ConfigError(f"device must be one of {', '.join(map(repr, self.devices))} for this plant family, "
+                              f"got {device!r}")
+        self.device = device
+
     def set_objectives(self, names, reference_point, decision_weights=None) -> None:
         """Make this a problem of several objectives (the family's names, the first being
         ``self.objective``): its ``evaluate`` then gives their values as ``F``."""

@@ -142,7 +142,9 @@ _PROBLEMS = {}
 def _problem(config: dict, case: str):
     key = (config["name"], json.dumps(config, sort_keys=True, default=str), case)
     if key not in _PROBLEMS:
-        _PROBLEMS[key] = make_experiment(config).problem(case)
+        prob = make_experiment(config).problem(case)
+        prob.set_device(config.get("device", "cpu"))
+        _PROBLEMS[key] = prob
     return _PROBLEMS[key]
 
 
@@ -498,17 +500,22 @@ def _persist(parts: Path, spec: RunSpec, row: dict, hist: pd.DataFrame):
 
 def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed=None, out=None,
                    smoke=False, fresh=False, backend="loky", scheduler=None, plugins=(),
-                   progress_stream=sys.stdout, figures=True, executor=None) -> Path:
+                   progress_stream=sys.stdout, figures=True, executor=None, device: str = "cpu") -> Path:
     """Run (or resume) an experiment; returns its output folder. See the module docstring.
 
     ``jobs``, ``backend`` and ``scheduler`` say where the runs go (:class:`heurtune.core.execution.Pool`);
-    an ``executor`` (any ``concurrent.futures.Executor``) takes whole runs instead."""
+    an ``executor`` (any ``concurrent.futures.Executor``) takes whole runs instead. ``device``
+    says where each evaluation's simulations run (:meth:`TuningProblem.set_device`)."""
     load_plugins(plugins)
     config = load_config(name)
+    if device != "cpu":
+        config["device"] = device
     if plugins:
         config["plugins"] = list(config.get("plugins", [])) + [str(Path(p).resolve()) if p.endswith(".py") else p
                                                               for p in plugins]
     exp = make_experiment(config)
+    for case in exp.cases:  # an unknown device, or a GPU this machine lacks, fails here
+        _problem(config, case)
     out_dir = Path(out) if out else Path("results") / exp.name
     parts = out_dir / "parts"
     specs = plan(exp, runs=runs, max_epochs=max_epochs, seed=seed, smoke=smoke)
@@ -538,6 +545,8 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     if pending:
         where = (f"{jobs} worker(s)" if backend != "dask" and executor is None else
                  f"the Dask cluster at {scheduler}" if executor is None else "the given executor")
+        if device != "cpu":
+            where += f", simulations on {device}"
         print(f"{exp.name}: {len(pending)} of {len(specs)} runs to do ({len(done)} already done), "
               f"{where}, output {out_dir}", file=progress_stream)
         _run_pending(config, pending, parts, bar, jobs=jobs, backend=backend, scheduler=scheduler, executor=executor)
@@ -741,6 +750,9 @@ def _parser():
     ap.add_argument("--smoke", action="store_true", help="tiny budgets, same problem: a quick check")
     ap.add_argument("--fresh", action="store_true", help="discard earlier results in the output folder")
     ap.add_argument("--backend", default="loky", help="loky (default) or dask")
+    ap.add_argument("--device", default="cpu",
+                    help="where the simulations run: cpu (default, one candidate at a time), cpu-batch "
+                         "(candidates side by side in vector lanes) or gpu (CUDA; pip install 'heurtune[gpu]')")
     ap.add_argument("--scheduler", help="Dask scheduler address, with --backend dask")
     ap.add_argument("--plugin", action="append", default=[], help="plugin (optimisers or a plant family): a .py file or module; repeatable")
     ap.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
@@ -785,7 +797,8 @@ def run(argv=None) -> int:
             raise ConfigError("--backend dask needs --scheduler ADDRESS")
         run_experiment(args.name, runs=args.runs, max_epochs=args.max_epochs, jobs=args.jobs, seed=args.seed,
                        out=args.out, smoke=args.smoke, fresh=args.fresh, backend=args.backend,
-                       scheduler=args.scheduler, plugins=args.plugin, figures=not args.no_figures)
+                       scheduler=args.scheduler, plugins=args.plugin, figures=not args.no_figures,
+                       device=args.device)
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

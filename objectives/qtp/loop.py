@@ -15,6 +15,7 @@ import scipy.linalg.lapack
 
 from heurtune.core.errors import ConfigError
 from heurtune.core.problem import RANGE_RTOL
+from heurtune.objectives.qtp import batch_kernels as _batch_kernels
 from heurtune.objectives.qtp import kernels as _kernels
 from heurtune.objectives.qtp.controllers import LinearController, build_controller
 from heurtune.objectives.qtp.model import QTPParams, linearise, operating_point
@@ -421,6 +422,91 @@ class ClosedLoop:
                 out[i] = (bool(status[k] != _kernels.STATUS_OK), metrics[k])
         return out
 
+    def run_batch(self, ctrls, scenarios, *, settling_band: float = 3.0, device: str = "cpu-batch"):
+        """Metrics of several controllers under several scenarios, candidates side by side.
+
+        Each controller is discretised once per time step; the pairs (controller, scenario)
+        whose scenarios share the step and the horizon and whose discrete controllers share
+        their structure run as the lanes of one call of the batched kernel
+        (:func:`heurtune.objectives.qtp.batch_kernels.simulate_batch` on the CPU, or
+        :func:`heurtune.objectives.qtp.gpu.simulate_lanes` with ``device="gpu"``).
+
+        Parameters
+        ----------
+        ctrls : sequence of LinearController
+        scenarios : sequence of Scenario
+        settling_band : float
+        device : {"cpu-batch", "gpu"}
+
+        Returns
+        -------
+        diverged : (n, S) bool ndarray
+        metrics : (n, S, N_METRICS) ndarray
+            Each pair's metrics equal :meth:`run`'s within the rounding of the controller's sums
+            (see ``tests/objectives/qtp/test_batch_kernels.py`` for the bound).
+        """
+        ctrls, scenarios = list(ctrls), list(scenarios)
+        n, S = len(ctrls), len(scenarios)
+        diverged = np.zeros((n, S), dtype=bool)
+        metrics = np.full((n, S, _kernels.N_METRICS), np.nan)
+        if n == 0 or S == 0:
+            return diverged, metrics
+        steps = {}
+        for s, sc in enumerate(scenarios):
+            steps.setdefault((sc.dt, sc.n_steps), []).append(s)
+        for (dt, n_steps), members in steps.items():
+            groups = {}
+            for i, ctrl in enumerate(ctrls):
+                dc = ctrl.discretise(dt)
+                groups.setdefault(_structure(dc), []).append((i, dc))
+            for lanes in groups.values():
+                pairs = [(i, dc, s) for i, dc in lanes for s in members]
+                status, values = self._simulate_lanes(pairs, [scenarios[s] for s in members], members, dt, n_steps,
+                                                      float(settling_band), device)
+                for (i, _, s), st, row in zip(pairs, status, values):
+                    diverged[i, s] = st != _kernels.STATUS_OK
+                    metrics[i, s] = row
+        return diverged, metrics
+
+    def _simulate_lanes(self, pairs, group, members, dt, n_steps, band, device):
+        """Pack ``pairs`` of (candidate, discrete controller, scenario) of one structure, step
+        and horizon into lane-last arrays and run them on ``device``."""
+        L = len(pairs)
+        first = pairs[0][1]
+        inputs = {s: self._kernel_inputs(sc) for s, sc in zip(members, group)}
+        arrays = {s: self._scenario_arrays(sc) for s, sc in zip(members, group)}
+        noisy = [s for s in members if arrays[s][2].shape[0] > 0]
+        noise = (np.stack([arrays[s][2] for s in noisy]) if noisy else np.zeros((0, n_steps + 1, 4)))
+        noise_index = {s: k for k, s in enumerate(noisy)}
+        by_scenario = {s: sc for s, sc in zip(members, group)}
+
+        def lanes(fn, dtype=np.float64):
+            return np.ascontiguousarray(np.stack([fn(i, dc, s) for i, dc, s in pairs], axis=-1), dtype=dtype)
+
+        x_op = self.op.h * self._rho_g if self.plant_model == "qtp_bond_graph" else self.op.h
+        P = np.empty((_batch_kernels.NP, L))
+        for lane, (_, _, s) in enumerate(pairs):
+            coef, u_op, (saturate, u_lo, u_hi), clip, h_max = inputs[s]
+            sc = by_scenario[s]
+            P[:, lane] = np.concatenate([coef, u_op, [u_lo, u_hi, float(saturate), float(clip)], arrays[s][0],
+                                         arrays[s][1], [sc.disturbance_index, sc.input_disturbance_index], h_max])
+        args = dict(
+            P=P, level_per_state=self._level_per_state, h_init=x_op, h_op=self.op.h,
+            ad=lanes(lambda i, dc, s: dc.ad), bd=lanes(lambda i, dc, s: dc.bd), state_input=first.state_input,
+            Ad=lanes(lambda i, dc, s: dc.Ad), Bd=lanes(lambda i, dc, s: dc.Bd), Cc=lanes(lambda i, dc, s: dc.Cc),
+            Dc=lanes(lambda i, dc, s: dc.Dc), state_channel=first.state_channel, segments=first.segments,
+            dt=float(dt), n_steps=int(n_steps), noise=noise,
+            lane_noise=np.array([noise_index.get(s, -1) for _, _, s in pairs], dtype=np.int64), band_pct=band,
+        )
+        if device == "gpu":
+            from heurtune.objectives.qtp import gpu
+
+            return gpu.simulate_lanes(**args)
+        metrics = np.empty((L, _kernels.N_METRICS))
+        status = np.empty(L, dtype=np.int64)
+        _batch_kernels.simulate_batch(**args, metrics=metrics, status=status)
+        return status, metrics
+
     def metrics(self, sim: SimulationResult, scenario: Scenario, settling_band: float) -> np.ndarray:
         """Metrics recomputed from a recorded run (:func:`loop_metrics`; NaN when diverged).
 
@@ -440,6 +526,12 @@ class ClosedLoop:
         ctrl = LinearController(A, np.zeros((1, 4)), np.zeros((2, 1)), np.zeros((2, 4)), ((0, 1),), (0,))
         self.metrics(self.run(ctrl, sc), sc, 3.0)
         self.run(ctrl, sc, record=False)
+
+
+def _structure(dc) -> tuple:
+    """What the lanes of one batched kernel call share: the discrete controller's shape, the
+    inputs and pumps of its states and its ``segments``."""
+    return (dc.ad.size, dc.Ad.shape[0], dc.state_input.tobytes(), dc.state_channel.tobytes(), dc.segments.tobytes())
 
 
 def physical_range_flags(metrics, plant: QTPParams) -> list[str]:

@@ -20,7 +20,11 @@ from heurtune.objectives.qtp.controllers import ControllerDesignError
 from heurtune.objectives.qtp.loop import METRIC_NAMES, ClosedLoop, Scenario, physical_range_flags
 from heurtune.objectives.qtp.margins import loop_margins
 
-__all__ = ["Problem", "IntegralActionWarning", "STABILITY_CONSTRAINT", "WEIGHTED_METRICS", "OBJECTIVES"]
+# Where a QTP problem's simulations run (TuningProblem.set_device): one candidate at a time, the
+# CPU's vector lanes (heurtune.objectives.qtp.batch_kernels), or a CUDA GPU (.gpu).
+DEVICES = ("cpu", "cpu-batch", "gpu")
+
+__all__ = ["Problem", "DEVICES", "IntegralActionWarning", "STABILITY_CONSTRAINT", "WEIGHTED_METRICS", "OBJECTIVES"]
 
 # Unstable candidates' violations grow with the largest closed-loop real part, up to this cap.
 UNSTABLE_MARGIN_CAP = 1.0e3
@@ -75,6 +79,7 @@ class Problem(TuningProblem):
     """
 
     scenario_type = Scenario
+    devices = DEVICES
     report_columns = ("Mp1", "Mp2", "ts1", "ts2", "ess1", "ess2", "J1", "J2", "J", "hmin", "hmax", "umin", "umax",
                       "feasible", "reason")
     signal_labels = {"output": "tank", "input": "pump", "y_label": "level {i} (cm)",
@@ -126,30 +131,66 @@ class Problem(TuningProblem):
                 f"objective={self.objective!r}, constraints={self.constraints})")
 
     # -- evaluation -------------------------------------------------------------------
-    def _evaluate_one(self, x, scenarios: list, metrics_rows: np.ndarray) -> tuple:
-        """Per scenario, the reason ("" when simulated), and for an unstable loop its
-        eigenvalue margin. The controller is designed and checked for stability (on the nominal
-        linearisation, which no scenario changes) once for all scenarios, then simulated by
-        :meth:`~heurtune.objectives.qtp.loop.ClosedLoop.run_scenarios` (one discretisation per
-        time step, one kernel call per group of like scenarios)."""
+    def _design(self, x):
+        """The controller of candidate ``x`` if it can be designed and its linearised loop is
+        stable, else None; with the reason ("" when designed and stable) and, for an unstable
+        loop, its eigenvalue margin. Design and stability are those of the nominal
+        linearisation, which no scenario changes."""
         if not np.all(np.isfinite(x)):
-            return ["invalid_parameter"] * len(scenarios), 0.0
+            return None, "invalid_parameter", 0.0
         try:
             ctrl = self.loop.controller(dict(zip(self.names, x.tolist())))
         except ControllerDesignError as exc:
-            return [exc.reason] * len(scenarios), 0.0
+            return None, exc.reason, 0.0
         except ConfigError:
-            return ["invalid_parameter"] * len(scenarios), 0.0
+            return None, "invalid_parameter", 0.0
         margin = self.loop.stability_margin(ctrl)
         if not margin < 0.0:
-            return ["unstable"] * len(scenarios), margin
+            return None, "unstable", margin
+        return ctrl, "", 0.0
+
+    @staticmethod
+    def _simulated_reason(diverged, values) -> str:
+        return "diverged" if diverged else ("" if np.all(np.isfinite(values)) else "non_finite")
+
+    def _evaluate_one(self, x, scenarios: list, metrics_rows: np.ndarray) -> tuple:
+        """Per scenario, the reason ("" when simulated), and for an unstable loop its
+        eigenvalue margin. The controller is designed and checked once for all scenarios, then
+        simulated by :meth:`~heurtune.objectives.qtp.loop.ClosedLoop.run_scenarios` (one
+        discretisation per time step, one kernel call per group of like scenarios)."""
+        ctrl, reason, margin = self._design(x)
+        if ctrl is None:
+            return [reason] * len(scenarios), margin
         reasons = []
         for row, (diverged, values) in zip(metrics_rows, self.loop.run_scenarios(ctrl, scenarios,
                                                                                  settling_band=self.settling_band)):
             if not diverged:
                 row[:] = values
-            reasons.append("diverged" if diverged else ("" if np.all(np.isfinite(values)) else "non_finite"))
+            reasons.append(self._simulated_reason(diverged, values))
         return reasons, 0.0
+
+    def _evaluate_batch(self, X, scenarios: list, metrics: np.ndarray, reason: np.ndarray) -> np.ndarray:
+        """:meth:`_evaluate_one` for all candidates at once on the batched device: each
+        candidate is designed here, then every designed candidate under every scenario is one
+        lane of :meth:`~heurtune.objectives.qtp.loop.ClosedLoop.run_batch`. Fills ``metrics``
+        (k, n, N) and ``reason`` (k, n); returns the margins (n,)."""
+        n = X.shape[0]
+        margins = np.zeros(n)
+        designed = []
+        for i in range(n):
+            ctrl, why, margins[i] = self._design(X[i])
+            if ctrl is None:
+                reason[:, i] = why
+            else:
+                designed.append((i, ctrl))
+        diverged, values = self.loop.run_batch([c for _, c in designed], scenarios,
+                                               settling_band=self.settling_band, device=self.device)
+        for j, (i, _) in enumerate(designed):
+            for s in range(len(scenarios)):
+                if not diverged[j, s]:
+                    metrics[s, i] = values[j, s]
+                reason[s, i] = self._simulated_reason(diverged[j, s], values[j, s])
+        return margins
 
     def evaluate(self, X, scenario=None) -> Evaluation:
         """Evaluate a batch of candidates.
@@ -182,8 +223,12 @@ class Problem(TuningProblem):
         f = np.full((k, n), FAILED_OBJECTIVE)
         g = np.full((k, n, m), FAILED_VIOLATION)
         reason = np.empty((k, n), dtype=object)
+        margins = self._evaluate_batch(X, scs, metrics, reason) if self.device != "cpu" else None
         for i in range(n):
-            reason[:, i], margin = self._evaluate_one(X[i], scs, metrics[:, i])
+            if margins is None:
+                reason[:, i], margin = self._evaluate_one(X[i], scs, metrics[:, i])
+            else:
+                margin = margins[i]
             for s in range(k):
                 if reason[s, i] == "":
                     if self._objective_w is None:
@@ -208,6 +253,14 @@ class Problem(TuningProblem):
             out.append(Evaluation(f[s], g[s], feasible, metrics[s], METRIC_NAMES, self.constraint_names, reason[s],
                                   F, self.objective_names or ()))
         return out
+
+    def set_device(self, device: str) -> None:
+        """See :meth:`TuningProblem.set_device`; ``"gpu"`` needs a CUDA GPU (checked here)."""
+        super().set_device(device)
+        if device == "gpu":
+            from heurtune.objectives.qtp import gpu
+
+            gpu.require()
 
     def set_objectives(self, names, reference_point, decision_weights=None) -> None:
         """Several objectives, names of :data:`OBJECTIVES` (see :meth:`TuningProblem.set_objectives`)."""
