@@ -256,11 +256,11 @@ class Problem(TuningProblem):
 
     def set_device(self, device: str) -> None:
         """See :meth:`TuningProblem.set_device`; ``"gpu"`` needs a CUDA GPU (checked here)."""
-        super().set_device(device)
         if device == "gpu":
             from heurtune.objectives.qtp import gpu
 
             gpu.require()
+        super().set_device(device)
 
     def set_objectives(self, names, reference_point, decision_weights=None) -> None:
         """Several objectives, names of :data:`OBJECTIVES` (see :meth:`TuningProblem.set_objectives`)."""

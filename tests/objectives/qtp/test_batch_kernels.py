@@ -1,0 +1,217 @@
+"""The batched QTP simulations (CPU vector lanes and the CUDA kernel) against the one-candidate kernel.
+
+Tolerance. A lane runs the arithmetic of ``simulate_loop`` in the same order, except the sums
+of the controller's states: the one-candidate kernel lets LLVM regroup them (reassociation), a
+lane adds its states in order. That moves the voltages by an ulp or so per step; the stable
+loop keeps the levels within about 1e-14 of the operating level of the one-candidate run, and the
+metrics within ``RTOL = 1e-12`` relative. Two metrics are differences of nearly equal numbers,
+whose rounding is relative to the numbers, not to their difference: ``ess``, the last deviation
+from the operating level in percent of it, is compared with the absolute tolerance
+``ESS_ATOL = 1e-10`` percent (a level within 1e-12 of the operating level), and ``Jdev``, the
+integral of (u - u_op)^2, with ``RTOL`` times ``J``, the integral of u^2. ``TV``, a sum of
+differences of consecutive voltages, gets ``TV_RTOL = 1e-10`` (measured: 2.3e-12). The CUDA
+kernel, run here by Numba's simulator in plain Python (no fused multiply-adds, sums in order),
+gets the same bounds.
+"""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from heurtune.core.errors import ConfigError
+from heurtune.objectives.qtp import gpu
+from heurtune.objectives.qtp.controllers import ControllerDesignError, LinearController
+from heurtune.objectives.qtp.kernels import METRIC_NAMES
+from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
+from heurtune.objectives.qtp.model import preset
+
+RTOL = 1e-12
+ESS_ATOL = 1e-10
+ESS = [METRIC_NAMES.index("ess1"), METRIC_NAMES.index("ess2")]
+JDEV = [METRIC_NAMES.index("Jdev1"), METRIC_NAMES.index("Jdev2")]
+J = [METRIC_NAMES.index("J1"), METRIC_NAMES.index("J2")]
+TV = [METRIC_NAMES.index("TV1"), METRIC_NAMES.index("TV2")]
+TV_RTOL = 1e-10
+
+SCENARIOS = {
+    "nominal": Scenario(horizon=120.0, disturbance_time=20.0),
+    "noise_saturation": Scenario(horizon=80.0, disturbance_time=10.0, noise_sd=0.05, noise_seed=3,
+                                 saturation=(0.0, 4.0)),
+    "uncertain_input_disturbance": Scenario(horizon=80.0, uncertainty=1.3, input_disturbance=(0.3, -0.2),
+                                            input_disturbance_time=20.0),
+    "physical_limits": Scenario(horizon=80.0, disturbance_time=10.0, output_disturbance=(8.0, -8.0),
+                                limits="physical"),
+    "coarse_step": Scenario(horizon=60.0, dt=0.05, disturbance_time=10.0),
+}
+
+
+def stable_controllers(loop, n, seed):
+    """n designable controllers with a stable linearised loop, drawn in the thesis bounds."""
+    from heurtune.objectives.qtp.controllers import decision_names, default_bounds
+
+    names = decision_names(loop.kind)
+    bounds = np.array([default_bounds(loop.kind)[k] for k in names])
+    rng = np.random.default_rng(seed)
+    out = []
+    while len(out) < n:
+        x = bounds[:, 0] + rng.random(len(names)) * (bounds[:, 1] - bounds[:, 0])
+        try:
+            ctrl = loop.controller(dict(zip(names, x)))
+        except ControllerDesignError:
+            continue
+        if loop.stability_margin(ctrl) < 0.0:
+            out.append(ctrl)
+    return out
+
+
+def assert_metrics_close(got, ref):
+    got, ref = np.asarray(got), np.asarray(ref)
+    assert np.array_equal(np.isnan(got), np.isnan(ref))
+    other = [j for j in range(len(METRIC_NAMES)) if j not in ESS + JDEV + TV]
+    np.testing.assert_allclose(got[..., other], ref[..., other], rtol=RTOL, atol=0.0)
+    np.testing.assert_allclose(got[..., TV], ref[..., TV], rtol=TV_RTOL, atol=0.0)
+    np.testing.assert_allclose(got[..., ESS], ref[..., ESS], rtol=0.0, atol=ESS_ATOL)
+    both = ~np.isnan(ref[..., JDEV])
+    assert np.all(np.abs(got[..., JDEV] - ref[..., JDEV])[both] <= RTOL * ref[..., J][both])
+
+
+@pytest.fixture(scope="module")
+def folqi():
+    loop = ClosedLoop(preset("min"), "folqi")
+    return loop, stable_controllers(loop, 10, seed=1)
+
+
+def test_batch_equals_the_one_candidate_kernel(folqi):
+    loop, ctrls = folqi
+    scenarios = list(SCENARIOS.values())
+    diverged, metrics = loop.run_batch(ctrls, scenarios)
+    for s, sc in enumerate(scenarios):
+        ref = [loop.run(c, sc, record=False) for c in ctrls]
+        assert list(diverged[:, s]) == [r.diverged for r in ref]
+        assert_metrics_close(metrics[:, s], [r.metrics for r in ref])
+    # the physical-limits scenario reaches the limits (else it would test nothing)
+    limited = metrics[:, list(SCENARIOS).index("physical_limits")]
+    assert np.nanmin(limited[:, METRIC_NAMES.index("umin")]) == 0.0
+
+
+@pytest.mark.parametrize("kind, plant_model", [("lqi", "qtp"), ("ladr", "qtp"), ("folqi", "qtp_bond_graph")])
+def test_other_structures_and_the_pressure_model(kind, plant_model):
+    loop = ClosedLoop(preset("min"), kind, plant_model=plant_model)
+    ctrls = stable_controllers(loop, 4, seed=2)
+    sc = SCENARIOS["noise_saturation"]
+    diverged, metrics = loop.run_batch(ctrls, [sc])
+    ref = [loop.run(c, sc, record=False) for c in ctrls]
+    assert list(diverged[:, 0]) == [r.diverged for r in ref]
+    assert_metrics_close(metrics[:, 0], [r.metrics for r in ref])
+
+
+def test_a_lane_does_not_depend_on_its_neighbours(folqi):
+    """Bit for bit: a candidate's metrics are the same alone, in another order or in another
+    batch, so that results do not depend on how the work is split."""
+    loop, ctrls = folqi
+    sc = SCENARIOS["noise_saturation"]
+    _, together = loop.run_batch(ctrls, [sc])
+    order = np.random.default_rng(0).permutation(len(ctrls))
+    _, shuffled = loop.run_batch([ctrls[i] for i in order], [sc])
+    np.testing.assert_array_equal(shuffled[:, 0], together[order, 0])
+    _, alone = loop.run_batch(ctrls[3:4], [sc])
+    np.testing.assert_array_equal(alone[0, 0], together[3, 0])
+
+
+def test_a_diverging_lane_is_flagged_and_leaves_the_others_alone(folqi):
+    loop, ctrls = folqi
+    D = np.zeros((2, 4))
+    D[0, 0] = D[1, 1] = 1e4  # strong positive feedback: floods and empties tanks
+    bad = LinearController(np.zeros((0, 0)), np.zeros((0, 4)), np.zeros((2, 0)), D, (), ())
+    sc = SCENARIOS["nominal"]
+    diverged, metrics = loop.run_batch([ctrls[0], bad, ctrls[1]], [sc])
+    assert list(diverged[:, 0]) == [False, True, False]
+    assert np.isnan(metrics[1, 0]).all()
+    ref = [loop.run(c, sc, record=False).metrics for c in ctrls[:2]]
+    assert_metrics_close(metrics[[0, 2], 0], ref)
+
+
+def test_problem_on_the_batched_device_equals_cpu():
+    import heurtune
+
+    prob = heurtune.load_experiment("cs_folqi_qtp").problem("min")
+    rng = np.random.default_rng(4)
+    X = prob.lower + rng.random((12, prob.dim)) * (prob.upper - prob.lower)
+    scs = [Scenario(horizon=60.0, disturbance_time=10.0), SCENARIOS["noise_saturation"]]
+    ref = prob.evaluate_scenarios(X, scs)
+    prob.set_device("cpu-batch")
+    got = prob.evaluate_scenarios(X, scs)
+    for a, b in zip(ref, got):
+        assert list(a.reason) == list(b.reason)
+        assert set(a.reason) >= {"", "unstable"}  # both kinds of candidate in the batch
+        assert_metrics_close(b.metrics, a.metrics)
+        np.testing.assert_array_equal(a.feasible, b.feasible)
+        np.testing.assert_allclose(b.f, a.f, rtol=RTOL)
+        np.testing.assert_allclose(b.g, a.g, rtol=RTOL, atol=1e-12)
+
+
+def test_device_errors(monkeypatch):
+    import heurtune
+
+    prob = heurtune.load_experiment("cs_folqi_qtp").problem("min")
+    with pytest.raises(ConfigError, match="device must be one of 'cpu', 'cpu-batch', 'gpu'.*got 'tpu'"):
+        prob.set_device("tpu")
+    monkeypatch.setattr(gpu, "available", lambda: False)
+    with pytest.raises(ConfigError, match=r"device 'gpu' needs an NVIDIA GPU.*pip install 'heurtune\[gpu\]'"):
+        prob.set_device("gpu")
+    assert prob.device == "cpu"
+
+
+def test_runner_rejects_a_device_without_a_gpu(tmp_path, capsys, monkeypatch):
+    from heurtune.runner import experiment
+
+    monkeypatch.setattr(gpu, "available", lambda: False)
+    code = experiment.run(["cs_folqi_qtp", "--smoke", "--device", "gpu", "--out", str(tmp_path / "r")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and err[0].startswith("error: device 'gpu' needs an NVIDIA GPU")
+    assert not (tmp_path / "r" / "parts").exists()
+
+
+_SIMULATED_GPU = r"""
+import json, sys
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+from test_batch_kernels import SCENARIOS, stable_controllers
+from heurtune.objectives.qtp import gpu
+from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
+from heurtune.objectives.qtp.model import preset
+from heurtune.objectives.qtp.controllers import LinearController
+
+assert gpu.available()
+loop = ClosedLoop(preset("min"), "folqi")
+ctrls = stable_controllers(loop, 2, seed=5)
+D = np.zeros((2, 4)); D[0, 0] = D[1, 1] = 1e4
+ctrls.append(LinearController(np.zeros((0, 0)), np.zeros((0, 4)), np.zeros((2, 0)), D, (), ()))
+scs = [Scenario(horizon=3.0, disturbance_time=1.0),
+       Scenario(horizon=3.0, disturbance_time=1.0, noise_sd=0.05, saturation=(0.0, 3.0),
+                input_disturbance=(0.2, 0.1), input_disturbance_time=0.5),
+       Scenario(horizon=3.0, disturbance_time=0.5, output_disturbance=(8.0, -8.0), limits="physical")]
+diverged, metrics = loop.run_batch(ctrls, scs, device="gpu")
+ref = [[loop.run(c, sc, record=False) for sc in scs] for c in ctrls]
+print(json.dumps(dict(diverged=diverged.tolist(), metrics=metrics.tolist(),  # NaN travels as JSON NaN
+                      ref_diverged=[[r.diverged for r in row] for row in ref],
+                      ref=[[r.metrics.tolist() for r in row] for row in ref])))
+"""
+
+
+def test_gpu_kernel_under_the_cuda_simulator():
+    """The CUDA kernel, run by Numba's CUDA simulator: 3 controllers (one diverging) under 3
+    scenarios (saturation with noise and an input disturbance, physical limits), 300 steps."""
+    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
+    here = os.path.dirname(__file__)
+    out = subprocess.run([sys.executable, "-c", _SIMULATED_GPU, here], env=env, capture_output=True, text=True,
+                         timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    assert res["diverged"] == res["ref_diverged"]
+    assert res["diverged"][2][0] and not any(res["diverged"][0])  # limits and saturation hold the flood
+    assert_metrics_close(np.array(res["metrics"]), np.array(res["ref"]))
