@@ -461,40 +461,39 @@ class ClosedLoop:
                 groups.setdefault(_structure(dc), []).append((i, dc))
             for lanes in groups.values():
                 pairs = [(i, dc, s) for i, dc in lanes for s in members]
-                status, values = self._simulate_lanes(pairs, [scenarios[s] for s in members], members, dt, n_steps,
+                status, values = self._simulate_lanes(pairs, {s: scenarios[s] for s in members}, dt, n_steps,
                                                       float(settling_band), device)
                 for (i, _, s), st, row in zip(pairs, status, values):
                     diverged[i, s] = st != _kernels.STATUS_OK
                     metrics[i, s] = row
         return diverged, metrics
 
-    def _simulate_lanes(self, pairs, group, members, dt, n_steps, band, device):
-        """Pack ``pairs`` of (candidate, discrete controller, scenario) of one structure, step
-        and horizon into lane-last arrays and run them on ``device``."""
+    def _simulate_lanes(self, pairs, by_scenario, dt, n_steps, band, device):
+        """Pack ``pairs`` of (candidate, discrete controller, scenario index) of one structure,
+        step and horizon into lane-last arrays (``by_scenario``: index to Scenario) and run
+        them on ``device``."""
         L = len(pairs)
         first = pairs[0][1]
-        inputs = {s: self._kernel_inputs(sc) for s, sc in zip(members, group)}
-        arrays = {s: self._scenario_arrays(sc) for s, sc in zip(members, group)}
-        noisy = [s for s in members if arrays[s][2].shape[0] > 0]
-        noise = (np.stack([arrays[s][2] for s in noisy]) if noisy else np.zeros((0, n_steps + 1, 4)))
+        inputs = {s: self._kernel_inputs(sc) for s, sc in by_scenario.items()}
+        arrays = {s: self._scenario_arrays(sc) for s, sc in by_scenario.items()}
+        noisy = [s for s in by_scenario if arrays[s][2].shape[0] > 0]
+        noise = np.stack([arrays[s][2] for s in noisy]) if noisy else np.zeros((0, n_steps + 1, 4))
         noise_index = {s: k for k, s in enumerate(noisy)}
-        by_scenario = {s: sc for s, sc in zip(members, group)}
-
-        def lanes(fn, dtype=np.float64):
-            return np.ascontiguousarray(np.stack([fn(i, dc, s) for i, dc, s in pairs], axis=-1), dtype=dtype)
-
-        x_op = self.op.h * self._rho_g if self.plant_model == "qtp_bond_graph" else self.op.h
         P = np.empty((_batch_kernels.NP, L))
         for lane, (_, _, s) in enumerate(pairs):
             coef, u_op, (saturate, u_lo, u_hi), clip, h_max = inputs[s]
             sc = by_scenario[s]
             P[:, lane] = np.concatenate([coef, u_op, [u_lo, u_hi, float(saturate), float(clip)], arrays[s][0],
                                          arrays[s][1], [sc.disturbance_index, sc.input_disturbance_index], h_max])
+
+        def lanes(name):  # a discrete controller's array, the lanes on a last axis
+            return np.ascontiguousarray(np.stack([getattr(dc, name) for _, dc, _ in pairs], axis=-1))
+
         args = dict(
-            P=P, level_per_state=self._level_per_state, h_init=x_op, h_op=self.op.h,
-            ad=lanes(lambda i, dc, s: dc.ad), bd=lanes(lambda i, dc, s: dc.bd), state_input=first.state_input,
-            Ad=lanes(lambda i, dc, s: dc.Ad), Bd=lanes(lambda i, dc, s: dc.Bd), Cc=lanes(lambda i, dc, s: dc.Cc),
-            Dc=lanes(lambda i, dc, s: dc.Dc), state_channel=first.state_channel, segments=first.segments,
+            P=P, level_per_state=self._level_per_state,
+            h_init=self.op.h * self._rho_g if self.plant_model == "qtp_bond_graph" else self.op.h, h_op=self.op.h,
+            ad=lanes("ad"), bd=lanes("bd"), state_input=first.state_input, Ad=lanes("Ad"), Bd=lanes("Bd"),
+            Cc=lanes("Cc"), Dc=lanes("Dc"), state_channel=first.state_channel, segments=first.segments,
             dt=float(dt), n_steps=int(n_steps), noise=noise,
             lane_noise=np.array([noise_index.get(s, -1) for _, _, s in pairs], dtype=np.int64), band_pct=band,
         )
