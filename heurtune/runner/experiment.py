@@ -51,6 +51,7 @@ from heurtune.core.evaluator import Evaluator
 from heurtune.core.execution import BACKENDS, Pool
 from heurtune.core.families import make_experiment
 from heurtune.core.io import atomic_path, write_parquet
+from heurtune.core.lockstep import Lockstep
 from heurtune.core.plugins import load_plugins
 from heurtune.core.problem import StructureWarning, problem_fingerprint
 from heurtune.runner.config import list_experiments, load_config
@@ -500,12 +501,18 @@ def _persist(parts: Path, spec: RunSpec, row: dict, hist: pd.DataFrame):
 
 def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed=None, out=None,
                    smoke=False, fresh=False, backend="loky", scheduler=None, plugins=(),
-                   progress_stream=sys.stdout, figures=True, executor=None, device: str = "cpu") -> Path:
+                   progress_stream=sys.stdout, figures=True, executor=None, device: str = "cpu",
+                   lockstep: bool | None = None) -> Path:
     """Run (or resume) an experiment; returns its output folder. See the module docstring.
 
     ``jobs``, ``backend`` and ``scheduler`` say where the runs go (:class:`heurtune.core.execution.Pool`);
     an ``executor`` (any ``concurrent.futures.Executor``) takes whole runs instead. ``device``
-    says where each evaluation's simulations run (:meth:`TuningProblem.set_device`)."""
+    says where each evaluation's simulations run (:meth:`TuningProblem.set_device`). With
+    ``lockstep`` the pending runs advance together, each generation's candidates of all runs of
+    a case evaluated as one batch (:mod:`heurtune.core.lockstep`; same results); by default on
+    for the batched devices."""
+    if lockstep is None:
+        lockstep = device != "cpu"
     load_plugins(plugins)
     config = load_config(name)
     if device != "cpu":
@@ -547,21 +554,27 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
                  f"the Dask cluster at {scheduler}" if executor is None else "the given executor")
         if device != "cpu":
             where += f", simulations on {device}"
+        if lockstep:
+            where += ", runs in lockstep"
         print(f"{exp.name}: {len(pending)} of {len(specs)} runs to do ({len(done)} already done), "
               f"{where}, output {out_dir}", file=progress_stream)
-        _run_pending(config, pending, parts, bar, jobs=jobs, backend=backend, scheduler=scheduler, executor=executor)
+        _run_pending(config, pending, parts, bar, jobs=jobs, backend=backend, scheduler=scheduler, executor=executor,
+                     lockstep=lockstep)
     bar.close()
     _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, figures=figures)
     return out_dir
 
 
-def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler, executor=None):
+def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler, executor=None, lockstep=False):
     for spec in [s for s in pending if s.baseline]:  # analytic designs: one evaluation each
         row, hist = execute(config, spec)
         _persist(parts, spec, row, hist)
         bar.update(row)
     pending = [s for s in pending if not s.baseline]
     if not pending:
+        return
+    if lockstep:
+        _run_lockstep(config, pending, parts, bar, jobs=jobs, backend=backend, scheduler=scheduler, executor=executor)
         return
     whole_runs = backend == "dask" or executor is not None or (jobs > 1 and len(pending) >= jobs)
     if not whole_runs:
@@ -585,6 +598,25 @@ def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler, execu
     except BaseException:
         pool.abort()
         raise
+
+
+def _run_lockstep(config, pending, parts, bar, *, jobs, backend, scheduler, executor=None):
+    """All pending runs in lockstep (:class:`heurtune.core.lockstep.Lockstep`): each generation,
+    the candidates of every run of a case are evaluated as one batch, spread over the workers."""
+    cases = sorted({spec.case for spec in pending})
+    evaluators = {case: Evaluator(_problem(config, case), n_jobs=jobs, backend=backend, scheduler=scheduler,
+                                  executor=executor) for case in cases}
+    hub = Lockstep(lambda case, X: evaluators[case](X))
+    try:
+        for ev in evaluators.values():
+            ev.open()
+        targets = [functools.partial(execute, config, spec, hub.client(spec.case), parts=parts) for spec in pending]
+        for i, (row, hist) in hub.run(targets):
+            _persist(parts, pending[i], row, hist)
+            bar.update(row)
+    finally:
+        for ev in evaluators.values():
+            ev.close()
 
 
 def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, *, figures):
@@ -753,6 +785,9 @@ def _parser():
     ap.add_argument("--device", default="cpu",
                     help="where the simulations run: cpu (default, one candidate at a time), cpu-batch "
                          "(candidates side by side in vector lanes) or gpu (CUDA; pip install 'heurtune[gpu]')")
+    ap.add_argument("--lockstep", action=argparse.BooleanOptionalAction, default=None,
+                    help="advance the runs together, each generation of all runs evaluated as one batch "
+                         "(same results; default: on with --device cpu-batch or gpu)")
     ap.add_argument("--scheduler", help="Dask scheduler address, with --backend dask")
     ap.add_argument("--plugin", action="append", default=[], help="plugin (optimisers or a plant family): a .py file or module; repeatable")
     ap.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
@@ -798,7 +833,7 @@ def run(argv=None) -> int:
         run_experiment(args.name, runs=args.runs, max_epochs=args.max_epochs, jobs=args.jobs, seed=args.seed,
                        out=args.out, smoke=args.smoke, fresh=args.fresh, backend=args.backend,
                        scheduler=args.scheduler, plugins=args.plugin, figures=not args.no_figures,
-                       device=args.device)
+                       device=args.device, lockstep=args.lockstep)
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

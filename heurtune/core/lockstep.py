@@ -1,0 +1,196 @@
+"""Several optimisation runs advanced in lockstep, their evaluations gathered into one batch.
+
+Each run keeps its own thread, generator, optimiser and termination, exactly as when it runs
+alone; only its evaluator is replaced by a :class:`Client` of a shared :class:`Lockstep`. A
+client's call blocks until every run that is still going has asked for something too; then the
+requests of all runs are evaluated together, one batch per problem, and each run gets its own
+rows back. Since a candidate's evaluation does not depend on the other candidates of its batch
+(the one-candidate kernel trivially, the batched kernels by construction and test), every run
+computes exactly what it would alone, whatever the number of runs, workers or devices.
+
+A driver's ``map_unordered`` (e.g. the local solves of ``sqp_multistart``) runs each item in a
+thread of its own that takes part in the lockstep, so the local solves of all runs share the
+batches too. Python threads only take turns (the GIL); the point is the batch, which the
+evaluator then spreads over its workers or hands to a batched kernel.
+"""
+
+from __future__ import annotations
+
+import itertools
+import threading
+
+import numpy as np
+
+__all__ = ["Lockstep", "Client", "LockstepAborted"]
+
+
+class LockstepAborted(Exception):
+    """Raised in a run's thread when the lockstep stops early (another run failed, or Ctrl-C)."""
+
+
+class Client:
+    """What a run sees as its evaluator: ``client(X) -> (f, g)`` through the lockstep.
+
+    It offers what :class:`heurtune.core.engine.RunContext` uses of an evaluator: the call,
+    ``objective`` (for a driver's tasks) and ``pool.imap_unordered`` (for a driver's work units).
+    """
+
+    def __init__(self, hub: "Lockstep", group):
+        self.hub = hub
+        self.group = group
+
+    def __call__(self, X):
+        return self.hub.submit(self.group, X)
+
+    @property
+    def objective(self):
+        return self
+
+    @property
+    def pool(self):
+        return self
+
+    workers = 1
+
+    def imap_unordered(self, fn, items):
+        """Run ``fn(item)`` for every item, each in a thread of the lockstep; yield
+        ``(index, result)`` in order once all have ended."""
+        return self.hub.fan_out(fn, items)
+
+
+class Lockstep:
+    """Gathers the evaluations of the runs it drives (see the module docstring).
+
+    Parameters
+    ----------
+    evaluate : callable
+        ``evaluate(group, X) -> (f, g)`` for a batch of one group (e.g. the runs' case).
+    """
+
+    def __init__(self, evaluate):
+        self._evaluate = evaluate
+        self._cond = threading.Condition()
+        self._clients = 0  # threads that may still ask for evaluations
+        self._tickets = itertools.count()
+        self._requests = {}  # ticket -> (group, X), while its thread waits
+        self._answers = {}
+        self._finished = []  # (index, result, error) of ended runs
+        self._abort = False
+        self.batches = []  # sizes of the batches evaluated (for tests and reports)
+
+    def client(self, group) -> Client:
+        return Client(self, group)
+
+    # -- the runs' side ----------------------------------------------------------------------
+    def submit(self, group, X):
+        """Wait until every running thread has asked too, then return this request's (f, g)."""
+        X = np.ascontiguousarray(X, dtype=np.float64)
+        with self._cond:
+            if self._abort:
+                raise LockstepAborted
+            ticket = next(self._tickets)
+            self._requests[ticket] = (group, X)
+            self._cond.notify_all()
+            while ticket not in self._answers and not self._abort:
+                self._cond.wait()
+            if self._abort:
+                raise LockstepAborted
+            return self._answers.pop(ticket)
+
+    def _join(self, n: int) -> None:
+        with self._cond:
+            self._clients += n
+            self._cond.notify_all()
+
+    def fan_out(self, fn, items):
+        """Run ``fn(item)`` for every item in threads that take part in the lockstep (the
+        calling thread waits meanwhile and so steps out of it); yield ``(index, result)``."""
+        items = list(items)
+        if not items:
+            return
+        results = [None] * len(items)
+        errors = []
+
+        def work(i, item):
+            try:
+                results[i] = fn(item)
+            except BaseException as exc:  # noqa: BLE001 - re-raised in the calling thread
+                errors.append(exc)
+            finally:
+                self._join(-1)
+
+        threads = [threading.Thread(target=work, args=(i, item), daemon=True) for i, item in enumerate(items)]
+        self._join(len(items) - 1)  # the items in, the caller out, in one step
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        self._join(1)
+        if errors:
+            raise errors[0]
+        yield from enumerate(results)
+
+    # -- the driving side --------------------------------------------------------------------
+    def run(self, targets):
+        """Run ``targets`` (callables, one per run) in lockstep; yield ``(index, result)`` as
+        each run ends. An error in a run stops the others and is raised here."""
+        targets = list(targets)
+
+        def work(i, target):
+            result, error = None, None
+            try:
+                result = target()
+            except BaseException as exc:  # noqa: BLE001 - raised in the driving thread
+                error = exc
+            with self._cond:
+                self._finished.append((i, result, error))
+                self._clients -= 1
+                self._cond.notify_all()
+
+        self._clients = len(targets)
+        threads = [threading.Thread(target=work, args=(i, t), daemon=True) for i, t in enumerate(targets)]
+        for t in threads:
+            t.start()
+        ended = 0
+        try:
+            while ended < len(targets):
+                with self._cond:
+                    while not (self._finished or (self._requests and len(self._requests) >= self._clients)):
+                        self._cond.wait()
+                    finished, self._finished = self._finished, []
+                    requests = {} if finished else dict(self._requests)
+                    for ticket in requests:
+                        del self._requests[ticket]
+                for i, result, error in finished:
+                    if error is not None:
+                        raise error
+                    ended += 1
+                    yield i, result
+                if requests:
+                    answers = self._answer(requests)
+                    with self._cond:
+                        self._answers.update(answers)
+                        self._cond.notify_all()
+        finally:
+            with self._cond:
+                if ended < len(targets):
+                    self._abort = True
+                self._cond.notify_all()
+
+    def _answer(self, requests: dict) -> dict:
+        """Evaluate the waiting requests, one batch per group (in ticket order)."""
+        by_group = {}
+        for ticket in sorted(requests):
+            group, X = requests[ticket]
+            by_group.setdefault(group, []).append((ticket, X))
+        answers = {}
+        for group, members in by_group.items():
+            X = np.vstack([x for _, x in members])
+            self.batches.append(X.shape[0])
+            f, g = self._evaluate(group, X)
+            start = 0
+            for ticket, x in members:
+                stop = start + x.shape[0]
+                answers[ticket] = (f[start:stop], g[start:stop])
+                start = stop
+        return answers

@@ -1,0 +1,102 @@
+"""Runs in lockstep: one batch per generation across runs, each run's results as if alone."""
+
+import threading
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from heurtune.core.engine import SearchSpace, run
+from heurtune.core.evaluator import Evaluator
+from heurtune.core.lockstep import Lockstep, LockstepAborted
+
+
+def rosenbrock_with_constraint(X):
+    X = np.atleast_2d(X)
+    f = np.sum(100.0 * (X[:, 1:] - X[:, :-1] ** 2) ** 2 + (1.0 - X[:, :-1]) ** 2, axis=1)
+    g = (X.sum(axis=1) - 2.0)[:, None]  # sum(x) <= 2
+    return f, g
+
+
+def shifted_sphere(X):
+    return ((np.atleast_2d(X) - 0.3) ** 2).sum(axis=1)
+
+
+PROBLEMS = {"rosen": rosenbrock_with_constraint, "sphere": shifted_sphere}
+RUNS = [("rosen", "cs", 1, {}), ("rosen", "pso", 2, {}), ("sphere", "firefly", 3, {}), ("sphere", "ga", 4, {}),
+        ("rosen", "sqp_multistart", 5, {"starts": 4, "batch": 2, "max_iter": 15})]
+SPACE = SearchSpace(np.full(3, -2.0), np.full(3, 2.0))
+
+
+def one_run(evaluator, algorithm, seed, settings):
+    budget = dict(max_evals=400) if algorithm == "sqp_multistart" else dict(max_epochs=12)
+    return run(algorithm, evaluator, SPACE, settings=settings, seed=seed, **budget)
+
+
+def assert_same_result(a, b):
+    np.testing.assert_array_equal(a.x, b.x)
+    assert (a.f, a.violation, a.n_evals, a.n_epochs, a.stop_reason) == (b.f, b.violation, b.n_evals, b.n_epochs,
+                                                                        b.stop_reason)
+    cols = [c for c in a.history.columns if c != "wall_time_s"]
+    pd.testing.assert_frame_equal(a.history[cols], b.history[cols], check_exact=True)
+
+
+def test_runs_in_lockstep_equal_runs_alone_and_share_batches():
+    alone, alone_calls = [], []
+    for group, algorithm, seed, settings in RUNS:
+        sizes = []
+
+        def counted(X, fun=PROBLEMS[group], sizes=sizes):
+            sizes.append(len(X))
+            return fun(X)
+
+        with Evaluator(counted) as ev:
+            alone.append(one_run(ev, algorithm, seed, settings))
+        alone_calls.append(sizes)
+    calls = []
+
+    def evaluate(group, X):
+        calls.append((group, X.shape[0]))
+        with Evaluator(PROBLEMS[group]) as ev:
+            return ev(X)
+
+    hub = Lockstep(evaluate)
+    targets = [lambda g=g, a=a, s=s, st=st: one_run(hub.client(g), a, s, st) for g, a, s, st in RUNS]
+    together = dict(hub.run(targets))
+    for i, res in enumerate(alone):
+        assert_same_result(together[i], res)
+    # The batches gather the runs of a group: fewer, larger calls than the runs make alone.
+    assert sum(n for _, n in calls) == sum(sum(c) for c in alone_calls)
+    assert len(calls) < sum(len(c) for c in alone_calls) / 2
+    assert max(n for _, n in calls) > max(max(c) for c in alone_calls)
+
+
+def test_an_error_in_one_run_stops_the_others_and_is_raised():
+    def evaluate(group, X):
+        if group == "bad":
+            raise ValueError("boom in the objective")
+        return shifted_sphere(X), np.zeros((X.shape[0], 0))
+
+    hub = Lockstep(evaluate)
+    targets = [lambda: one_run(hub.client("good"), "cs", 1, {}), lambda: one_run(hub.client("bad"), "cs", 2, {})]
+    with pytest.raises(ValueError, match="boom in the objective"):
+        list(hub.run(targets))
+    # the other run's thread unwinds instead of waiting for ever
+    for t in threading.enumerate():
+        if t is not threading.current_thread() and t.daemon:
+            t.join(timeout=5)
+    with pytest.raises(LockstepAborted):
+        hub.submit("good", np.zeros((1, 3)))
+
+
+def test_runner_lockstep_gives_the_same_files(tmp_path):
+    from heurtune.runner.experiment import run_experiment
+
+    out = {}
+    for lockstep in (False, True):
+        out[lockstep] = run_experiment("sqp_folqi_qtp", smoke=True, seed=3, out=tmp_path / str(lockstep),
+                                       progress_stream=open("/dev/null", "w"), figures=False, lockstep=lockstep)
+    for name in ("runs", "history", "starts"):
+        a, b = (pd.read_parquet(out[k] / f"{name}.parquet") for k in (False, True))
+        cols = [c for c in a.columns if "wall" not in c]
+        pd.testing.assert_frame_equal(a[cols], b[cols], check_exact=True)
