@@ -10,7 +10,12 @@ computes exactly what it would alone, whatever the number of runs, workers or de
 
 A driver's ``map_unordered`` (e.g. the local solves of ``sqp_multistart``) runs each item in a
 thread of its own that takes part in the lockstep, so the local solves of all runs share the
-batches too. Python threads only take turns (the GIL); the point is the batch, which the
+batches too. The runs' threads must reach the problem only through their client: evaluations
+happen in the driving thread alone (the problems' simulators keep scratch state), which is why
+the experiment runner records each finished run there, not in the run's thread. BLAS is held
+at one thread while runs are in lockstep: threadpoolctl's limits are process-wide, so a thread
+leaving its own limit (as ``sqp_multistart``'s local solves do) would otherwise give the other
+threads more BLAS threads mid-computation, and with them other last bits. Python threads only take turns (the GIL); the point is the batch, which the
 evaluator then spreads over its workers or hands to a batched kernel.
 """
 
@@ -134,8 +139,13 @@ class Lockstep:
     def run(self, targets):
         """Run ``targets`` (callables, one per run) in lockstep; yield ``(index, result)`` as
         each run ends. An error in a run stops the others and is raised here."""
-        targets = list(targets)
+        from threadpoolctl import threadpool_limits
 
+        targets = list(targets)
+        with threadpool_limits(1, user_api="blas"):
+            yield from self._run(targets)
+
+    def _run(self, targets):
         def work(i, target):
             result, error = None, None
             try:

@@ -176,6 +176,15 @@ def execute(config: dict, spec: RunSpec, evaluator: Evaluator | None = None, *, 
     prob = _problem(config, spec.case)
     if spec.baseline:
         return _execute_baseline(prob, spec)
+    res, wall = optimise(config, spec, evaluator, parts=parts)
+    return run_record(prob, spec, res, wall, parts=parts)
+
+
+def optimise(config: dict, spec: RunSpec, evaluator: Evaluator | None = None, *, parts=None):
+    """The optimisation of :func:`execute`, without its record: returns the engine's Result and
+    the wall time it took. Touches the problem only through ``evaluator`` (so that runs in
+    lockstep evaluate in one thread)."""
+    prob = _problem(config, spec.case)
     t0 = time.perf_counter()
     seed = np.random.SeedSequence(spec.root_seed, spawn_key=spec.spawn_key)
     space = SearchSpace(prob.lower, prob.upper, spec.budget.get("bound_handling", "clip"))
@@ -191,11 +200,17 @@ def execute(config: dict, spec: RunSpec, evaluator: Evaluator | None = None, *, 
     finally:
         if own:
             ev.close()
+    return res, time.perf_counter() - t0
+
+
+def run_record(prob, spec: RunSpec, res, wall_time_s: float, *, parts=None):
+    """The result row (with the best candidate's report) and history of a finished run; with
+    several objectives its front is written to ``parts``."""
     row = dict(case=spec.case, algorithm=spec.algorithm, optimiser_index=spec.optimiser_index,
                run=spec.run, seed=spec.root_seed, seed_key=spec.seed_key, best_f=float(res.f),
                feasible=bool(res.feasible), violation=float(res.violation), n_evals=int(res.n_evals),
                n_epochs=int(res.n_epochs), convergence_epoch=int(res.convergence_epoch),
-               wall_time_s=time.perf_counter() - t0, stop_reason=res.stop_reason,
+               wall_time_s=wall_time_s, stop_reason=res.stop_reason,
                settings=json.dumps(spec.settings, sort_keys=True))
     row.update(zip(prob.names, map(float, res.x)))
     _add_report(row, prob, res.x)
@@ -610,9 +625,13 @@ def _run_lockstep(config, pending, parts, bar, *, jobs, backend, scheduler, exec
     try:
         for ev in evaluators.values():
             ev.open()
-        targets = [functools.partial(execute, config, spec, hub.client(spec.case), parts=parts) for spec in pending]
-        for i, (row, hist) in hub.run(targets):
-            _persist(parts, pending[i], row, hist)
+        # The runs' threads only optimise; each finished run is recorded here, so that the
+        # problems are used by this thread alone (their simulators keep scratch state).
+        targets = [functools.partial(optimise, config, spec, hub.client(spec.case), parts=parts) for spec in pending]
+        for i, (res, wall) in hub.run(targets):
+            spec = pending[i]
+            row, hist = run_record(_problem(config, spec.case), spec, res, wall, parts=parts)
+            _persist(parts, spec, row, hist)
             bar.update(row)
     finally:
         for ev in evaluators.values():
