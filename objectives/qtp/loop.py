@@ -17,6 +17,7 @@ from heurtune.core.errors import ConfigError
 from heurtune.core.problem import RANGE_RTOL
 from heurtune.objectives.qtp import batch_kernels as _batch_kernels
 from heurtune.objectives.qtp import kernels as _kernels
+from heurtune.objectives.qtp.batch_design import discretise_many
 from heurtune.objectives.qtp.controllers import LinearController, build_controller
 from heurtune.objectives.qtp.model import QTPParams, linearise, operating_point
 from heurtune.objectives.qtp.bond_graph import BondGraphElements, pressure_coefficients
@@ -425,7 +426,7 @@ class ClosedLoop:
     def run_batch(self, ctrls, scenarios, *, settling_band: float = 3.0, device: str = "cpu-batch"):
         """Metrics of several controllers under several scenarios, candidates side by side.
 
-        Each controller is discretised once per time step; the pairs (controller, scenario)
+        The controllers are discretised once per time step (:func:`discretise_many`); the pairs (controller, scenario)
         whose scenarios share the step and the horizon and whose discrete controllers share
         their structure run as the lanes of one call of the batched kernel
         (:func:`heurtune.objectives.qtp.batch_kernels.simulate_batch` on the CPU, or
@@ -456,8 +457,7 @@ class ClosedLoop:
             steps.setdefault((sc.dt, sc.n_steps), []).append(s)
         for (dt, n_steps), members in steps.items():
             groups = {}
-            for i, ctrl in enumerate(ctrls):
-                dc = ctrl.discretise(dt)
+            for i, dc in enumerate(discretise_many(ctrls, dt)):
                 groups.setdefault(_structure(dc), []).append((i, dc))
             for lanes in groups.values():
                 pairs = [(i, dc, s) for i, dc in lanes for s in members]

@@ -16,6 +16,7 @@ import pandas as pd
 
 from heurtune.core.errors import ConfigError
 from heurtune.core.problem import FAILED_OBJECTIVE, FAILED_VIOLATION, Evaluation, StructureWarning, TuningProblem
+from heurtune.objectives.qtp.batch_design import design_batch
 from heurtune.objectives.qtp.controllers import ControllerDesignError
 from heurtune.objectives.qtp.loop import METRIC_NAMES, ClosedLoop, Scenario, physical_range_flags
 from heurtune.objectives.qtp.margins import loop_margins
@@ -170,19 +171,14 @@ class Problem(TuningProblem):
         return reasons, 0.0
 
     def _evaluate_batch(self, X, scenarios: list, metrics: np.ndarray, reason: np.ndarray) -> np.ndarray:
-        """:meth:`_evaluate_one` for all candidates at once on the batched device: each
-        candidate is designed here, then every designed candidate under every scenario is one
-        lane of :meth:`~heurtune.objectives.qtp.loop.ClosedLoop.run_batch`. Fills ``metrics``
-        (k, n, N) and ``reason`` (k, n); returns the margins (n,)."""
-        n = X.shape[0]
-        margins = np.zeros(n)
-        designed = []
-        for i in range(n):
-            ctrl, why, margins[i] = self._design(X[i])
-            if ctrl is None:
-                reason[:, i] = why
-            else:
-                designed.append((i, ctrl))
+        """:meth:`_evaluate_one` for all candidates at once on the batched device: the batch is
+        designed and checked by :func:`~heurtune.objectives.qtp.batch_design.design_batch`, then
+        every designed candidate under every scenario is one lane of
+        :meth:`~heurtune.objectives.qtp.loop.ClosedLoop.run_batch`. Fills ``metrics`` (k, n, N)
+        and ``reason`` (k, n); returns the margins (n,)."""
+        ctrls, why, margins = design_batch(self.loop, self.names, X)
+        reason[:, :] = why[None, :]
+        designed = [(i, c) for i, c in enumerate(ctrls) if c is not None]
         diverged, values = self.loop.run_batch([c for _, c in designed], scenarios,
                                                settling_band=self.settling_band, device=self.device)
         for j, (i, _) in enumerate(designed):

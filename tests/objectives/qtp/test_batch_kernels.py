@@ -151,7 +151,11 @@ def test_problem_on_the_batched_device_equals_cpu():
         assert_metrics_close(b.metrics, a.metrics)
         np.testing.assert_array_equal(a.feasible, b.feasible)
         np.testing.assert_allclose(b.f, a.f, rtol=RTOL)
-        np.testing.assert_allclose(b.g, a.g, rtol=RTOL, atol=1e-12)
+        # an unstable candidate's violation grows with its eigenvalue margin, which the batched
+        # design takes from numpy's stacked eigvals (agreeing to about 1e-11 relative)
+        unstable = a.reason == "unstable"
+        np.testing.assert_allclose(b.g[~unstable], a.g[~unstable], rtol=RTOL, atol=1e-12)
+        np.testing.assert_allclose(b.g[unstable], a.g[unstable], rtol=1e-9)
 
 
 def test_device_errors(monkeypatch):
@@ -215,3 +219,46 @@ def test_gpu_kernel_under_the_cuda_simulator():
     assert res["diverged"] == res["ref_diverged"]
     assert res["diverged"][2][0] and not any(res["diverged"][0])  # limits and saturation hold the flood
     assert_metrics_close(np.array(res["metrics"]), np.array(res["ref"]))
+
+
+# -- the design of a batch ---------------------------------------------------------------------
+
+@pytest.mark.parametrize("experiment, case, options", [
+    ("cs_folqi_qtp", "min", {}), ("cs_folqi_qtp", "nmp", {}), ("cs_iolqi_qtp", "min", {}), ("cs_lqi_qtp", "min", {}),
+    ("cs_folqi_qtp", "min", {"realisation": "integer_split"}), ("cs_folqi_qtp", "nmp", {"pairing": "anti-diagonal"}),
+])
+def test_batch_design_equals_the_one_candidate_design(experiment, case, options):
+    """Same reasons for every candidate; gains to 1e-12 relative (the stacked Riccati solution
+    is another algorithm than the ordered Schur form, measured 2e-14); unstable margins to 1e-9
+    (numpy's stacked eigvals against LAPACK dgeev called directly, measured 4e-11); the
+    discretisation bit for bit."""
+    import heurtune
+    from heurtune.objectives.qtp.batch_design import design_batch, discretise_many
+
+    prob = heurtune.load_experiment(experiment).problem(case)
+    if options:
+        prob.loop.options.update(options)
+    rng = np.random.default_rng(7)
+    X = prob.lower + rng.random((120, prob.dim)) * (prob.upper - prob.lower)
+    X[0, 0] = np.nan
+    if "alpha1" in prob.names:  # integer orders, two integrators: the one-by-one paths
+        X[1, prob.names.index("alpha1")] = 2.0
+        X[2, prob.names.index("alpha2")] = 1.0
+    ctrls, reasons, margins = design_batch(prob.loop, prob.names, X)
+    designed = 0
+    for i, x in enumerate(X):
+        ctrl, reason, margin = prob._design(x)
+        assert reasons[i] == reason
+        if ctrl is not None:
+            designed += 1
+            np.testing.assert_allclose(ctrls[i].D, ctrl.D, rtol=1e-12, atol=1e-12 * np.abs(ctrl.D).max())
+            np.testing.assert_allclose(ctrls[i].C, ctrl.C, rtol=1e-12, atol=0.0)
+            np.testing.assert_array_equal(ctrls[i].A, ctrl.A)
+            np.testing.assert_array_equal(ctrls[i].B, ctrl.B)
+        if reason == "unstable":
+            assert margins[i] == pytest.approx(margin, rel=1e-9)
+    assert designed >= (1 if case == "nmp" else 5)
+    good = [c for c in ctrls if c is not None]
+    for fast, one in zip(discretise_many(good, 0.01), [c.discretise(0.01) for c in good]):
+        for name in ("ad", "bd", "state_input", "Ad", "Bd", "Cc", "Dc", "state_channel", "segments"):
+            np.testing.assert_array_equal(getattr(fast, name), getattr(one, name))
