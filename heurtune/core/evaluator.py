@@ -6,11 +6,13 @@ concatenates the results in order, so the numbers never depend on the number of 
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from heurtune.core.execution import BACKENDS, Pool, shared
 
-__all__ = ["Evaluator", "BACKENDS", "normalise"]
+__all__ = ["Evaluator", "BACKENDS", "normalise", "Objectives", "evaluate_in", "evaluate_groups", "chunk_bounds"]
 
 CHUNKS_PER_WORKER = 4
 
@@ -59,6 +61,66 @@ class Objective:
 
 def _evaluate_block(X):
     return shared()(X)
+
+
+def _evaluate_named_block(item):
+    name, X = item
+    return shared()[name](X)
+
+
+def chunk_bounds(n: int, workers: int, per_worker: int = CHUNKS_PER_WORKER) -> list:
+    """Contiguous ``(start, stop)`` chunks of a batch of ``n``: several per worker even out
+    candidates of unequal cost (a failed design returns in 0.1 ms, a full simulation takes
+    milliseconds)."""
+    k = min(n, workers * (per_worker if workers > 1 else 1))
+    bounds = np.linspace(0, n, k + 1).round().astype(int)
+    return [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+
+
+def evaluate_in(pool: Pool, X, task=_evaluate_block):
+    """Evaluate X (n, d) where ``pool`` runs tasks, in contiguous chunks, in order; ``task``
+    maps a chunk to ``(f, g)`` with the pool's shared object. Returns f (n,) and g (n, m)."""
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    if X.shape[0] == 0:
+        return np.zeros(0), np.zeros((0, 0))
+    chunks = [X] if pool.in_process else [X[a:b] for a, b in chunk_bounds(X.shape[0], pool.workers)]
+    parts = pool.map(task, chunks)
+    f = np.concatenate([p[0] for p in parts])
+    widths = {p[1].shape[1] for p in parts}
+    if len(widths) != 1:
+        raise ValueError("the constraint function returned different numbers of constraints")
+    return f, np.vstack([p[1] for p in parts])
+
+
+class Objectives(dict):
+    """Several named objectives shared by one pool (see :func:`evaluate_groups`); ``warm_up``
+    warms them all."""
+
+    def warm_up(self):
+        for objective in self.values():
+            objective.warm_up()
+
+
+def evaluate_groups(pool: Pool, batches: dict, per_worker: int = CHUNKS_PER_WORKER) -> dict:
+    """Evaluate several batches, ``{name: X}``, each with the objective ``name`` of the pool's
+    :class:`Objectives`, all chunks in one round of the pool; returns ``{name: (f, g)}``.
+    A batched simulation gains from long chunks: give it ``per_worker = 1``."""
+    items, spans = [], {}
+    for name, X in batches.items():
+        X = np.ascontiguousarray(X, dtype=np.float64)
+        bounds = [(0, X.shape[0])] if pool.in_process else chunk_bounds(X.shape[0], pool.workers, per_worker)
+        spans[name] = (len(items), len(items) + len(bounds))
+        items += [(name, X[a:b]) for a, b in bounds]
+    parts = pool.map(_evaluate_named_block, items)
+    out = {}
+    for name, (a, b) in spans.items():
+        if a == b:  # an empty batch
+            out[name] = (np.zeros(0), np.zeros((0, 0)))
+            continue
+        if len({p[1].shape[1] for p in parts[a:b]}) != 1:
+            raise ValueError("the constraint function returned different numbers of constraints")
+        out[name] = (np.concatenate([p[0] for p in parts[a:b]]), np.vstack([p[1] for p in parts[a:b]]))
+    return out
 
 
 class Evaluator:
@@ -113,22 +175,6 @@ class Evaluator:
         self.pool.close()
 
     # -- work -------------------------------------------------------------------------------
-    def _chunks(self, n: int):
-        # Several chunks per worker even out candidates of unequal cost (a failed design
-        # returns in 0.1 ms, a full simulation takes milliseconds); order is kept.
-        k = min(n, self.workers * (CHUNKS_PER_WORKER if self.workers > 1 else 1))
-        bounds = np.linspace(0, n, k + 1).round().astype(int)
-        return [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
-
     def __call__(self, X):
         """Evaluate X (n, d); returns f (n,) and g (n, m)."""
-        X = np.ascontiguousarray(X, dtype=np.float64)
-        if X.shape[0] == 0:
-            return np.zeros(0), np.zeros((0, 0))
-        chunks = [X] if self.pool.in_process else [X[a:b] for a, b in self._chunks(X.shape[0])]
-        parts = self.pool.map(_evaluate_block, chunks)
-        f = np.concatenate([p[0] for p in parts])
-        widths = {p[1].shape[1] for p in parts}
-        if len(widths) != 1:
-            raise ValueError("the constraint function returned different numbers of constraints")
-        return f, np.vstack([p[1] for p in parts])
+        return evaluate_in(self.pool, X)

@@ -69,7 +69,8 @@ class Lockstep:
     Parameters
     ----------
     evaluate : callable
-        ``evaluate(group, X) -> (f, g)`` for a batch of one group (e.g. the runs' case).
+        ``evaluate({group: X}) -> {group: (f, g)}``: a batch per group (e.g. the runs' case),
+        all evaluated in one go.
     """
 
     def __init__(self, evaluate):
@@ -193,11 +194,12 @@ class Lockstep:
         for ticket in sorted(requests):
             group, X = requests[ticket]
             by_group.setdefault(group, []).append((ticket, X))
+        batches = {group: np.vstack([x for _, x in members]) for group, members in by_group.items()}
+        self.batches += [X.shape[0] for X in batches.values()]
+        results = self._evaluate(batches)
         answers = {}
         for group, members in by_group.items():
-            X = np.vstack([x for _, x in members])
-            self.batches.append(X.shape[0])
-            f, g = self._evaluate(group, X)
+            f, g = results[group]
             start = 0
             for ticket, x in members:
                 stop = start + x.shape[0]

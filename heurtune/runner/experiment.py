@@ -47,7 +47,7 @@ from heurtune.analysis.compare import best_runs, failed_runs, successful_runs
 from heurtune.core import registry
 from heurtune.core.engine import Checkpoint, SearchSpace, run as run_optimiser
 from heurtune.core.errors import ConfigError
-from heurtune.core.evaluator import Evaluator
+from heurtune.core.evaluator import CHUNKS_PER_WORKER, Evaluator, Objective, Objectives, evaluate_groups
 from heurtune.core.execution import BACKENDS, Pool
 from heurtune.core.families import make_experiment
 from heurtune.core.io import atomic_path, write_parquet
@@ -617,25 +617,27 @@ def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler, execu
 
 def _run_lockstep(config, pending, parts, bar, *, jobs, backend, scheduler, executor=None):
     """All pending runs in lockstep (:class:`heurtune.core.lockstep.Lockstep`): each generation,
-    the candidates of every run of a case are evaluated as one batch, spread over the workers."""
-    cases = sorted({spec.case for spec in pending})
-    evaluators = {case: Evaluator(_problem(config, case), n_jobs=jobs, backend=backend, scheduler=scheduler,
-                                  executor=executor) for case in cases}
-    hub = Lockstep(lambda case, X: evaluators[case](X))
+    the candidates of every run of a case are evaluated as one batch, spread over the workers
+    of one pool that holds every case's problem."""
+    objectives = Objectives({case: Objective(_problem(config, case)) for case in sorted({s.case for s in pending})})
+    objectives.warm_up()
+    pool = Pool(jobs, backend, scheduler, executor=executor, shared=objectives)
+    # One chunk per worker and case: a batched simulation gains from long chunks.
+    hub = Lockstep(functools.partial(evaluate_groups, pool, per_worker=1 if config.get("device", "cpu") != "cpu" else CHUNKS_PER_WORKER))
     try:
-        for ev in evaluators.values():
-            ev.open()
-        # The runs' threads only optimise; each finished run is recorded here, so that the
-        # problems are used by this thread alone (their simulators keep scratch state).
-        targets = [functools.partial(optimise, config, spec, hub.client(spec.case), parts=parts) for spec in pending]
-        for i, (res, wall) in hub.run(targets):
-            spec = pending[i]
-            row, hist = run_record(_problem(config, spec.case), spec, res, wall, parts=parts)
-            _persist(parts, spec, row, hist)
-            bar.update(row)
-    finally:
-        for ev in evaluators.values():
-            ev.close()
+        with pool:
+            # The runs' threads only optimise; each finished run is recorded here, so that the
+            # problems are used by this thread alone (their simulators keep scratch state).
+            targets = [functools.partial(optimise, config, spec, hub.client(spec.case), parts=parts)
+                       for spec in pending]
+            for i, (res, wall) in hub.run(targets):
+                spec = pending[i]
+                row, hist = run_record(_problem(config, spec.case), spec, res, wall, parts=parts)
+                _persist(parts, spec, row, hist)
+                bar.update(row)
+    except BaseException:
+        pool.abort()
+        raise
 
 
 def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, *, figures):

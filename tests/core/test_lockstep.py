@@ -55,10 +55,13 @@ def test_runs_in_lockstep_equal_runs_alone_and_share_batches():
         alone_calls.append(sizes)
     calls = []
 
-    def evaluate(group, X):
-        calls.append((group, X.shape[0]))
-        with Evaluator(PROBLEMS[group]) as ev:
-            return ev(X)
+    def evaluate(batches):
+        out = {}
+        for group, X in batches.items():
+            calls.append((group, X.shape[0]))
+            with Evaluator(PROBLEMS[group]) as ev:
+                out[group] = ev(X)
+        return out
 
     hub = Lockstep(evaluate)
     targets = [lambda g=g, a=a, s=s, st=st: one_run(hub.client(g), a, s, st) for g, a, s, st in RUNS]
@@ -72,10 +75,10 @@ def test_runs_in_lockstep_equal_runs_alone_and_share_batches():
 
 
 def test_an_error_in_one_run_stops_the_others_and_is_raised():
-    def evaluate(group, X):
-        if group == "bad":
+    def evaluate(batches):
+        if "bad" in batches:
             raise ValueError("boom in the objective")
-        return shifted_sphere(X), np.zeros((X.shape[0], 0))
+        return {group: (shifted_sphere(X), np.zeros((X.shape[0], 0))) for group, X in batches.items()}
 
     hub = Lockstep(evaluate)
     targets = [lambda: one_run(hub.client("good"), "cs", 1, {}), lambda: one_run(hub.client("bad"), "cs", 2, {})]
