@@ -6,8 +6,6 @@ concatenates the results in order, so the numbers never depend on the number of 
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 
 from heurtune.core.execution import BACKENDS, Pool, shared
@@ -77,19 +75,21 @@ def chunk_bounds(n: int, workers: int, per_worker: int = CHUNKS_PER_WORKER) -> l
     return [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
 
-def evaluate_in(pool: Pool, X, task=_evaluate_block):
-    """Evaluate X (n, d) where ``pool`` runs tasks, in contiguous chunks, in order; ``task``
-    maps a chunk to ``(f, g)`` with the pool's shared object. Returns f (n,) and g (n, m)."""
+def _joined(parts) -> tuple:
+    """``(f, g)`` of consecutive chunks' results."""
+    if len({p[1].shape[1] for p in parts}) != 1:
+        raise ValueError("the constraint function returned different numbers of constraints")
+    return np.concatenate([p[0] for p in parts]), np.vstack([p[1] for p in parts])
+
+
+def evaluate_in(pool: Pool, X):
+    """Evaluate X (n, d) with the objective shared by ``pool``, in contiguous chunks, in
+    order. Returns f (n,) and g (n, m)."""
     X = np.ascontiguousarray(X, dtype=np.float64)
     if X.shape[0] == 0:
         return np.zeros(0), np.zeros((0, 0))
     chunks = [X] if pool.in_process else [X[a:b] for a, b in chunk_bounds(X.shape[0], pool.workers)]
-    parts = pool.map(task, chunks)
-    f = np.concatenate([p[0] for p in parts])
-    widths = {p[1].shape[1] for p in parts}
-    if len(widths) != 1:
-        raise ValueError("the constraint function returned different numbers of constraints")
-    return f, np.vstack([p[1] for p in parts])
+    return _joined(pool.map(_evaluate_block, chunks))
 
 
 class Objectives(dict):
@@ -112,15 +112,8 @@ def evaluate_groups(pool: Pool, batches: dict, per_worker: int = CHUNKS_PER_WORK
         spans[name] = (len(items), len(items) + len(bounds))
         items += [(name, X[a:b]) for a, b in bounds]
     parts = pool.map(_evaluate_named_block, items)
-    out = {}
-    for name, (a, b) in spans.items():
-        if a == b:  # an empty batch
-            out[name] = (np.zeros(0), np.zeros((0, 0)))
-            continue
-        if len({p[1].shape[1] for p in parts[a:b]}) != 1:
-            raise ValueError("the constraint function returned different numbers of constraints")
-        out[name] = (np.concatenate([p[0] for p in parts[a:b]]), np.vstack([p[1] for p in parts[a:b]]))
-    return out
+    return {name: _joined(parts[a:b]) if b > a else (np.zeros(0), np.zeros((0, 0)))
+            for name, (a, b) in spans.items()}
 
 
 class Evaluator:

@@ -536,8 +536,9 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
         config["plugins"] = list(config.get("plugins", [])) + [str(Path(p).resolve()) if p.endswith(".py") else p
                                                               for p in plugins]
     exp = make_experiment(config)
-    for case in exp.cases:  # an unknown device, or a GPU this machine lacks, fails here
-        _problem(config, case)
+    if device != "cpu":  # an unknown device, or a GPU this machine lacks, fails here
+        for case in exp.cases:
+            _problem(config, case)
     out_dir = Path(out) if out else Path("results") / exp.name
     parts = out_dir / "parts"
     specs = plan(exp, runs=runs, max_epochs=max_epochs, seed=seed, smoke=smoke)
@@ -622,8 +623,9 @@ def _run_lockstep(config, pending, parts, bar, *, jobs, backend, scheduler, exec
     objectives = Objectives({case: Objective(_problem(config, case)) for case in sorted({s.case for s in pending})})
     objectives.warm_up()
     pool = Pool(jobs, backend, scheduler, executor=executor, shared=objectives)
-    # One chunk per worker and case: a batched simulation gains from long chunks.
-    hub = Lockstep(functools.partial(evaluate_groups, pool, per_worker=1 if config.get("device", "cpu") != "cpu" else CHUNKS_PER_WORKER))
+    # A batched simulation gains from long chunks: one per worker and case on those devices.
+    per_worker = CHUNKS_PER_WORKER if config.get("device", "cpu") == "cpu" else 1
+    hub = Lockstep(functools.partial(evaluate_groups, pool, per_worker=per_worker))
     try:
         with pool:
             # The runs' threads only optimise; each finished run is recorded here, so that the
