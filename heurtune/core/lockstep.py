@@ -6,7 +6,8 @@ client's call blocks until every run that is still going has asked for something
 requests of all runs are evaluated together, one batch per problem, and each run gets its own
 rows back. Since a candidate's evaluation does not depend on the other candidates of its batch
 (the one-candidate kernel trivially, the batched kernels by construction and test), every run
-computes exactly what it would alone, whatever the number of runs, workers or devices.
+computes exactly what it would alone on the same device, whatever the number of runs or
+workers.
 
 A driver's ``map_unordered`` (e.g. the local solves of ``sqp_multistart``) runs each item in a
 thread of its own that takes part in the lockstep, so the local solves of all runs share the
@@ -15,8 +16,10 @@ happen in the driving thread alone (the problems' simulators keep scratch state)
 the experiment runner records each finished run there, not in the run's thread. BLAS is held
 at one thread while runs are in lockstep: threadpoolctl's limits are process-wide, so a thread
 leaving its own limit (as ``sqp_multistart``'s local solves do) would otherwise give the other
-threads more BLAS threads mid-computation, and with them other last bits. Python threads only take turns (the GIL); the point is the batch, which the
-evaluator then spreads over its workers or hands to a batched kernel.
+threads more BLAS threads mid-computation, and with them other last bits.
+
+Python threads only take turns (the GIL); the point is the batch, which the evaluator then
+spreads over its workers or hands to a batched kernel.
 """
 
 from __future__ import annotations

@@ -63,7 +63,8 @@ def _rk4_fast(h1, h2, h3, h4, f1, f2, f3, f4, c0, c1, c2, c3, c4, c5, dt):
 # Rows of the per-lane parameter table ``P`` (NP, L) of simulate_batch: plant coefficients,
 # operating voltages, pump limits, flags (1.0 or 0.0), disturbances and their first samples
 # (as floats: exact for any horizon that fits in memory) and tank heights.
-P_COEF, P_UOP, P_UMIN, P_UMAX, P_SAT, P_CLIP, P_OUT, P_IN, P_I_OUT, P_I_IN, P_HMAX = 0, 10, 12, 13, 14, 15, 16, 18, 20, 21, 22
+P_COEF, P_UOP, P_UMIN, P_UMAX, P_SAT, P_CLIP = 0, 10, 12, 13, 14, 15
+P_OUT, P_IN, P_I_OUT, P_I_IN, P_HMAX = 16, 18, 20, 21, 22
 NP = 26
 
 

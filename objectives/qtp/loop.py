@@ -426,9 +426,10 @@ class ClosedLoop:
     def run_batch(self, ctrls, scenarios, *, settling_band: float = 3.0, device: str = "cpu-batch"):
         """Metrics of several controllers under several scenarios, candidates side by side.
 
-        The controllers are discretised once per time step (:func:`discretise_many`); the pairs (controller, scenario)
-        whose scenarios share the step and the horizon and whose discrete controllers share
-        their structure run as the lanes of one call of the batched kernel
+        The controllers are discretised once per time step (:func:`discretise_many`); the
+        pairs (controller, scenario) whose scenarios share the step and the horizon and whose
+        discrete controllers share their structure run as the lanes of one call of the batched
+        kernel
         (:func:`heurtune.objectives.qtp.batch_kernels.simulate_batch` on the CPU, or
         :func:`heurtune.objectives.qtp.gpu.simulate_lanes` with ``device="gpu"``).
 
