@@ -87,7 +87,9 @@ def _make_kernel():
     block, out_state, in_state = _kernels.METRIC_BLOCK, _kernels.OUT_STATE, _kernels.IN_STATE
     n_metrics, level_limit = _kernels.N_METRICS, _kernels.LEVEL_LIMIT
     ok_status, diverged_status = _kernels.STATUS_OK, _kernels.STATUS_DIVERGED
-    b = _batch
+    # the rows of the lane parameters, as plain integers (constants of the compiled kernel)
+    P_UOP, P_UMIN, P_UMAX, P_SAT, P_CLIP = _batch.P_UOP, _batch.P_UMIN, _batch.P_UMAX, _batch.P_SAT, _batch.P_CLIP
+    P_OUT, P_IN, P_I_OUT, P_I_IN, P_HMAX = _batch.P_OUT, _batch.P_IN, _batch.P_I_OUT, _batch.P_I_IN, _batch.P_HMAX
 
     @cuda.jit
     def kernel(P, level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel, segments,
@@ -111,10 +113,10 @@ def _make_kernel():
             for i in range(in_state):
                 si[j, i] = 0.0
         c = P[:10, lane]
-        u_op0, u_op1 = P[b.P_UOP, lane], P[b.P_UOP + 1, lane]
-        u_min, u_max = P[b.P_UMIN, lane], P[b.P_UMAX, lane]
-        saturate, clip = P[b.P_SAT, lane] > 0.0, P[b.P_CLIP, lane] > 0.0
-        i_out, i_in = int(P[b.P_I_OUT, lane]), int(P[b.P_I_IN, lane])
+        u_op0, u_op1 = P[P_UOP, lane], P[P_UOP + 1, lane]
+        u_min, u_max = P[P_UMIN, lane], P[P_UMAX, lane]
+        saturate, clip = P[P_SAT, lane] > 0.0, P[P_CLIP, lane] > 0.0
+        i_out, i_in = int(P[P_I_OUT, lane]), int(P[P_I_IN, lane])
         s_noise = lane_noise[lane]
         band1 = band_pct / 100.0 * h_op[0]
         band2 = band_pct / 100.0 * h_op[1]
@@ -130,8 +132,8 @@ def _make_kernel():
         for k in range(n_steps + 1):
             h_lo = min(h_lo, min(min(h1, h2), min(h3, h4)))
             h_hi = max(h_hi, max(max(h1, h2), max(h3, h4)))
-            d1 = P[b.P_OUT, lane] if k >= i_out else 0.0
-            d2 = P[b.P_OUT + 1, lane] if k >= i_out else 0.0
+            d1 = P[P_OUT, lane] if k >= i_out else 0.0
+            d2 = P[P_OUT + 1, lane] if k >= i_out else 0.0
             w0 = level_per_state * h1 + (d1 - h_op[0])
             w1 = level_per_state * h2 + (d2 - h_op[1])
             w2 = level_per_state * h3 - h_op[2]
@@ -193,12 +195,12 @@ def _make_kernel():
                 cz1 += Cc[0, i, lane] * z[i]
                 cz2 += Cc[1, i, lane] * z[i]
             if k >= i_in:
-                u1 += P[b.P_IN, lane]
-                u2 += P[b.P_IN + 1, lane]
+                u1 += P[P_IN, lane]
+                u2 += P[P_IN + 1, lane]
             f1, f2, f3, f4 = c[6] * u1, c[7] * u2, c[8] * u2, c[9] * u1
             if clip:
-                h1, h2, h3, h4 = rk4_limited(h1, h2, h3, h4, f1, f2, f3, f4, c, dt, P[b.P_HMAX, lane],
-                                             P[b.P_HMAX + 1, lane], P[b.P_HMAX + 2, lane], P[b.P_HMAX + 3, lane])
+                h1, h2, h3, h4 = rk4_limited(h1, h2, h3, h4, f1, f2, f3, f4, c, dt, P[P_HMAX, lane],
+                                             P[P_HMAX + 1, lane], P[P_HMAX + 2, lane], P[P_HMAX + 3, lane])
             else:
                 n1, n2, n3, n4, fine = rk4_fast(h1, h2, h3, h4, f1, f2, f3, f4, c[0], c[1], c[2], c[3], c[4], c[5], dt)
                 if fine:
