@@ -23,7 +23,7 @@ import cloudpickle
 from heurtune.core.errors import ConfigError
 from heurtune.core.plugins import load_plugins, loaded
 
-__all__ = ["Pool", "BACKENDS", "shared"]
+__all__ = ["Pool", "BACKENDS", "shared", "kill_workers"]
 
 BACKENDS = ("loky", "dask")
 
@@ -33,6 +33,20 @@ _SHARED = {}  # this process's shared object (set by the initialiser or the task
 def shared():
     """The ``shared`` object of the pool this task runs in."""
     return _SHARED["value"]
+
+
+_LOKY = []  # the loky executors this process's pools have opened (see kill_workers)
+
+
+def kill_workers() -> None:
+    """Kill every loky worker this process started, at once (after Ctrl-C or SIGTERM: loky
+    would otherwise keep them, and its resource trackers, alive for a minute or two)."""
+    while _LOKY:
+        executor = _LOKY.pop()
+        try:
+            executor.shutdown(wait=False, kill_workers=True)
+        except Exception:  # noqa: BLE001 - an executor broken by the interrupt is gone anyway
+            pass
 
 
 _CONTROLLER = []  # one threadpoolctl controller per process (building one costs milliseconds)
@@ -167,6 +181,8 @@ class Pool:
 
             self._loky = get_reusable_executor(max_workers=self.n_jobs, initializer=_init_worker,
                                                initargs=(loaded(), self._key, self._payload))
+            if self._loky not in _LOKY:
+                _LOKY.append(self._loky)
         return self
 
     def close(self):

@@ -32,9 +32,12 @@ import dataclasses
 import functools
 import hashlib
 import json
+import os
 import shutil
+import signal
 import subprocess
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -48,7 +51,7 @@ from heurtune.core import registry
 from heurtune.core.engine import Checkpoint, SearchSpace, run as run_optimiser
 from heurtune.core.errors import ConfigError
 from heurtune.core.evaluator import CHUNKS_PER_WORKER, Evaluator, Objective, Objectives, evaluate_groups
-from heurtune.core.execution import BACKENDS, Pool
+from heurtune.core.execution import BACKENDS, Pool, kill_workers
 from heurtune.core.families import make_experiment
 from heurtune.core.io import atomic_path, write_parquet
 from heurtune.core.lockstep import Lockstep
@@ -138,6 +141,23 @@ def plan(exp, *, runs=None, max_epochs=None, seed=None, smoke=False) -> list:
 
 # Per-process cache: workers rebuild each case's problem once.
 _PROBLEMS = {}
+
+
+class Terminated(BaseException):
+    """SIGTERM, raised in the main thread while an experiment runs (like KeyboardInterrupt)."""
+
+
+def _raise_terminated(signum, frame):
+    raise Terminated
+
+
+class Interrupted(Exception):
+    """An experiment stopped by Ctrl-C (``code`` 130) or SIGTERM (143), its workers killed:
+    ``kept`` of ``planned`` runs are on disk in ``out_dir`` and a rerun resumes from them."""
+
+    def __init__(self, code: int, kept: int, planned: int, out_dir):
+        super().__init__(f"interrupted: {kept} of {planned} runs kept in {out_dir}")
+        self.code, self.kept, self.planned, self.out_dir = code, kept, planned, out_dir
 
 
 def _problem(config: dict, case: str):
@@ -565,19 +585,24 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     kept = [pd.read_parquet(parts / f"{s.part_name}.run.parquet").iloc[0] for s in specs if s.part_name in done]
     bar = Progress(len(specs), len(specs) - len(pending), progress_stream, finished_rows=kept)
     ids = {case: problem_id(exp, case) for case in exp.cases}
-    if pending:
-        where = (f"{jobs} worker(s)" if backend != "dask" and executor is None else
-                 f"the Dask cluster at {scheduler}" if executor is None else "the given executor")
-        if device != "cpu":
-            where += f", simulations on {device}"
-        if lockstep:
-            where += ", runs in lockstep"
-        print(f"{exp.name}: {len(pending)} of {len(specs)} runs to do ({len(done)} already done), "
-              f"{where}, output {out_dir}", file=progress_stream)
-        _run_pending(config, pending, parts, bar, jobs=jobs, backend=backend, scheduler=scheduler, executor=executor,
-                     lockstep=lockstep)
-    bar.close()
-    _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, figures=figures)
+    try:
+        if pending:
+            where = (f"{jobs} worker(s)" if backend != "dask" and executor is None else
+                     f"the Dask cluster at {scheduler}" if executor is None else "the given executor")
+            if device != "cpu":
+                where += f", simulations on {device}"
+            if lockstep:
+                where += ", runs in lockstep"
+            print(f"{exp.name}: {len(pending)} of {len(specs)} runs to do ({len(done)} already done), "
+                  f"{where}, output {out_dir}", file=progress_stream)
+            _run_pending(config, pending, parts, bar, jobs=jobs, backend=backend, scheduler=scheduler,
+                         executor=executor, lockstep=lockstep)
+        bar.close()
+        _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, figures=figures)
+    except (KeyboardInterrupt, Terminated) as exc:
+        kill_workers()
+        kept = len(_finished(parts) & {s.part_name for s in specs})
+        raise Interrupted(143 if isinstance(exc, Terminated) else 130, kept, len(specs), out_dir) from None
     return out_dir
 
 
@@ -823,8 +848,11 @@ def _parser():
 
 
 def run(argv=None) -> int:
-    """Command-line entry point; returns the exit code."""
+    """Command-line entry point; returns the exit code (130 after Ctrl-C, 143 after SIGTERM)."""
     args = _parser().parse_args(argv)
+    previous_handler = None
+    if threading.current_thread() is threading.main_thread():
+        previous_handler = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         load_plugins(args.plugin)
         if args.list:
@@ -860,11 +888,26 @@ def run(argv=None) -> int:
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("\ninterrupted: finished runs are kept; run the same command again to resume", file=sys.stderr)
-        return 130
+    except Interrupted as exc:
+        print(f"\ninterrupted: {exc.kept} of {exc.planned} runs kept in {exc.out_dir}; "
+              "run the same command again to resume", file=sys.stderr)
+        return exc.code
+    except (KeyboardInterrupt, Terminated) as exc:
+        kill_workers()
+        print("\ninterrupted before any run started", file=sys.stderr)
+        return 143 if isinstance(exc, Terminated) else 130
+    finally:
+        if previous_handler is not None:
+            signal.signal(signal.SIGTERM, previous_handler)
     return 0
 
 
 def main() -> None:
-    sys.exit(run())
+    code = run()
+    if code in (130, 143):
+        # Leave at once: loky's manager threads and the runs' threads may still be winding
+        # down, and the interpreter's exit would wait for them; the finished runs are on disk.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)

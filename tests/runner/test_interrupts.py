@@ -1,0 +1,113 @@
+"""Ctrl-C and SIGTERM stop an experiment at once, keep its finished runs and leave no process behind.
+
+Each case starts ``python -m heurtune.experiment`` in a session of its own, waits for a line of
+its output (the start line: the workers are starting; a run's progress line: mid-run; the last
+progress line: the final gathering), sends the signal and checks the exit status, the one line
+on stderr, that no process of the session is left, and that the same command resumes.
+"""
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+ARGS = ["cs_folqi_qtp", "--runs", "2", "--max-epochs", "4", "--jobs", "2", "--seed", "5"]
+
+
+def start(out):
+    return subprocess.Popen([sys.executable, "-m", "heurtune.experiment", *ARGS, "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+
+
+def wait_for(proc, text, timeout=120.0):
+    """Read stdout until a line containing ``text``; the lines so far."""
+    lines = []
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        lines.append(line)
+        if text in line:
+            return lines
+    raise AssertionError(f"no line with {text!r} in {lines}")
+
+
+def session_alive(pgid) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def interrupt(proc, sig):
+    """Send ``sig``; return (exit status, stderr, seconds to exit); check no process is left."""
+    t0 = time.monotonic()
+    os.kill(proc.pid, sig)
+    err = []
+    reader = threading.Thread(target=lambda: err.append(proc.stderr.read()), daemon=True)
+    reader.start()
+    code = proc.wait(timeout=30)
+    elapsed = time.monotonic() - t0
+    proc.stdout.read()
+    reader.join(timeout=10)
+    deadline = time.monotonic() + 10
+    while session_alive(proc.pid) and time.monotonic() < deadline:  # workers killed, not waited for
+        time.sleep(0.1)
+    assert not session_alive(proc.pid), "a process of the experiment is still running"
+    return code, "".join(err), elapsed
+
+
+def interrupted_line(stderr):
+    lines = [line for line in stderr.splitlines() if line.startswith("interrupted")]
+    assert len(lines) == 1, stderr
+    return lines[0]
+
+
+def test_interrupts_at_start_mid_run_and_at_the_end_then_resume(tmp_path):
+    out = tmp_path / "r"
+    # 1. Ctrl-C while the workers start
+    proc = start(out)
+    wait_for(proc, "runs to do")
+    code, err, elapsed = interrupt(proc, signal.SIGINT)
+    assert code == 130 and elapsed < 10, (code, elapsed, err)
+    assert interrupted_line(err) == f"interrupted: 0 of 4 runs kept in {out}; run the same command again to resume"
+    assert "Traceback" not in err
+    # 2. SIGTERM after the first finished run
+    proc = start(out)
+    wait_for(proc, "runs, ")
+    code, err, elapsed = interrupt(proc, signal.SIGTERM)
+    assert code == 143 and elapsed < 10, (code, elapsed, err)
+    kept = int(interrupted_line(err).split()[1])
+    assert 1 <= kept <= 4
+    assert len(list((out / "parts").glob("*.run.parquet"))) == kept
+    # 3. Ctrl-C once every run is done, while the results are gathered (or just after)
+    proc = start(out)
+    wait_for(proc, "4/4 runs")
+    code, err, elapsed = interrupt(proc, signal.SIGINT)
+    assert code in (0, 130) and elapsed < 10, (code, elapsed, err)
+    if code == 130:
+        assert interrupted_line(err).startswith("interrupted: 4 of 4 runs kept")
+    # 4. the same command finishes from what was kept
+    done = subprocess.run([sys.executable, "-m", "heurtune.experiment", *ARGS, "--out", str(out), "--no-figures"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "0 of 4 runs to do" in done.stdout or "runs to do" not in done.stdout
+    assert (out / "runs.parquet").exists()
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_interrupt_in_lockstep(tmp_path, sig, code):
+    out = tmp_path / "r"
+    proc = subprocess.Popen([sys.executable, "-m", "heurtune.experiment", *ARGS, "--lockstep", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    wait_for(proc, "runs to do")
+    time.sleep(1.0)  # inside the runs' first generations
+    got, err, elapsed = interrupt(proc, sig)
+    assert got == code and elapsed < 10, (got, elapsed, err)
+    assert interrupted_line(err).startswith("interrupted: 0 of 4 runs kept")
