@@ -23,6 +23,19 @@ def test_listing_names_every_optimiser():
         assert f"{name}: " in out
 
 
+def test_listing_has_usage_and_takes_names():
+    from heurtune.algorithms.__main__ import main
+
+    def run(*argv):
+        return subprocess.run([sys.executable, "-m", "heurtune.algorithms", *argv], capture_output=True, text=True)
+
+    usage = run("--help")
+    assert usage.returncode == 0 and usage.stdout.startswith("usage: python -m heurtune.algorithms")
+    one = run("cs")
+    assert one.returncode == 0 and one.stdout.startswith("cs: ") and "apso: " not in one.stdout
+    assert main(["no_such_optimiser"]) == 2
+
+
 def test_guide_plugin_runs_and_meets_the_contract(tmp_path):
     """The one-file optimiser of docs/optimisers.md works as printed."""
     import numpy as np
