@@ -653,8 +653,10 @@ def summary_table(runs: pd.DataFrame, metric: str = "best_f", *, seed: int = BOO
         mean, sd, median, median_ci_low, median_ci_high, best, worst`` over the successful runs
         only (:func:`successful_runs`; ``n`` counts them where the metric is not missing,
         ``sd`` uses ddof=1, ``best``/``worst`` are the minimum/maximum, the median's interval
-        is :func:`median_ci`), then ``mean_convergence_epoch`` if ``convergence_epoch`` exists
-        and ``feasible_rate`` if ``feasible`` exists (both over all runs), then ``runs`` (all
+        is :func:`median_ci`), then ``mean_convergence_epoch`` and ``mean_convergence_evals`` if
+        ``convergence_epoch`` and ``convergence_evals`` exist (the convergence point in epochs and
+        in evaluations: optimisers may spend different evaluations per epoch) and
+        ``feasible_rate`` if ``feasible`` exists (all over all runs), then ``runs`` (all
         runs), ``failed`` (:func:`failed_runs`: their objective is a sentinel), ``infeasible``
         (not failed, best candidate infeasible) and ``success_rate`` (successful / all runs).
     """
@@ -677,6 +679,8 @@ def summary_table(runs: pd.DataFrame, metric: str = "best_f", *, seed: int = BOO
                "worst": v.max() if v.size else np.nan}
         if "convergence_epoch" in g:
             row["mean_convergence_epoch"] = float(g["convergence_epoch"].astype(float).mean())
+        if "convergence_evals" in g:
+            row["mean_convergence_evals"] = float(g["convergence_evals"].astype(float).mean())
         if "feasible" in g:
             row["feasible_rate"] = float(g["feasible"].astype(float).mean())
         row.update(runs=len(g), failed=int(failed.sum()), infeasible=int((~failed & ~ok).sum()),
@@ -1299,7 +1303,8 @@ def _blocks(runs: pd.DataFrame, metric: str, alpha: float, margins: pd.DataFrame
         s["mean rank"] = s["algorithm"].map(dict(zip(k["algorithm"], k["mean_rank"])))
         s["algorithm"] = [a + "*" if a == winner else a for a in s["algorithm"]]
         s = s.rename(columns={"sd": "SD", "median_ci_low": "median CI low", "median_ci_high": "median CI high",
-                              "mean_convergence_epoch": "conv. epoch", "feasible_rate": "feasible rate",
+                              "mean_convergence_epoch": "conv. epoch",
+                              "mean_convergence_evals": "conv. evals", "feasible_rate": "feasible rate",
                               "success_rate": "success rate"})
         blocks.append(("table", f"Case {case}: {metric} over successful runs", s,
                        {"mean rank": 3, "feasible rate": 3, "success rate": 3}))

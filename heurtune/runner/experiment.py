@@ -230,6 +230,7 @@ def run_record(prob, spec: RunSpec, res, wall_time_s: float, *, parts=None):
                run=spec.run, seed=spec.root_seed, seed_key=spec.seed_key, best_f=float(res.f),
                feasible=bool(res.feasible), violation=float(res.violation), n_evals=int(res.n_evals),
                n_epochs=int(res.n_epochs), convergence_epoch=int(res.convergence_epoch),
+               convergence_evals=_evals_at(res.history, res.convergence_epoch),
                wall_time_s=wall_time_s, stop_reason=res.stop_reason,
                settings=json.dumps(spec.settings, sort_keys=True))
     row.update(zip(prob.names, map(float, res.x)))
@@ -243,6 +244,13 @@ def run_record(prob, spec: RunSpec, res, wall_time_s: float, *, parts=None):
         if parts is not None:
             write_parquet(_front_table(prob, res.front), Path(parts) / f"{spec.part_name}.pareto.parquet")
     return row, hist
+
+
+def _evals_at(history: pd.DataFrame, epoch: int) -> int:
+    """Evaluations spent by the end of ``epoch`` (the convergence point in evaluations, which
+    compares optimisers that spend different evaluations per epoch)."""
+    at = history.loc[history["epoch"] == epoch, "n_evals"]
+    return int(at.iloc[0]) if len(at) else int(history["n_evals"].iloc[-1]) if len(history) else 0
 
 
 def _front_table(prob, front: dict) -> pd.DataFrame:
@@ -782,8 +790,9 @@ def summary_table(runs: pd.DataFrame, exp) -> pd.DataFrame:
     stable, simulable candidate), best, mean, sd, median, worst (of
     ``best_f`` over the successful runs, :func:`heurtune.analysis.compare.successful_runs`: a failed
     run's ``best_f`` is a sentinel and an infeasible run's answers another question, so both are
-    counted, not averaged; NaN when no run succeeded), conv_epoch and n_evals (means over all
-    runs), wall_s (summed), best_run, and the best run's gains (one column per variable).
+    counted, not averaged; NaN when no run succeeded), conv_epoch, conv_evals (the convergence
+    point in evaluations; NaN for runs written before it was recorded) and n_evals (means over
+    all runs), wall_s (summed), best_run, and the best run's gains (one column per variable).
     """
     rows = []
     for (case, oi), grp in runs.groupby(["case", "optimiser_index"], sort=False):
@@ -796,7 +805,9 @@ def summary_table(runs: pd.DataFrame, exp) -> pd.DataFrame:
             "feasible": int(grp["feasible"].sum()), "failed": int(failed.sum()),
             "best": f.min(), "mean": f.mean(), "sd": f.std(ddof=1) if len(f) > 1 else 0.0,
             "median": f.median(), "worst": f.max(),
-            "conv_epoch": grp["convergence_epoch"].mean(), "n_evals": grp["n_evals"].mean(),
+            "conv_epoch": grp["convergence_epoch"].mean(),
+            "conv_evals": grp["convergence_evals"].mean() if "convergence_evals" in grp else np.nan,
+            "n_evals": grp["n_evals"].mean(),
             "wall_s": grp["wall_time_s"].sum(), "best_run": int(best["run"]),
         }
         row.update({n: float(best[n]) for n in exp.problem(case).names})
@@ -806,12 +817,12 @@ def summary_table(runs: pd.DataFrame, exp) -> pd.DataFrame:
 
 def print_summary(runs: pd.DataFrame, exp, stream=sys.stdout):
     """Per case and optimiser: best, mean, SD, median, worst objective over the successful runs,
-    feasible runs, failed runs, mean convergence epoch, wall time and the best gains
+    feasible runs, failed runs, mean convergence epoch and evaluations, wall time and the best gains
     (:func:`summary_table`)."""
     summary = summary_table(runs, exp)
     table = summary[["case", "algorithm", "runs", "best", "mean", "sd", "median", "worst"]].assign(
         feasible=[f"{a}/{b}" for a, b in zip(summary["feasible"], summary["runs"])], failed=summary["failed"],
-        conv_epoch=summary["conv_epoch"], wall_s=summary["wall_s"])
+        conv_epoch=summary["conv_epoch"], conv_evals=summary["conv_evals"], wall_s=summary["wall_s"])
     table["best gains"] = [" ".join(f"{n}={row[n]:.4g}" for n in exp.problem(row["case"]).names)
                            for _, row in summary.iterrows()]
     with pd.option_context("display.width", 250, "display.max_columns", 20, "display.max_colwidth", 120,

@@ -27,7 +27,7 @@ def make_runs(values, *, experiment="exp", case="min", problem_id="pid-min", see
             row = {"experiment": experiment, "case": case, "algorithm": alg, "controller": "folqi",
                    "problem_id": problem_id, "run": r, "seed": 12345, "seed_key": f"{alg}/{r}",
                    "best_f": float(f), "feasible": True, "violation": 0.0, "n_evals": 1000, "n_epochs": 50,
-                   "convergence_epoch": 10 + r, "wall_time_s": 0.5, "stop_reason": "budget",
+                   "convergence_epoch": 10 + r, "convergence_evals": 20 * (10 + r), "wall_time_s": 0.5, "stop_reason": "budget",
                    "Q11": rng.random(), "alpha2": rng.random()}
             for sc in SCENARIOS:
                 for m in METRICS:
@@ -117,6 +117,7 @@ def test_summary_table_values():
     assert s.loc["cs", "sd"] == pytest.approx(np.std([1, 2, 4], ddof=1))
     assert (s.loc["cs", "median"], s.loc["cs", "best"], s.loc["cs", "worst"]) == (2.0, 1.0, 4.0)
     assert s.loc["cs", "mean_convergence_epoch"] == pytest.approx(11.5)
+    assert s.loc["cs", "mean_convergence_evals"] == pytest.approx(230.0)
     assert s.loc["cs", "feasible_rate"] == pytest.approx(3 / 4)
     assert s.loc["pso", "sd"] == 0.0 and s.loc["pso", "feasible_rate"] == 1.0
     assert s.case.tolist() == ["min", "min"]

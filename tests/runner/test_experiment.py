@@ -176,8 +176,15 @@ def test_summary_parquet_holds_the_printed_statistics_and_meta_says_where_it_ran
             assert row["best"] == ok.min() and row["mean"] == pytest.approx(ok.mean())
             assert row["median"] == pytest.approx(ok.median())
         assert row["n_evals"] == grp["n_evals"].mean() and row["wall_s"] == pytest.approx(grp["wall_time_s"].sum())
+        assert row["conv_evals"] == grp["convergence_evals"].mean()
         best = grp[grp["run"] == row["best_run"]].iloc[0]
         assert all(row[n] == best[n] for n in GAINS)
+    # the convergence point in evaluations is the history's count at the convergence epoch
+    hist = pd.read_parquet(smoke / "history.parquet")
+    for _, run in runs.iterrows():
+        h = hist[(hist["case"] == run["case"]) & (hist["run"] == run["run"])
+                 & (hist["optimiser_index"] == run["optimiser_index"])]
+        assert run["convergence_evals"] == h.loc[h["epoch"] == run["convergence_epoch"], "n_evals"].iloc[0]
     meta = json.loads((smoke / "meta.json").read_text())
     assert meta["platform"]["cpu_count"] >= 1 and meta["platform"]["cpu"] and meta["platform"]["system"]
     assert isinstance(meta["platform"]["blas"], list)
