@@ -31,6 +31,8 @@ __all__ = ["convergence_figure", "boxplot_figure", "response_figure", "plot_resp
 # see heurtune.objectives.qtp.problem): they are left out of medians and boxes, which they would otherwise swamp.
 FAILED_THRESHOLD = 1.0e10
 DPI = 110
+# Line style of each scenario of a response figure, in turn (solid, dashed, dotted, dash-dot).
+SCENARIO_STYLES = ("-", "--", ":", "-.")
 
 
 def _needs_log(values) -> bool:
@@ -69,7 +71,18 @@ def _algorithm_colors(algorithms):
     return {a: cmap(i % 10) for i, a in enumerate(algorithms)}
 
 
-def convergence_figure(history: pd.DataFrame, path, case=None) -> None:
+def _empty_reason(failures) -> str:
+    """Why a convergence panel has nothing to draw, from the failed runs' reasons."""
+    reasons = [r for r in (failures if failures is not None else []) if r]
+    if not reasons:
+        return "median not finite: most runs found\nno stable, simulable candidate"
+    counts = pd.Series(reasons).value_counts()
+    if len(counts) == 1:
+        return f"no line: {counts.iloc[0]} runs failed,\nevery best candidate {counts.index[0]}"
+    return "no line: runs failed, best candidates\n" + ", ".join(f"{n} {r}" for r, n in counts.items())
+
+
+def convergence_figure(history: pd.DataFrame, path, case=None, *, failures=None, ylabel=None) -> None:
     """Median best objective per epoch with its inter-quartile band (thesis Figs 5.4-5.5).
 
     One PNG with one panel per case (side by side, at most three per row), one line per
@@ -93,6 +106,11 @@ def convergence_figure(history: pd.DataFrame, path, case=None) -> None:
         PNG written atomically.
     case : str or sequence of str, optional
         Only these cases (default: every case, in order of appearance).
+    failures : dict, optional
+        Per case, the failure reasons of its failed runs (``runs.parquet``'s ``failure``), so
+        that a panel with nothing to draw says why (e.g. "every best candidate unstable").
+    ylabel : str, optional
+        The objective with its unit (default "best objective").
 
     Raises
     ------
@@ -134,14 +152,14 @@ def convergence_figure(history: pd.DataFrame, path, case=None) -> None:
             plotted.append(np.concatenate([q25, q75[np.isfinite(q75)]]))
         ax.grid(alpha=0.3)
         if not plotted:
-            ax.text(0.5, 0.5, "median not finite: most runs found\nno simulable candidate",
+            ax.text(0.5, 0.5, _empty_reason((failures or {}).get(name)),
                     ha="center", va="center", transform=ax.transAxes, fontsize=9)
         if plotted and _needs_log(np.concatenate(plotted)):
             ax.set_yscale("log")
             ax.grid(alpha=0.1, which="minor")
         ax.set_title(f"case {name}")
         ax.set_xlabel("epoch" if x == "epoch" else "evaluations")
-        ax.set_ylabel("best objective (median, IQR band)")
+        ax.set_ylabel(f"{ylabel or 'best objective'} (median, IQR band)")
         if plotted:
             ax.legend(fontsize=8)
     _save(fig, path)
@@ -289,8 +307,9 @@ def plot_responses(traj, path, title: str = "", limits=None, labels=None) -> Non
     ----------
     traj : pandas.DataFrame
         Columns ``scenario, t, y1, y2, u1, u2``; optional ``r1, r2`` (set-points, drawn black
-        dashed for the first scenario) and ``h1..h4`` (true levels: ``h1, h2`` dashed beside
-        the measured ``y1, y2``).
+        dashed for the first scenario) and ``h1..h4`` (true levels: ``h1, h2`` thin and pale
+        beside the measured ``y1, y2``). Each scenario has its own colour and line style
+        (:data:`SCENARIO_STYLES`), so that scenarios whose responses overlap stay apart.
     path : str or Path
         PNG written atomically.
     title : str
@@ -306,14 +325,15 @@ def plot_responses(traj, path, title: str = "", limits=None, labels=None) -> Non
     lab = {**DEFAULT_SIGNAL_LABELS, **(labels or {})}
     fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
     for k, (name, df) in enumerate(traj.groupby("scenario", sort=False)):
+        style = SCENARIO_STYLES[k % len(SCENARIO_STYLES)]  # scenarios that overlap stay apart
         for i in (1, 2):
-            line, = axes[0, i - 1].plot(df["t"], df[f"y{i}"], lw=1.2, label=f"{name}: y{i}")
+            line, = axes[0, i - 1].plot(df["t"], df[f"y{i}"], lw=1.2, ls=style, label=f"{name}: y{i}")
             if f"h{i}" in df:
-                axes[0, i - 1].plot(df["t"], df[f"h{i}"], lw=0.8, ls="--", color=line.get_color(),
+                axes[0, i - 1].plot(df["t"], df[f"h{i}"], lw=0.7, ls=style, alpha=0.5, color=line.get_color(),
                                     label=f"{name}: h{i}")
             if k == 0 and f"r{i}" in df:
                 axes[0, i - 1].plot(df["t"], df[f"r{i}"], "k--", lw=0.8, label="set-point")
-            axes[1, i - 1].plot(df["t"], df[f"u{i}"], lw=1.2, label=name)
+            axes[1, i - 1].plot(df["t"], df[f"u{i}"], lw=1.2, ls=style, label=name)
     if limits:
         u_lo, u_hi = limits["u"]
         for i in (1, 2):

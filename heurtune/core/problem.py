@@ -118,8 +118,10 @@ class TuningProblem:
     objective_names = None
     reference_point = None
     decision_weights = None
-    # Panel names and units of response figures (see DEFAULT_SIGNAL_LABELS).
+    # Panel names and units of response figures (see DEFAULT_SIGNAL_LABELS), and the objective
+    # with its unit for convergence figures (None: "best objective").
     signal_labels = DEFAULT_SIGNAL_LABELS
+    objective_label = None
     # Where the simulations of an evaluation run (set_device): the devices this family offers,
     # and the chosen one.
     devices = ("cpu",)

@@ -754,7 +754,10 @@ def _gather_starts(exp, specs, parts, out_dir):
 def _figures(exp, runs, history, best, out_dir):
     for case in exp.cases:
         h = history[history["case"] == case]
-        figures.convergence_figure(h, out_dir / f"convergence_{_slug(case)}.png", case=case)
+        failed = runs[(runs["case"] == case) & (runs.get("status") == "failed")] if "status" in runs else runs[:0]
+        figures.convergence_figure(h, out_dir / f"convergence_{_slug(case)}.png", case=case,
+                                   failures={case: list(failed.get("failure", []))},
+                                   ylabel=getattr(exp.problem(case), "objective_label", None))
         b = best[best["case"] == case].sort_values(["feasible", "best_f"], ascending=[False, True]).head(1)
         if len(b):
             prob = exp.problem(case)

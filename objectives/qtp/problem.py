@@ -37,6 +37,8 @@ OBJECTIVES = {
     "ise": ("ISE1", "ISE2"),
     "itae": ("ITAE1", "ITAE2"),
 }
+# The unit of each objective (levels in cm, voltages in V, times in s).
+OBJECTIVE_UNITS = {"effort": "V² s", "effort_deviation": "V² s", "iae": "cm s", "ise": "cm² s", "itae": "cm s²"}
 _METRIC_INDEX = {name: i for i, name in enumerate(METRIC_NAMES)}
 # Metrics a weighted objective may combine (each summed over both loops or pumps).
 WEIGHTED_METRICS = ("J", "Jdev", "IAE", "ISE", "ITAE", "TV")
@@ -126,6 +128,14 @@ class Problem(TuningProblem):
         self._stability_only = not names_g
         self.constraint_names = (STABILITY_CONSTRAINT,) if self._stability_only else tuple(names_g)
         self._constraint_limit = np.array(self._constraint_limit)
+
+    @property
+    def objective_label(self) -> str:
+        """The objective with its unit, for axes: e.g. ``"effort J (V² s)"``."""
+        if self.objective == "weighted":
+            return "weighted objective"
+        names = {"effort": "effort J", "effort_deviation": "effort Jdev", "iae": "IAE", "ise": "ISE", "itae": "ITAE"}
+        return f"{names[self.objective]} ({OBJECTIVE_UNITS[self.objective]})"
 
     def __repr__(self):
         return (f"Problem(case={self.case!r}, controller={self.loop.kind!r}, dim={self.dim}, "

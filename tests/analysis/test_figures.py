@@ -123,3 +123,34 @@ def test_convergence_uses_evaluations_when_epochs_are_unequal_work(tmp_path, mon
     # the firefly line ends at 500 evaluations, the CS line at 250
     ends = sorted(line.get_xdata()[-1] for line in figs[0].axes[0].get_lines())
     assert ends == [250, 500]
+
+
+def test_empty_panel_says_why_and_axes_carry_units(tmp_path, monkeypatch):
+    from heurtune.analysis import figures
+
+    figs = []
+    close = figures.plt.close
+    monkeypatch.setattr(figures.plt, "close", lambda fig: (figs.append(fig), close(fig)))
+    failed = synthetic_history().assign(best_f=1e10)  # no run found a stable candidate
+    convergence_figure(failed, tmp_path / "c.png", case="min", failures={"min": ["unstable"] * 15},
+                       ylabel="effort J (V² s)")
+    ax = figs[0].axes[0]
+    assert [t.get_text() for t in ax.texts] == ["no line: 15 runs failed,\nevery best candidate unstable"]
+    assert ax.get_ylabel() == "effort J (V² s) (median, IQR band)"
+    convergence_figure(failed, tmp_path / "d.png", case="min", failures={"min": ["unstable", "diverged"]})
+    assert figs[1].axes[0].texts[0].get_text() == "no line: runs failed, best candidates\n1 unstable, 1 diverged"
+    assert heurtune.load_experiment("cs_folqi_qtp").problem("min").objective_label == "effort J (V² s)"
+
+
+def test_overlapping_scenarios_get_their_own_line_styles(tmp_path, monkeypatch):
+    from heurtune.analysis import figures
+
+    figs = []
+    close = figures.plt.close
+    monkeypatch.setattr(figures.plt, "close", lambda fig: (figs.append(fig), close(fig)))
+    t = np.linspace(0, 1, 11)
+    traj = pd.concat([pd.DataFrame(dict(scenario=name, t=t, y1=t, y2=t, u1=t, u2=t)) for name in ("a", "b", "c")])
+    figures.plot_responses(traj, tmp_path / "r.png")
+    styles = [line.get_linestyle() for line in figs[0].axes[2].get_lines()]  # u1: one line per scenario
+    assert len(styles) == 3 and len(set(styles)) == 3
+    assert figs[0].axes[2].get_xlabel() == "t (s)" and "(V)" in figs[0].axes[2].get_ylabel()
