@@ -150,7 +150,8 @@ def test_overlapping_scenarios_get_their_own_line_styles(tmp_path, monkeypatch):
     monkeypatch.setattr(figures.plt, "close", lambda fig: (figs.append(fig), close(fig)))
     t = np.linspace(0, 1, 11)
     traj = pd.concat([pd.DataFrame(dict(scenario=name, t=t, y1=t, y2=t, u1=t, u2=t)) for name in ("a", "b", "c")])
-    figures.plot_responses(traj, tmp_path / "r.png")
+    labels = heurtune.load_experiment("cs_folqi_qtp").problem("min").signal_labels
+    figures.plot_responses(traj, tmp_path / "r.png", labels=labels)
     styles = [line.get_linestyle() for line in figs[0].axes[2].get_lines()]  # u1: one line per scenario
     assert len(styles) == 3 and len(set(styles)) == 3
     assert figs[0].axes[2].get_xlabel() == "t (s)" and "(V)" in figs[0].axes[2].get_ylabel()
