@@ -544,7 +544,7 @@ def _persist(parts: Path, spec: RunSpec, row: dict, hist: pd.DataFrame):
 
 def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed=None, out=None,
                    smoke=False, fresh=False, backend="loky", scheduler=None, plugins=(),
-                   progress_stream=sys.stdout, figures=True, executor=None, device: str = "cpu",
+                   progress_stream=None, figures=True, executor=None, device: str = "cpu",
                    lockstep: bool | None = None) -> Path:
     """Run (or resume) an experiment; returns its output folder. See the module docstring.
 
@@ -556,6 +556,7 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     for the batched devices."""
     if lockstep is None:
         lockstep = device != "cpu"
+    progress_stream = sys.stdout if progress_stream is None else progress_stream  # the current one
     load_plugins(plugins)
     config = load_config(name)
     if device != "cpu":
@@ -596,7 +597,8 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     try:
         if pending:
             where = (f"{jobs} worker(s)" if backend != "dask" and executor is None else
-                     f"the Dask cluster at {scheduler}" if executor is None else "the given executor")
+                     f"the Dask cluster at {scheduler} ({_dask_workers(scheduler)} workers)" if executor is None
+                     else "the given executor")
             if device != "cpu":
                 where += f", simulations on {device}"
             if lockstep:
@@ -612,6 +614,12 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
         kept = len(_finished(parts) & {s.part_name for s in specs})
         raise Interrupted(143 if isinstance(exc, Terminated) else 130, kept, len(specs), out_dir) from None
     return out_dir
+
+
+def _dask_workers(scheduler) -> int:
+    """The number of workers of the Dask cluster at ``scheduler`` (an address or a Client)."""
+    with Pool(1, "dask", scheduler) as pool:
+        return pool.workers
 
 
 def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler, executor=None, lockstep=False):

@@ -151,13 +151,14 @@ def test_compare_reads_two_smoke_experiments(smoke, tmp_path, capsys):
     assert "problem_id" in capsys.readouterr().err
 
 
-def test_dask_backend_runs_whole_runs(smoke, tmp_path):
+def test_dask_backend_runs_whole_runs(smoke, tmp_path, capfd):
     distributed = pytest.importorskip("distributed")
     out = tmp_path / "dask"
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster:
         assert run(["cs_folqi_qtp", "--smoke", "--out", str(out), "--no-figures", "--backend", "dask",
                     "--scheduler", cluster.scheduler_address]) == 0
+        assert f"the Dask cluster at {cluster.scheduler_address} (2 workers)" in capfd.readouterr().out
     a = pd.read_parquet(smoke / "runs.parquet").sort_values(["case", "run"]).reset_index(drop=True)
     b = pd.read_parquet(out / "runs.parquet").sort_values(["case", "run"]).reset_index(drop=True)
     pd.testing.assert_frame_equal(a[["case", "run", "best_f"] + GAINS], b[["case", "run", "best_f"] + GAINS])
