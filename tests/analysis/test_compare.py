@@ -27,7 +27,8 @@ def make_runs(values, *, experiment="exp", case="min", problem_id="pid-min", see
             row = {"experiment": experiment, "case": case, "algorithm": alg, "controller": "folqi",
                    "problem_id": problem_id, "run": r, "seed": 12345, "seed_key": f"{alg}/{r}",
                    "best_f": float(f), "feasible": True, "violation": 0.0, "n_evals": 1000, "n_epochs": 50,
-                   "convergence_epoch": 10 + r, "convergence_evals": 20 * (10 + r), "wall_time_s": 0.5, "stop_reason": "budget",
+                   "convergence_epoch": 10 + r, "convergence_evals": 20 * (10 + r), "wall_time_s": 0.5,
+                   "stop_reason": "budget",
                    "Q11": rng.random(), "alpha2": rng.random()}
             for sc in SCENARIOS:
                 for m in METRICS:

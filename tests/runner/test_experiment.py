@@ -182,10 +182,10 @@ def test_summary_parquet_holds_the_printed_statistics_and_meta_says_where_it_ran
         assert all(row[n] == best[n] for n in GAINS)
     # the convergence point in evaluations is the history's count at the convergence epoch
     hist = pd.read_parquet(smoke / "history.parquet")
-    for _, run in runs.iterrows():
-        h = hist[(hist["case"] == run["case"]) & (hist["run"] == run["run"])
-                 & (hist["optimiser_index"] == run["optimiser_index"])]
-        assert run["convergence_evals"] == h.loc[h["epoch"] == run["convergence_epoch"], "n_evals"].iloc[0]
+    for _, one in runs.iterrows():
+        h = hist[(hist["case"] == one["case"]) & (hist["run"] == one["run"])
+                 & (hist["optimiser_index"] == one["optimiser_index"])]
+        assert one["convergence_evals"] == h.loc[h["epoch"] == one["convergence_epoch"], "n_evals"].iloc[0]
     meta = json.loads((smoke / "meta.json").read_text())
     assert meta["platform"]["cpu_count"] >= 1 and meta["platform"]["cpu"] and meta["platform"]["system"]
     assert isinstance(meta["platform"]["blas"], list)
