@@ -83,6 +83,7 @@ class Lockstep:
         self._tickets = itertools.count()
         self._requests = {}  # ticket -> (group, X), while its thread waits
         self._answers = {}
+        self._events = {}  # ticket -> the event its thread waits on
         self._finished = []  # (index, result, error) of ended runs
         self._abort = False
         self.batches = []  # sizes of the batches evaluated (for tests and reports)
@@ -92,17 +93,22 @@ class Lockstep:
 
     # -- the runs' side ----------------------------------------------------------------------
     def submit(self, group, X):
-        """Wait until every running thread has asked too, then return this request's (f, g)."""
+        """Wait until every running thread has asked too, then return this request's (f, g).
+
+        Each request waits on an event of its own (only the driving thread waits on the
+        condition), so that an answer wakes one thread, not all of them."""
         X = np.ascontiguousarray(X, dtype=np.float64)
+        answered = threading.Event()
         with self._cond:
             if self._abort:
                 raise LockstepAborted
             ticket = next(self._tickets)
             self._requests[ticket] = (group, X)
+            self._events[ticket] = answered
             self._cond.notify_all()
-            while ticket not in self._answers and not self._abort:
-                self._cond.wait()
-            if self._abort:
+        answered.wait()
+        with self._cond:
+            if ticket not in self._answers:  # woken by an abort
                 raise LockstepAborted
             return self._answers.pop(ticket)
 
@@ -184,11 +190,14 @@ class Lockstep:
                     answers = self._answer(requests)
                     with self._cond:
                         self._answers.update(answers)
-                        self._cond.notify_all()
+                        for ticket in answers:
+                            self._events.pop(ticket).set()
         finally:
             with self._cond:
                 if ended < len(targets):
                     self._abort = True
+                    for event in self._events.values():
+                        event.set()
                 self._cond.notify_all()
 
     def _answer(self, requests: dict) -> dict:
