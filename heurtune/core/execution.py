@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import concurrent.futures
 import hashlib
+import os
 import pickle
+import signal
 
 import cloudpickle
 
@@ -38,15 +40,32 @@ def shared():
 _LOKY = []  # the loky executors this process's pools have opened (see kill_workers)
 
 
+def _kill(executor) -> None:
+    """Kill a loky executor's worker processes here and now: ``shutdown(kill_workers=True)``
+    leaves that to loky's manager thread, which an exit right after never lets run."""
+    for process in list(getattr(executor, "_processes", {}).values()):
+        try:
+            os.kill(process.pid, signal.SIGKILL)  # loky's Popen has no kill()
+            process.join(timeout=1.0)
+        except (OSError, ValueError, AttributeError):  # already gone
+            pass
+    try:
+        executor.shutdown(wait=False, kill_workers=True)
+    except Exception:  # noqa: BLE001 - an executor broken by the interrupt is gone anyway
+        pass
+
+
 def kill_workers() -> None:
     """Kill every loky worker this process started, at once (after Ctrl-C or SIGTERM: loky
     would otherwise keep them, and its resource trackers, alive for a minute or two)."""
     while _LOKY:
-        executor = _LOKY.pop()
-        try:
-            executor.shutdown(wait=False, kill_workers=True)
-        except Exception:  # noqa: BLE001 - an executor broken by the interrupt is gone anyway
-            pass
+        _kill(_LOKY.pop())
+    # An interrupt inside loky's start-up leaves its executor unregistered above: loky keeps it
+    # as its module's reusable executor.
+    from joblib.externals.loky import reusable_executor
+
+    if getattr(reusable_executor, "_executor", None) is not None:
+        _kill(reusable_executor._executor)
 
 
 _CONTROLLER = []  # one threadpoolctl controller per process (building one costs milliseconds)
@@ -197,7 +216,7 @@ class Pool:
     def abort(self):
         """Stop at once: cancel what has not started and kill the loky workers."""
         if self._loky is not None:
-            self._loky.shutdown(wait=False, kill_workers=True)
+            _kill(self._loky)
             self._loky = None
 
     # -- work ---------------------------------------------------------------------------------
