@@ -256,8 +256,9 @@ class RunContext:
 
     def __init__(self, evaluator: Evaluator, space: SearchSpace, compare: Comparator, *,
                  max_evals, max_epochs, max_time, tol, tol_window, checkpoint: Checkpoint | None = None,
-                 reference_point=None, decision_weights=None, multi_objective: bool = False):
+                 reference_point=None, decision_weights=None, multi_objective: bool = False, progress=None):
         self.evaluator = evaluator
+        self.progress = progress
         self.reference_point = reference_point
         self.decision_weights = decision_weights
         self.multi_objective = multi_objective
@@ -322,6 +323,11 @@ class RunContext:
     def count_evaluations(self, n: int) -> None:
         """Add ``n`` evaluations a driver made through :attr:`objective` to the run's count."""
         self.n_evals += int(n)
+        self._report_progress()
+
+    def _report_progress(self) -> None:
+        if self.progress is not None:
+            self.progress(self.n_evals, self.epoch, self.best_f, self.best_v)
 
     def offer(self, X, f, v, g):
         """Update the best-so-far with evaluated candidates.
@@ -376,6 +382,7 @@ class RunContext:
             feasible_fraction=float(np.mean(pop_v <= 0)) if pop_v.size else math.nan,
             wall_time_s=time.perf_counter() - self.t0,
         ))
+        self._report_progress()
         return self.check_stop()
 
     def check_stop(self) -> bool:
@@ -435,7 +442,7 @@ def _population_loop(opt: Optimizer, ctx: RunContext) -> None:
 def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=None, seed=0,
         max_evals=None, max_epochs=None, max_time=None, tol=None, tol_window=DEFAULT_TOL_WINDOW,
         constraint_handling="deb", penalty=1e6, checkpoint: Checkpoint | None = None,
-        reference_point=None, decision_weights=None) -> Result:
+        reference_point=None, decision_weights=None, progress=None) -> Result:
     """Run one optimisation with an open evaluator.
 
     Parameters
@@ -454,6 +461,10 @@ def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=No
     decision_weights : array_like, optional
         Several objectives: the weights of the decision step that picks ``Result.x`` from the
         front (:func:`heurtune.core.pareto.asf_choice`; equal by default).
+    progress : callable, optional
+        ``progress(n_evals, epoch, best_f, best_violation)``, called at the end of every epoch
+        and whenever a driver counts evaluations (the experiment runner's progress line reads
+        it from inside running runs); it only watches, the run is the same without it.
 
     Returns
     -------
@@ -479,7 +490,7 @@ def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=No
     ctx = RunContext(evaluator, space, compare, max_evals=max_evals, max_epochs=max_epochs,
                      max_time=max_time, tol=tol, tol_window=tol_window, checkpoint=checkpoint,
                      reference_point=reference_point, decision_weights=decision_weights,
-                     multi_objective=info.multi_objective)
+                     multi_objective=info.multi_objective, progress=progress)
     opt = info.cls(space, settings, rng, compare)
     details = None
     if info.kind == "driver":

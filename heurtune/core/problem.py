@@ -196,6 +196,13 @@ class TuningProblem:
         share work across the scenarios."""
         return [self.evaluate(X, s, **options) for s in scenarios]
 
+    def evaluation_scenarios(self) -> list:
+        """The scenarios one evaluation simulates: the tuning scenario, or every scenario the
+        objective aggregates when the problem is tuned robustly (the runner's calibration
+        counts their steps)."""
+        names = self.robust.scenarios if self.robust is not None else (self.tuning_scenario,)
+        return [self.scenario(name) for name in names]
+
     def margins(self, x) -> pd.DataFrame | None:
         """Stability margins of one design, one row per loop, or None when the family has none."""
         return None

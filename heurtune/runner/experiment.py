@@ -4,7 +4,8 @@ Usage::
 
     python -m heurtune.experiment NAME [--runs N] [--max-epochs E] [--jobs J] [--seed S]
         [--out DIR] [--smoke] [--fresh] [--backend loky|dask --scheduler ADDRESS]
-        [--plugin FILE_OR_MODULE ...] [--list] [--list-algorithms] [--status]
+        [--plugin FILE_OR_MODULE ...] [--device cpu|cpu-batch|gpu] [--lockstep] [--force]
+        [--list] [--list-algorithms] [--status]
 
 Every (case, optimiser, run) is one tuning run with its own seed,
 ``SeedSequence(root_seed, spawn_key=(case index, optimiser index, run))``, so a run's result
@@ -32,6 +33,7 @@ import dataclasses
 import functools
 import hashlib
 import json
+import math
 import os
 import shutil
 import signal
@@ -58,6 +60,9 @@ from heurtune.core.lockstep import Lockstep
 from heurtune.core.plugins import load_plugins
 from heurtune.core.problem import StructureWarning, problem_fingerprint
 from heurtune.runner.config import list_experiments, load_config
+from heurtune.runner.progress import HEARTBEAT_SUFFIX, Heartbeat, Progress, clear_heartbeats
+from heurtune.runner.workplan import borrow_step_cost, calibrate, check_evaluation_time, estimate_line, \
+    planned_evaluations
 
 __all__ = ["RunSpec", "plan", "execute", "problem_id", "run_status", "RUN_STATUSES", "run_experiment", "summary_table",
            "status_table",
@@ -214,9 +219,10 @@ def optimise(config: dict, spec: RunSpec, evaluator: Evaluator | None = None, *,
     try:
         checkpoint = None if parts is None else StartsFile(
             Path(parts) / f"{spec.part_name}.starts.parquet", prob.names, _run_key(prob, spec))
+        heartbeat = None if parts is None else Heartbeat(Path(parts) / f"{spec.part_name}{HEARTBEAT_SUFFIX}")
         res = run_optimiser(spec.algorithm, ev, space, settings=spec.settings, seed=seed,
                             checkpoint=checkpoint, reference_point=prob.reference_point,
-                            decision_weights=prob.decision_weights, **budget)
+                            decision_weights=prob.decision_weights, progress=heartbeat, **budget)
     finally:
         if own:
             ev.close()
@@ -448,48 +454,6 @@ def _versions() -> dict:
     return out
 
 
-class Progress:
-    """One status line: runs done, evaluations per second (of this invocation), and the best so
-    far per case over every finished run, those of an earlier invocation included."""
-
-    def __init__(self, total: int, done: int, stream=sys.stdout, finished_rows=()):
-        self.total, self.done = total, done
-        self.stream = stream
-        self.tty = stream.isatty()
-        self.t0 = time.perf_counter()
-        self.evals = 0
-        self.best = {}
-        for row in finished_rows:  # runs kept from before a resume
-            self._offer(row)
-
-    def _offer(self, row) -> None:
-        key = row["case"]
-        cand = (not row["feasible"], row["best_f"] if row["feasible"] else row["violation"])
-        if key not in self.best or cand < self.best[key][0]:
-            self.best[key] = (cand, row["algorithm"])
-
-    def update(self, row: dict):
-        self.done += 1
-        self.evals += row["n_evals"]
-        self._offer(row)
-        rate = self.evals / max(time.perf_counter() - self.t0, 1e-9)
-        width = 24
-        filled = int(width * self.done / max(self.total, 1))
-        bests = ", ".join(f"{c}: {v[0][1]:.6g}{'' if not v[0][0] else ' (infeasible)'} [{v[1]}]"
-                          for c, v in self.best.items())
-        line = (f"[{'#' * filled}{'.' * (width - filled)}] {self.done}/{self.total} runs, "
-                f"{rate:.0f} evals/s, best {bests}")
-        if self.tty:
-            self.stream.write("\r" + line[:200].ljust(200))
-        else:
-            self.stream.write(line + "\n")
-        self.stream.flush()
-
-    def close(self):
-        if self.tty:
-            self.stream.write("\n")
-
-
 PLANNED_FILE = "planned.json"
 
 
@@ -540,12 +504,13 @@ def _persist(parts: Path, spec: RunSpec, row: dict, hist: pd.DataFrame):
     # History first; the run file marks the run finished.
     write_parquet(hist, parts / f"{spec.part_name}.history.parquet")
     write_parquet(pd.DataFrame([row]), parts / f"{spec.part_name}.run.parquet")
+    (parts / f"{spec.part_name}{HEARTBEAT_SUFFIX}").unlink(missing_ok=True)
 
 
 def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed=None, out=None,
                    smoke=False, fresh=False, backend="loky", scheduler=None, plugins=(),
                    progress_stream=None, figures=True, executor=None, device: str = "cpu",
-                   lockstep: bool | None = None) -> Path:
+                   lockstep: bool | None = None, force: bool = False) -> Path:
     """Run (or resume) an experiment; returns its output folder. See the module docstring.
 
     ``jobs``, ``backend`` and ``scheduler`` say where the runs go (:class:`heurtune.core.execution.Pool`);
@@ -553,7 +518,11 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     says where each evaluation's simulations run (:meth:`TuningProblem.set_device`). With
     ``lockstep`` the pending runs advance together, each generation's candidates of all runs of
     a case evaluated as one batch (:mod:`heurtune.core.lockstep`; same results); by default on
-    for the batched devices."""
+    for the batched devices.
+
+    Before any run starts, one evaluation of every case is calibrated and the planned work
+    printed (:mod:`heurtune.runner.workplan`); a case whose evaluation would take more than a
+    minute is a ConfigError unless ``force``."""
     if lockstep is None:
         lockstep = device != "cpu"
     progress_stream = sys.stdout if progress_stream is None else progress_stream  # the current one
@@ -571,6 +540,10 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     out_dir = Path(out) if out else Path("results") / exp.name
     parts = out_dir / "parts"
     specs = plan(exp, runs=runs, max_epochs=max_epochs, seed=seed, smoke=smoke)
+    done = set() if fresh or not parts.is_dir() else _finished(parts)
+    pending = [s for s in specs if s.part_name not in done]
+    # Measured before anything is written: a config too costly to evaluate is refused here.
+    calibrations, shapes = _calibrate(exp, config, pending, force=force)
     if fresh and out_dir.exists():
         shutil.rmtree(out_dir)
     parts.mkdir(parents=True, exist_ok=True)
@@ -589,15 +562,16 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     structure_warnings = exp.structure_warnings()
     for case, msg in structure_warnings.items():
         print(f"warning: {case}: {msg}", file=sys.stderr)
-    done = _finished(parts)
-    pending = [s for s in specs if s.part_name not in done]
+    clear_heartbeats(parts)
     kept = [pd.read_parquet(parts / f"{s.part_name}.run.parquet").iloc[0] for s in specs if s.part_name in done]
-    bar = Progress(len(specs), len(specs) - len(pending), progress_stream, finished_rows=kept)
     ids = {case: problem_id(exp, case) for case in exp.cases}
+    bar = Progress(len(specs), len(specs) - len(pending), progress_stream, finished_rows=kept)
     try:
         if pending:
+            workers = (jobs if backend != "dask" and executor is None else
+                       _dask_workers(scheduler) if executor is None else getattr(executor, "_max_workers", jobs))
             where = (f"{jobs} worker(s)" if backend != "dask" and executor is None else
-                     f"the Dask cluster at {scheduler} ({_dask_workers(scheduler)} workers)" if executor is None
+                     f"the Dask cluster at {scheduler} ({workers} workers)" if executor is None
                      else "the given executor")
             if device != "cpu":
                 where += f", simulations on {device}"
@@ -605,15 +579,55 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
                 where += ", runs in lockstep"
             print(f"{exp.name}: {len(pending)} of {len(specs)} runs to do ({len(done)} already done), "
                   f"{where}, output {out_dir}", file=progress_stream)
+            bar = _announce(specs, pending, kept, calibrations, shapes, parts, workers, progress_stream)
+            bar.start()
             _run_pending(config, pending, parts, bar, jobs=jobs, backend=backend, scheduler=scheduler,
                          executor=executor, lockstep=lockstep)
         bar.close()
         _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, figures=figures)
     except (KeyboardInterrupt, Terminated) as exc:
+        bar.close()
         kill_workers()
         kept = len(_finished(parts) & {s.part_name for s in specs})
         raise Interrupted(143 if isinstance(exc, Terminated) else 130, kept, len(specs), out_dir) from None
+    finally:
+        bar.close()
     return out_dir
+
+
+def _calibrate(exp, config, pending, *, force: bool) -> dict:
+    """Calibrate one evaluation of every case with runs to do (a fresh problem each, on the
+    configured device); refuse a case whose evaluation would exceed the limit unless ``force``."""
+    cases = sorted({s.case for s in pending if not s.baseline}, key=list(exp.cases).index)
+    calibrations, shapes = {}, {}
+    for case in cases:
+        prob = exp.problem(case)
+        prob.set_device(config.get("device", "cpu"))
+        calibrations[case] = calibrate(prob)
+        shapes[case] = (prob.dim, len(prob.constraint_names), len(prob.objective_names or ()) or 1)
+    calibrations = borrow_step_cost(calibrations)
+    if not force:
+        for cal in calibrations.values():
+            check_evaluation_time(cal)
+    return calibrations, shapes
+
+
+def _announce(specs, pending, kept, calibrations, shapes, parts, workers, stream) -> Progress:
+    """Print the planned work and its estimated time; the progress line that follows it."""
+    planned, per_case = {}, {}
+    for spec in pending:
+        n = planned_evaluations(spec, *shapes[spec.case]) if not spec.baseline else 1
+        planned[spec.part_name] = (spec.case, spec.algorithm, n)
+        if spec.case in calibrations:
+            count, unknown = per_case.get(spec.case, (0, 0))
+            per_case[spec.case] = (count + (n or 0), unknown + (n is None))
+    line, seconds = estimate_line(calibrations, per_case, len(pending), workers)
+    if calibrations:
+        print(line, file=stream)
+    evals = sum(n for n, _ in per_case.values())
+    rate = evals / seconds if seconds > 0 and math.isfinite(seconds) else None
+    return Progress(len(specs), len(specs) - len(pending), stream, finished_rows=kept, planned=planned,
+                    parts=parts, predicted_rate=rate)
 
 
 def _dask_workers(scheduler) -> int:
@@ -626,7 +640,7 @@ def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler, execu
     for spec in [s for s in pending if s.baseline]:  # analytic designs: one evaluation each
         row, hist = execute(config, spec)
         _persist(parts, spec, row, hist)
-        bar.update(row)
+        bar.update(row, spec.part_name)
     pending = [s for s in pending if not s.baseline]
     if not pending:
         return
@@ -641,7 +655,7 @@ def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler, execu
             with Evaluator(prob, n_jobs=jobs) as ev:
                 row, hist = execute(config, spec, ev, parts=parts)
             _persist(parts, spec, row, hist)
-            bar.update(row)
+            bar.update(row, spec.part_name)
         return
     # Whole runs on the workers (each evaluating in its own process); the kernels are warmed
     # here first, so that the workers load them from the cache.
@@ -651,7 +665,7 @@ def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler, execu
         with pool:
             for i, (row, hist) in pool.imap_unordered(functools.partial(execute, config, parts=parts), pending):
                 _persist(parts, pending[i], row, hist)
-                bar.update(row)
+                bar.update(row, pending[i].part_name)
     except BaseException:
         pool.abort()
         raise
@@ -677,7 +691,7 @@ def _run_lockstep(config, pending, parts, bar, *, jobs, backend, scheduler, exec
                 spec = pending[i]
                 row, hist = run_record(_problem(config, spec.case), spec, res, wall, parts=parts)
                 _persist(parts, spec, row, hist)
-                bar.update(row)
+                bar.update(row, spec.part_name)
     except BaseException:
         pool.abort()
         raise
@@ -861,6 +875,8 @@ def _parser():
     ap.add_argument("--scheduler", help="Dask scheduler address, with --backend dask")
     ap.add_argument("--plugin", action="append", default=[], help="plugin (optimisers or a plant family): a .py file or module; repeatable")
     ap.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    ap.add_argument("--force", action="store_true",
+                    help="run even when one evaluation is calibrated to take over a minute")
     ap.add_argument("--list", action="store_true", help="list the experiments")
     ap.add_argument("--status", action="store_true",
                     help="list the result folders under results/ (or --out) with runs done / planned; "
@@ -906,7 +922,7 @@ def run(argv=None) -> int:
         run_experiment(args.name, runs=args.runs, max_epochs=args.max_epochs, jobs=args.jobs, seed=args.seed,
                        out=args.out, smoke=args.smoke, fresh=args.fresh, backend=args.backend,
                        scheduler=args.scheduler, plugins=args.plugin, figures=not args.no_figures,
-                       device=args.device, lockstep=args.lockstep)
+                       device=args.device, lockstep=args.lockstep, force=args.force)
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

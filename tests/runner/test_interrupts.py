@@ -80,7 +80,7 @@ def test_interrupts_at_start_mid_run_and_at_the_end_then_resume(tmp_path):
     assert "Traceback" not in err
     # 2. SIGTERM after the first finished run
     proc = start(out)
-    wait_for(proc, "runs, ")
+    wait_for(proc, "] 1/4 runs")
     code, err, elapsed = interrupt(proc, signal.SIGTERM)
     assert code == 143 and elapsed < 10, (code, elapsed, err)
     kept = int(interrupted_line(err).split()[1])

@@ -1,0 +1,259 @@
+"""The work an experiment plans, measured before it starts.
+
+Two numbers tell a user what a command will cost before it spends it:
+
+* **planned evaluations** of every run (:func:`planned_evaluations`): the run's ``max_evals``, or,
+  for a population optimiser stopped by ``max_epochs``, the count of a dry run of the same
+  optimiser, settings and budget on a cheap stand-in objective (population optimisers spend a
+  number of evaluations per generation that does not depend on the values; a ``tol`` or
+  ``max_time`` can only stop a run earlier, so the count is then an upper bound). A driver
+  without ``max_evals`` (multistart SQP solving until its local solves converge) has no count
+  known in advance: None.
+* **seconds per evaluation** of every case (:func:`calibrate`): a handful of candidates drawn in
+  the box are evaluated on the experiment's device under the tuning scenario cut to two short
+  horizons. The time grows linearly in the simulated steps, so the two timings give a fixed
+  cost per candidate (design, checks) and a cost per simulated step; with the steps of the
+  scenarios one evaluation simulates (:meth:`TuningProblem.evaluation_scenarios`) they predict
+  the cost of one evaluation of a simulated candidate, the work users wait for, however long
+  the configured horizon. A configuration whose evaluation would take over
+  :data:`EVALUATION_LIMIT_S` is refused with a one-line error naming the scenario keys
+  (:func:`check_evaluation_time`), before anything is run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import math
+import time
+
+import numpy as np
+
+from heurtune.core import registry
+from heurtune.core.engine import SearchSpace, run as run_optimiser
+from heurtune.core.errors import ConfigError
+from heurtune.core.evaluator import Evaluator
+
+__all__ = ["Calibration", "calibrate", "borrow_step_cost", "check_evaluation_time", "planned_evaluations", "estimate_line",
+           "format_duration", "EVALUATION_LIMIT_S"]
+
+# A single evaluation predicted to take longer than this is refused (unless --force).
+EVALUATION_LIMIT_S = 60.0
+# Candidates timed per case, and the simulated steps of the longer of the two calibration horizons.
+CALIBRATION_CANDIDATES = 8
+CALIBRATION_STEPS = 20_000
+CALIBRATION_SEED = 20261128  # fixed, and apart from every run's seed
+
+
+def format_duration(seconds: float) -> str:
+    """``"0.8 s"``, ``"42 s"``, ``"3 min 20 s"``, ``"2 h 05 min"`` or ``"3.2 days"``."""
+    if not math.isfinite(seconds):
+        return "for ever"
+    if seconds < 10:
+        return f"{seconds:.1f} s"
+    if seconds < 60:
+        return f"{seconds:.0f} s"
+    if seconds < 3600:
+        return f"{int(seconds // 60)} min {int(seconds % 60):02d} s"
+    if seconds < 3 * 86400:
+        return f"{int(seconds // 3600)} h {int(seconds % 3600 // 60):02d} min"
+    return f"{seconds / 86400:.1f} days"
+
+
+# -- planned evaluations -----------------------------------------------------------------------
+def planned_evaluations(spec, dim: int, n_constraints: int, n_objectives: int = 1) -> int | None:
+    """Evaluations a run will spend at most (see the module docstring); None when not known
+    in advance (a driver without ``max_evals``). A baseline is one evaluation."""
+    if spec.baseline:
+        return 1
+    budget = spec.budget
+    info = registry.get(spec.algorithm)
+    if info.kind == "driver":
+        return budget.get("max_evals")
+    key = json.dumps(dict(algorithm=spec.algorithm, settings=spec.settings, dim=dim, m=n_constraints,
+                          k=n_objectives, max_evals=budget.get("max_evals"), max_epochs=budget.get("max_epochs")),
+                     sort_keys=True)
+    return _dry_run(key)
+
+
+def _stand_in(X, m: int, k: int):
+    """A cheap objective for counting: a sphere per objective around different centres, and
+    constraints that are always met."""
+    F = np.stack([((X - 0.5 + 0.1 * j) ** 2).sum(axis=1) for j in range(k)], axis=1)
+    return (F[:, 0] if k == 1 else F), np.full((len(X), m), -1.0)
+
+
+@functools.lru_cache(maxsize=256)
+def _dry_run(key: str) -> int:
+    spec = json.loads(key)
+    dim, k = spec["dim"], spec["k"]
+    space = SearchSpace(np.zeros(dim), np.ones(dim))
+    budget = dict(max_evals=spec["max_evals"], max_epochs=spec["max_epochs"])
+    with Evaluator(functools.partial(_stand_in, m=spec["m"], k=k)) as ev:
+        res = run_optimiser(spec["algorithm"], ev, space, settings=spec["settings"], seed=0,
+                            reference_point=[10.0 * dim] * k if k > 1 else None, **budget)
+    return int(res.n_evals)
+
+
+# -- calibration --------------------------------------------------------------------------------
+def _steps(scenario) -> int | None:
+    horizon, dt = getattr(scenario, "horizon", None), getattr(scenario, "dt", None)
+    try:
+        return int(round(float(horizon) / float(dt)))
+    except (TypeError, ValueError, ZeroDivisionError, OverflowError):
+        return None
+
+
+@dataclasses.dataclass(frozen=True)
+class Calibration:
+    """What one evaluation of a case costs on this machine and device.
+
+    Attributes
+    ----------
+    case : str
+    steps : int or None
+        Simulated steps of one evaluation, summed over the scenarios it simulates (None when
+        the scenarios do not say their ``horizon`` and ``dt``).
+    fixed_s : float
+        Seconds per candidate that do not grow with the horizon (design, stability checks).
+    step_s : float or None
+        Seconds per simulated step of one candidate (None when no calibration candidate was
+        simulated, or the horizon could not be cut).
+    simulated : int
+        Timed candidates, all simulated (candidates rejected before simulation are set aside).
+    candidates : int
+        Candidates drawn.
+    horizons : str
+        The scenario lengths behind the figure, for the plan line.
+    """
+
+    case: str
+    steps: int | None
+    fixed_s: float
+    step_s: float | None
+    simulated: int
+    candidates: int
+    horizons: str
+
+    @property
+    def evaluation_s(self) -> float:
+        """Predicted seconds of one evaluation of a simulated candidate."""
+        if self.step_s is None or self.steps is None:
+            return self.fixed_s
+        return self.fixed_s + self.step_s * self.steps
+
+
+def _timed(prob, X, scenario, repeats: int = 2) -> float:
+    best = math.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        prob.evaluate(X, scenario)
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def calibrate(prob, n: int = CALIBRATION_CANDIDATES, steps: int = CALIBRATION_STEPS,
+              max_drawn: int = 8 * CALIBRATION_CANDIDATES) -> Calibration:
+    """Time ``n`` simulated candidates of ``prob`` under its tuning scenario cut to ``steps`` and
+    ``steps // 2`` simulated steps (its own length, and half of it, when shorter); see the
+    module docstring.
+
+    Candidates are drawn in the box from a fixed seed, ``n`` at a time and at most ``max_drawn``,
+    and those rejected before simulation (unstable designs, say) are set aside: they cost only
+    the fixed part. The problem's jitted kernels are warmed first, so compilation is not timed;
+    the candidates and scenario copies are the calibration's own, the runs are untouched.
+    ``step_s`` is None when no drawn candidate was simulated (the runner then borrows the
+    figure of another case of the experiment).
+    """
+    prob.warm_up()
+    rng = np.random.default_rng(CALIBRATION_SEED)
+    scenarios = prob.evaluation_scenarios()
+    per_scenario = [_steps(s) for s in scenarios]
+    total = None if any(s is None for s in per_scenario) else int(sum(per_scenario))
+    base = scenarios[0]
+    cut = []
+    if per_scenario[0] is not None and per_scenario[0] >= 2:
+        k_long = min(per_scenario[0], steps)
+        for k in (k_long, k_long // 2):
+            try:
+                cut.append((k, dataclasses.replace(base, horizon=k * float(base.dt))))
+            except (ConfigError, ValueError, TypeError):  # a scenario that cannot be cut short
+                cut = []
+                break
+    if not cut:
+        if total is not None and total > 10 * steps:
+            return Calibration(prob.case, total, math.nan, None, 0, 0,
+                               "not calibrated: the scenario cannot be cut short")
+        # The tuning scenario as configured: the fixed and per-step costs together.
+        X = prob.lower + rng.random((n, prob.dim)) * (prob.upper - prob.lower)
+        prob.evaluate(X[:1], base)
+        return Calibration(prob.case, total, _timed(prob, X, base) / n, None, 0, n, "the configured scenario")
+    (k_long, s_long), (k_short, s_short) = cut
+    simulated, rejected, drawn = [], [], 0
+    while len(simulated) < n and drawn < max_drawn:
+        X = prob.lower + rng.random((n, prob.dim)) * (prob.upper - prob.lower)
+        drawn += n
+        ok = prob.evaluate(X, s_short).reason == ""
+        simulated.extend(X[ok])
+        rejected.extend(X[~ok])
+    simulated = np.array(simulated[:n]).reshape(-1, prob.dim)
+    if len(simulated) == 0:
+        fixed_s = _timed(prob, np.array(rejected[:n]), s_short) / min(n, len(rejected))
+        return Calibration(prob.case, total, fixed_s, None, 0, drawn, f"{k_long} and {k_short} steps")
+    m = len(simulated)
+    t_long, t_short = _timed(prob, simulated, s_long), _timed(prob, simulated, s_short)
+    step_s = max(t_long - t_short, 0.0) / (m * (k_long - k_short))
+    fixed_s = max(t_short / m - step_s * k_short, 0.0)
+    return Calibration(prob.case, total, fixed_s, step_s, m, drawn, f"{k_long} and {k_short} steps")
+
+
+def borrow_step_cost(calibrations: dict) -> dict:
+    """Cases whose drawn candidates were all rejected before simulation take the mean cost per
+    step of the other cases (the same plant family's kernel); returns the completed dict."""
+    known = [c.step_s for c in calibrations.values() if c.step_s is not None]
+    if not known:
+        return dict(calibrations)
+    mean = float(np.mean(known))
+    return {case: c if c.step_s is not None or c.steps is None else
+            dataclasses.replace(c, step_s=mean, horizons=c.horizons + ", cost per step of the other cases")
+            for case, c in calibrations.items()}
+
+
+def check_evaluation_time(cal: Calibration, limit: float = EVALUATION_LIMIT_S) -> None:
+    """Raise a one-line ConfigError when one evaluation of ``cal.case`` is predicted to take
+    longer than ``limit`` seconds (a scenario horizon far too long for its step, say)."""
+    seconds = cal.evaluation_s
+    if cal.steps is not None and math.isnan(seconds):
+        raise ConfigError(f"case {cal.case!r}: one evaluation simulates {cal.steps:,} steps and its cost could not "
+                          f"be measured (scenario.horizon / scenario.dt); pass --force to run it anyway")
+    if seconds > limit:
+        raise ConfigError(f"case {cal.case!r}: one evaluation would take about {format_duration(seconds)} "
+                          f"({cal.steps:,} simulated steps, scenario.horizon / scenario.dt, at "
+                          f"{cal.step_s * 1e9:.0f} ns per step measured here); shorten scenario.horizon or "
+                          f"raise scenario.dt, or pass --force to run it anyway")
+
+
+def estimate_line(calibrations: dict, pending_evals: dict, total_runs: int, workers: int) -> tuple:
+    """The plan line printed before an experiment starts, and its estimated seconds.
+
+    Parameters
+    ----------
+    calibrations : dict of case to Calibration
+    pending_evals : dict of case to (planned evaluations, runs with no count known in advance)
+    total_runs : int
+        Runs still to do.
+    workers : int
+        Evaluations in parallel.
+    """
+    evals = sum(n for n, _ in pending_evals.values())
+    unknown = sum(u for _, u in pending_evals.values())
+    seconds = sum(n * calibrations[c].evaluation_s for c, (n, _) in pending_evals.items()) / max(workers, 1)
+    per_eval = ", ".join(f"{c} {calibrations[c].evaluation_s * 1e3:.3g} ms" for c in calibrations)
+    how = next(iter(calibrations.values())).horizons if calibrations else ""
+    line = (f"plan: {total_runs} runs, {evals:,} evaluations"
+            f"{f' (+ {unknown} runs with no evaluation cap)' if unknown else ''}; "
+            f"one evaluation of a simulated candidate: {per_eval} (calibrated on "
+            f"{CALIBRATION_CANDIDATES} candidates, {how}); estimated time "
+            f"{'at least ' if unknown else ''}{format_duration(seconds)} on {workers} worker(s)")
+    return line, seconds
