@@ -616,15 +616,15 @@ def _announce(specs, pending, kept, calibrations, shapes, parts, workers, stream
     """Print the planned work and its estimated time; the progress line that follows it."""
     planned, per_case = {}, {}
     for spec in pending:
-        n = planned_evaluations(spec, *shapes[spec.case]) if not spec.baseline else 1
+        n, exact = planned_evaluations(spec, *shapes[spec.case]) if not spec.baseline else (1, True)
         planned[spec.part_name] = (spec.case, spec.algorithm, n)
         if spec.case in calibrations:
-            count, unknown = per_case.get(spec.case, (0, 0))
-            per_case[spec.case] = (count + (n or 0), unknown + (n is None))
+            count, unknown, estimated = per_case.get(spec.case, (0, 0, False))
+            per_case[spec.case] = (count + (n or 0), unknown + (n is None), estimated or not exact)
     line, seconds = estimate_line(calibrations, per_case, len(pending), workers)
     if calibrations:
         print(line, file=stream)
-    evals = sum(n for n, _ in per_case.values())
+    evals = sum(n for n, _, _ in per_case.values())
     rate = evals / seconds if seconds > 0 and math.isfinite(seconds) else None
     return Progress(len(specs), len(specs) - len(pending), stream, finished_rows=kept, planned=planned,
                     parts=parts, predicted_rate=rate)

@@ -113,9 +113,11 @@ class Progress:
         self.best = {}
         self.kept_evals = 0
         self.evals = 0  # of runs finished in this invocation
+        self.spent = {}  # (case, algorithm) -> evaluations of its finished runs
         for row in finished_rows:  # runs kept from before a resume
             self._offer(row["case"], row["algorithm"], row["feasible"], row["best_f"], row["violation"])
             self.kept_evals += int(row["n_evals"])
+            self.spent.setdefault((row["case"], row["algorithm"]), []).append(int(row["n_evals"]))
         self.planned = dict(planned or {})
         self.parts = None if parts is None else Path(parts)
         self.predicted_rate = predicted_rate
@@ -148,15 +150,19 @@ class Progress:
     # -- counts -----------------------------------------------------------------------------
     def evaluations(self) -> tuple:
         """``(done, total)``: evaluations spent so far (earlier invocations included) and the
-        total expected; total is None while a run to come has no count known in advance."""
+        total expected. A run to come with no count known in advance counts the mean of the
+        finished runs of its case and optimiser; total is None until there is one."""
         running = sum(b["n_evals"] for b in self.in_flight.values())
         done = self.kept_evals + self.evals + running
         if not self.planned and not self.in_flight:
             return done, done if self.done >= self.total else None
         total = self.kept_evals + self.evals
-        for name, (_, _, planned) in self.planned.items():
-            if planned is None:
-                return done, None
+        for name, (case, algorithm, planned) in self.planned.items():
+            if planned is None:  # no count known in advance: that of its finished siblings
+                siblings = self.spent.get((case, algorithm))
+                if not siblings:
+                    return done, None
+                planned = int(round(sum(siblings) / len(siblings)))
             beat = self.in_flight.get(name)
             total += max(planned, beat["n_evals"]) if beat else planned
         return done, total
@@ -209,6 +215,7 @@ class Progress:
             self.done += 1
             self.evals += int(row["n_evals"])
             self._offer(row["case"], row["algorithm"], row["feasible"], row["best_f"], row["violation"])
+            self.spent.setdefault((row["case"], row["algorithm"]), []).append(int(row["n_evals"]))
             if name is not None:
                 self.planned.pop(name, None)
                 self.in_flight.pop(name, None)

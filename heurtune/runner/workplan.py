@@ -62,37 +62,54 @@ def format_duration(seconds: float) -> str:
 
 
 # -- planned evaluations -----------------------------------------------------------------------
-def planned_evaluations(spec, dim: int, n_constraints: int, n_objectives: int = 1) -> int | None:
-    """Evaluations a run will spend at most (see the module docstring); None when not known
-    in advance (a driver without ``max_evals``). A baseline is one evaluation."""
+def planned_evaluations(spec, dim: int, n_constraints: int, n_objectives: int = 1) -> tuple:
+    """Evaluations a run will spend (see the module docstring): ``(count, exact)``.
+
+    ``count`` is None when not known in advance (a driver without ``max_evals``); ``exact`` is
+    False when the count is an estimate: the dry runs on two different stand-in objectives
+    disagree (gradient methods, whose line searches depend on the values; the larger count is
+    given), or a ``tol`` or ``max_time`` may stop the run earlier. A baseline is one evaluation.
+    """
     if spec.baseline:
-        return 1
+        return 1, True
     budget = spec.budget
-    info = registry.get(spec.algorithm)
-    if info.kind == "driver":
-        return budget.get("max_evals")
+    may_stop_early = "tol" in budget or "max_time" in budget
+    if registry.get(spec.algorithm).kind == "driver":
+        return budget.get("max_evals"), False  # at most its cap
     key = json.dumps(dict(algorithm=spec.algorithm, settings=spec.settings, dim=dim, m=n_constraints,
                           k=n_objectives, max_evals=budget.get("max_evals"), max_epochs=budget.get("max_epochs")),
                      sort_keys=True)
-    return _dry_run(key)
+    counts = {_dry_run(key, shape) for shape in STAND_INS}
+    return max(counts), len(counts) == 1 and not may_stop_early
 
 
-def _stand_in(X, m: int, k: int):
-    """A cheap objective for counting: a sphere per objective around different centres, and
+# Two stand-in objectives of different shape: a sphere, and a tilted valley with a ripple.
+STAND_INS = ("sphere", "valley")
+
+
+def _stand_in(X, m: int, k: int, shape: str):
+    """A cheap objective for counting, one column per objective around different centres, and
     constraints that are always met."""
-    F = np.stack([((X - 0.5 + 0.1 * j) ** 2).sum(axis=1) for j in range(k)], axis=1)
+    cols = []
+    for j in range(k):
+        Z = X - 0.5 + 0.1 * j
+        if shape == "sphere":
+            cols.append((Z ** 2).sum(axis=1))
+        else:
+            cols.append(10 * (Z[:, 1:] - Z[:, :-1] ** 2).__pow__(2).sum(axis=1) + np.sin(7 * Z).sum(axis=1) + 3 * Z[:, 0])
+    F = np.stack(cols, axis=1)
     return (F[:, 0] if k == 1 else F), np.full((len(X), m), -1.0)
 
 
 @functools.lru_cache(maxsize=256)
-def _dry_run(key: str) -> int:
+def _dry_run(key: str, shape: str) -> int:
     spec = json.loads(key)
     dim, k = spec["dim"], spec["k"]
     space = SearchSpace(np.zeros(dim), np.ones(dim))
     budget = dict(max_evals=spec["max_evals"], max_epochs=spec["max_epochs"])
-    with Evaluator(functools.partial(_stand_in, m=spec["m"], k=k)) as ev:
+    with Evaluator(functools.partial(_stand_in, m=spec["m"], k=k, shape=shape)) as ev:
         res = run_optimiser(spec["algorithm"], ev, space, settings=spec["settings"], seed=0,
-                            reference_point=[10.0 * dim] * k if k > 1 else None, **budget)
+                            reference_point=[100.0 * dim] * k if k > 1 else None, **budget)
     return int(res.n_evals)
 
 
@@ -240,18 +257,20 @@ def estimate_line(calibrations: dict, pending_evals: dict, total_runs: int, work
     Parameters
     ----------
     calibrations : dict of case to Calibration
-    pending_evals : dict of case to (planned evaluations, runs with no count known in advance)
+    pending_evals : dict of case to (planned evaluations, runs with no count known in advance,
+        whether any count is an estimate)
     total_runs : int
         Runs still to do.
     workers : int
         Evaluations in parallel.
     """
-    evals = sum(n for n, _ in pending_evals.values())
-    unknown = sum(u for _, u in pending_evals.values())
-    seconds = sum(n * calibrations[c].evaluation_s for c, (n, _) in pending_evals.items()) / max(workers, 1)
+    evals = sum(n for n, _, _ in pending_evals.values())
+    unknown = sum(u for _, u, _ in pending_evals.values())
+    estimated = any(e for _, _, e in pending_evals.values())
+    seconds = sum(n * calibrations[c].evaluation_s for c, (n, _, _) in pending_evals.items()) / max(workers, 1)
     per_eval = ", ".join(f"{c} {calibrations[c].evaluation_s * 1e3:.3g} ms" for c in calibrations)
     how = next(iter(calibrations.values())).horizons if calibrations else ""
-    line = (f"plan: {total_runs} runs, {evals:,} evaluations"
+    line = (f"plan: {total_runs} runs, {'about ' if estimated else ''}{evals:,} evaluations"
             f"{f' (+ {unknown} runs with no evaluation cap)' if unknown else ''}; "
             f"one evaluation of a simulated candidate: {per_eval} (calibrated on "
             f"{CALIBRATION_CANDIDATES} candidates, {how}); estimated time "

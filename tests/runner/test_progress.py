@@ -1,0 +1,122 @@
+"""The progress line: evaluations done of the total, the time left, the best over every run,
+updated from inside running runs through their heartbeats."""
+
+import io
+import json
+import pickle
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from heurtune.core.engine import SearchSpace, run as run_optimiser
+from heurtune.core.evaluator import Evaluator
+from heurtune.runner.experiment import run_experiment
+from heurtune.runner.progress import HEARTBEAT_SUFFIX, Heartbeat, Progress, clear_heartbeats
+
+
+def _sphere(X):
+    return (X ** 2).sum(axis=1)
+
+
+def test_the_engine_reports_every_epoch_and_the_run_is_the_same_without_it():
+    calls = []
+    space = SearchSpace(-np.ones(3), np.ones(3))
+    with Evaluator(_sphere) as ev:
+        watched = run_optimiser("cs", ev, space, seed=4, max_epochs=5, progress=lambda *a: calls.append(a))
+        alone = run_optimiser("cs", ev, space, seed=4, max_epochs=5)
+    assert [c[1] for c in calls] == list(range(6))  # epochs 0 (the initial population) to 5
+    assert [c[0] for c in calls] == watched.history["n_evals"].tolist()
+    assert calls[-1][2] == watched.f and calls[-1][3] == 0.0
+    assert watched.f == alone.f and np.array_equal(watched.x, alone.x)
+    pd.testing.assert_frame_equal(watched.history.drop(columns="wall_time_s"), alone.history.drop(columns="wall_time_s"))
+
+
+def test_heartbeat_writes_at_most_once_per_interval_and_travels_to_workers(tmp_path):
+    path = tmp_path / f"r{HEARTBEAT_SUFFIX}"
+    beat = Heartbeat(path, interval=60.0)
+    beat(10, 0, 5.0, 0.0)
+    beat(20, 1, 4.0, 0.0)  # within the interval: not written
+    assert json.loads(path.read_text()) == dict(n_evals=10, epoch=0, best_f=5.0, best_violation=0.0)
+    clone = pickle.loads(pickle.dumps(beat))  # a fresh clock on the worker
+    clone(30, 2, 3.0, 0.0)
+    assert json.loads(path.read_text())["n_evals"] == 30
+    elsewhere = Heartbeat(tmp_path / "missing" / "r.progress.json", interval=0.0)
+    elsewhere(1, 0, 1.0, 0.0)  # a folder this worker does not have: it gives up quietly
+    assert not (tmp_path / "missing").exists()
+    clear_heartbeats(tmp_path)
+    assert not path.exists()
+
+
+def _kept(**row):
+    return pd.Series(dict(dict(case="min", algorithm="cs", feasible=True, best_f=10.0, violation=0.0, n_evals=100), **row))
+
+
+def test_the_line_counts_runs_in_flight_and_shows_their_best(tmp_path):
+    planned = {"a": ("min", "cs", 100), "b": ("nmp", "cs", 100), "c": ("nmp", "pso", 100)}
+    stream = io.StringIO()
+    bar = Progress(4, 1, stream, finished_rows=[_kept()], planned=planned, parts=tmp_path, predicted_rate=50.0,
+                   log_interval=0.0)
+    Heartbeat(tmp_path / f"a{HEARTBEAT_SUFFIX}", 0.0)(40, 3, 8.0, 0.0)  # better than the kept run
+    Heartbeat(tmp_path / f"b{HEARTBEAT_SUFFIX}", 0.0)(30, 2, 1e10, 2.5)  # nothing feasible yet
+    Heartbeat(tmp_path / f"zzz{HEARTBEAT_SUFFIX}", 0.0)(999, 2, 1.0, 0.0)  # not a run of this plan
+    bar.poll()
+    line = stream.getvalue().splitlines()[-1]
+    assert line.startswith("[######..................] 1/4 runs, 170/400 evals, ")
+    # 70 evaluations of this invocation seen just now: the time left is the calibration's
+    assert "starting" not in line and "evals/s" not in line and "4.6 s left" in line
+    assert "best min: 8 [cs], nmp: 2.5 (infeasible) [cs]" in line
+    # a run ends: its actual count replaces its plan
+    bar.update(dict(case="min", algorithm="cs", feasible=True, best_f=7.0, violation=0.0, n_evals=90), "a")
+    line = stream.getvalue().splitlines()[-1]
+    assert "2/4 runs, 220/390 evals" in line and "best min: 7 [cs]" in line
+    bar.close()
+
+
+def test_the_measured_rate_replaces_the_calibrated_one(tmp_path, monkeypatch):
+    import heurtune.runner.progress as progress
+
+    monkeypatch.setattr(progress, "RATE_AFTER_S", 0.05)
+    stream = io.StringIO()
+    bar = Progress(1, 0, stream, planned={"a": ("min", "cs", 1000)}, parts=tmp_path, predicted_rate=1.0,
+                   log_interval=0.0)
+    Heartbeat(tmp_path / f"a{HEARTBEAT_SUFFIX}", 0.0)(100, 1, 1.0, 0.0)
+    bar.poll()
+    time.sleep(0.1)
+    Heartbeat(tmp_path / f"a{HEARTBEAT_SUFFIX}", 0.0)(300, 2, 1.0, 0.0)
+    bar.poll()
+    line = stream.getvalue().splitlines()[-1]
+    rate = float(line.split(" evals/s")[0].rsplit(", ", 1)[1])
+    assert 200 < rate < 2000  # 200 evaluations in about 0.1 s, not the calibration's 1 per s
+    assert "min left" not in line and "h " not in line
+
+
+def test_runs_with_no_count_in_advance_take_that_of_their_finished_siblings(tmp_path):
+    stream = io.StringIO()
+    bar = Progress(3, 1, stream, finished_rows=[_kept(algorithm="sqp_multistart", n_evals=400)],
+                   planned={"a": ("min", "sqp_multistart", None), "b": ("min", "sqp_multistart", None)})
+    assert bar.evaluations() == (400, 1200)
+    bar2 = Progress(2, 0, io.StringIO(), planned={"a": ("min", "sqp_multistart", None), "b": ("min", "sqp_multistart", None)})
+    assert bar2.evaluations() == (0, None)
+    bar2.update(dict(case="min", algorithm="sqp_multistart", feasible=True, best_f=1.0, violation=0.0, n_evals=500), "a")
+    assert bar2.evaluations() == (500, 1000)
+    assert "1/2 runs, 500/1,000 evals" in bar2.stream.getvalue()
+
+
+class _Terminal(io.StringIO):
+    def isatty(self):
+        return True
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_terminal_sees_the_line_move_inside_a_run(tmp_path, jobs):
+    """In this process (one worker) and from the workers' heartbeats (two workers, whole runs),
+    the line counts evaluations before any run has finished."""
+    stream = _Terminal()
+    run_experiment("cs_folqi_qtp", runs=1 if jobs == 1 else 2, max_epochs=12, jobs=jobs, out=tmp_path / "r",
+                   progress_stream=stream, figures=False)
+    frames = [f.strip() for f in stream.getvalue().split("\r")]
+    inside = [f for f in frames if " 0/" in f and " runs, " in f and not f.split(" runs, ")[1].startswith("0/")]
+    assert inside, frames
+    assert "best min: " in inside[-1]
