@@ -24,6 +24,12 @@ written as runs of their own (one each, algorithm = the baseline's name).
 
 With more pending runs than workers, whole runs go to the workers; otherwise the runs go one
 after the other, each evaluating its batches on all workers.
+
+Before the first run, one evaluation of every case is calibrated on this machine and device and
+the planned work printed (runs, evaluations, estimated time; :mod:`heurtune.runner.workplan`);
+a case whose single evaluation would take more than a minute is refused with a one-line error
+naming the scenario keys, unless ``--force``. The progress line (:mod:`heurtune.runner.progress`)
+then counts the evaluations done of the total and the time left, from inside running runs.
 """
 
 from __future__ import annotations

@@ -234,6 +234,8 @@ class Progress:
                 beats[name] = beat
         with self._lock:
             self.in_flight = {n: b for n, b in beats.items() if n in self.planned}
+            done, _ = self.evaluations()
+            self._rate(done - self.kept_evals)  # starts the clock of the measured rate
             if self.tty or time.perf_counter() - self._last_line >= self.log_interval:
                 self._write()
 

@@ -274,5 +274,6 @@ def estimate_line(calibrations: dict, pending_evals: dict, total_runs: int, work
             f"{f' (+ {unknown} runs with no evaluation cap)' if unknown else ''}; "
             f"one evaluation of a simulated candidate: {per_eval} (calibrated on "
             f"{CALIBRATION_CANDIDATES} candidates, {how}); estimated time "
-            f"{'at least ' if unknown else ''}{format_duration(seconds)} on {workers} worker(s)")
+            f"{'at least ' if unknown else ''}{format_duration(seconds)} on {workers} worker(s) if every "
+            f"candidate is simulated")
     return line, seconds
