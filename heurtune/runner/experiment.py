@@ -626,7 +626,7 @@ def _announce(specs, pending, kept, calibrations, shapes, parts, workers, stream
         planned[spec.part_name] = (spec.case, spec.algorithm, n)
         if spec.case in calibrations:
             count, unknown, estimated = per_case.get(spec.case, (0, 0, False))
-            per_case[spec.case] = (count + (n or 0), unknown + (n is None), estimated or not exact)
+            per_case[spec.case] = (count + (n or 0), unknown + (n is None), estimated or (n is not None and not exact))
     line, seconds = estimate_line(calibrations, per_case, len(pending), workers)
     if calibrations:
         print(line, file=stream)

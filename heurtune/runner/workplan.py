@@ -270,10 +270,12 @@ def estimate_line(calibrations: dict, pending_evals: dict, total_runs: int, work
     seconds = sum(n * calibrations[c].evaluation_s for c, (n, _, _) in pending_evals.items()) / max(workers, 1)
     per_eval = ", ".join(f"{c} {calibrations[c].evaluation_s * 1e3:.3g} ms" for c in calibrations)
     how = next(iter(calibrations.values())).horizons if calibrations else ""
-    line = (f"plan: {total_runs} runs, {'about ' if estimated else ''}{evals:,} evaluations"
-            f"{f' (+ {unknown} runs with no evaluation cap)' if unknown else ''}; "
-            f"one evaluation of a simulated candidate: {per_eval} (calibrated on "
-            f"{CALIBRATION_CANDIDATES} candidates, {how}); estimated time "
-            f"{'at least ' if unknown else ''}{format_duration(seconds)} on {workers} worker(s) if every "
-            f"candidate is simulated")
+    counted = f"{'about ' if estimated else ''}{evals:,} evaluations"
+    if unknown:
+        counted = (f"{counted} + {unknown} runs with no evaluation cap (not known in advance)" if evals else
+                   f"{unknown} runs with no evaluation cap: evaluations not known in advance")
+    when = (f"estimated time {'at least ' if unknown else ''}{format_duration(seconds)} on {workers} worker(s) "
+            f"if every candidate is simulated" if evals else "time left shown once a run of each such case and optimiser has ended")
+    line = (f"plan: {total_runs} runs, {counted}; one evaluation of a simulated candidate: {per_eval} "
+            f"(calibrated on {CALIBRATION_CANDIDATES} candidates, {how}); {when}")
     return line, seconds

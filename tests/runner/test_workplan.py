@@ -15,7 +15,8 @@ from heurtune.core.errors import ConfigError
 from heurtune.core.evaluator import Evaluator
 from heurtune.core.problem import Evaluation, TuningProblem
 from heurtune.runner.experiment import RunSpec, run, run_experiment
-from heurtune.runner.workplan import (Calibration, borrow_step_cost, calibrate, check_evaluation_time, format_duration,
+from heurtune.runner.workplan import (Calibration, borrow_step_cost, calibrate, check_evaluation_time, estimate_line,
+                                      format_duration,
                                       planned_evaluations)
 
 # Metaheuristics spend a number of evaluations per generation that does not depend on the values:
@@ -158,3 +159,15 @@ def test_the_plan_line_counts_the_evaluations_the_runs_spend(tmp_path):
     assert "estimated time" in plan and "on 1 worker(s)" in plan
     assert f"] 2/2 runs, {total:,}/{total:,} evals" in lines[-1]
     assert not list((out / "parts").glob("*.progress.json"))  # heartbeats go with their runs
+
+
+def test_the_plan_line_says_what_is_not_known_in_advance():
+    cals = {"a": Calibration("a", 1000, 1e-3, 1e-6, 8, 8, "1000 and 500 steps")}  # 2 ms per evaluation
+    line, seconds = estimate_line(cals, {"a": (3000, 0, False)}, 3, 2)
+    assert seconds == pytest.approx(3.0)
+    assert line == ("plan: 3 runs, 3,000 evaluations; one evaluation of a simulated candidate: a 2 ms (calibrated on "
+                    "8 candidates, 1000 and 500 steps); estimated time 3.0 s on 2 worker(s) if every candidate is simulated")
+    line, _ = estimate_line(cals, {"a": (3000, 1, True)}, 4, 2)
+    assert "about 3,000 evaluations + 1 runs with no evaluation cap" in line and "estimated time at least 3.0 s" in line
+    line, _ = estimate_line(cals, {"a": (0, 4, False)}, 4, 2)
+    assert "4 runs with no evaluation cap: evaluations not known in advance" in line and "time left shown once" in line
