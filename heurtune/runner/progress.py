@@ -109,7 +109,6 @@ class Progress:
         self.total, self.done = total, done
         self.stream = stream
         self.tty = stream.isatty()
-        self.t0 = time.perf_counter()
         self.best = {}
         self.kept_evals = 0
         self.evals = 0  # of runs finished in this invocation

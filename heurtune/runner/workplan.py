@@ -65,7 +65,8 @@ def format_duration(seconds: float) -> str:
 def planned_evaluations(spec, dim: int, n_constraints: int, n_objectives: int = 1) -> tuple:
     """Evaluations a run will spend (see the module docstring): ``(count, exact)``.
 
-    ``count`` is None when not known in advance (a driver without ``max_evals``); ``exact`` is
+    ``count`` is None when not known in advance (a driver without ``max_evals``, a run stopped
+    by ``max_time`` alone); ``exact`` is
     False when the count is an estimate: the dry runs on two different stand-in objectives
     disagree (gradient methods, whose line searches depend on the values; the larger count is
     given), or a ``tol`` or ``max_time`` may stop the run earlier. A baseline is one evaluation.
@@ -76,6 +77,8 @@ def planned_evaluations(spec, dim: int, n_constraints: int, n_objectives: int = 
     may_stop_early = "tol" in budget or "max_time" in budget
     if registry.get(spec.algorithm).kind == "driver":
         return budget.get("max_evals"), False  # at most its cap
+    if "max_evals" not in budget and "max_epochs" not in budget and "max_time" in budget:
+        return None, False  # stopped by the clock alone
     key = json.dumps(dict(algorithm=spec.algorithm, settings=spec.settings, dim=dim, m=n_constraints,
                           k=n_objectives, max_evals=budget.get("max_evals"), max_epochs=budget.get("max_epochs")),
                      sort_keys=True)
@@ -96,7 +99,7 @@ def _stand_in(X, m: int, k: int, shape: str):
         if shape == "sphere":
             cols.append((Z ** 2).sum(axis=1))
         else:
-            cols.append(10 * (Z[:, 1:] - Z[:, :-1] ** 2).__pow__(2).sum(axis=1) + np.sin(7 * Z).sum(axis=1) + 3 * Z[:, 0])
+            cols.append(10 * ((Z[:, 1:] - Z[:, :-1] ** 2) ** 2).sum(axis=1) + np.sin(7 * Z).sum(axis=1) + 3 * Z[:, 0])
     F = np.stack(cols, axis=1)
     return (F[:, 0] if k == 1 else F), np.full((len(X), m), -1.0)
 
@@ -117,7 +120,7 @@ def _dry_run(key: str, shape: str) -> int:
 def _steps(scenario) -> int | None:
     horizon, dt = getattr(scenario, "horizon", None), getattr(scenario, "dt", None)
     try:
-        return int(round(float(horizon) / float(dt)))
+        return round(float(horizon) / float(dt))
     except (TypeError, ValueError, ZeroDivisionError, OverflowError):
         return None
 

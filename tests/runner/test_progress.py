@@ -75,7 +75,7 @@ def test_the_line_counts_runs_in_flight_and_shows_their_best(tmp_path):
 
 
 def test_the_measured_rate_replaces_the_calibrated_one(tmp_path, monkeypatch):
-    import heurtune.runner.progress as progress
+    from heurtune.runner import progress
 
     monkeypatch.setattr(progress, "RATE_AFTER_S", 0.05)
     stream = io.StringIO()

@@ -64,6 +64,7 @@ def test_planned_evaluations_of_drivers_tolerances_and_several_objectives():
     settings = registry.make_settings("nsga2", None)
     assert exact and count == 4 * settings.n
     assert planned_evaluations(dataclasses.replace(_spec("cs", {}), baseline=True), 4, 1) == (1, True)
+    assert planned_evaluations(_spec("cs", dict(max_time=60.0)), 4, 1) == (None, False)
 
 
 class _Timed(TuningProblem):
@@ -88,7 +89,7 @@ class _Timed(TuningProblem):
         X = self.batch(X)
         sc = self.scenario(scenario if scenario is not None else self.tuning_scenario)
         simulated = X[:, 0] > 0.5
-        steps = int(round(sc.horizon / sc.dt))
+        steps = round(sc.horizon / sc.dt)
         time.sleep(len(X) * self.fixed + simulated.sum() * steps * self.per_step)
         n = len(X)
         return Evaluation(f=X.sum(axis=1), g=np.zeros((n, 0)), feasible=np.ones(n, bool), metrics=np.zeros((n, 0)),
