@@ -164,7 +164,7 @@ class Calibration:
         return self.fixed_s + self.step_s * self.steps
 
 
-def _timed(prob, X, scenario, repeats: int = 2) -> float:
+def _timed(prob, X, scenario, repeats: int = 3) -> float:
     best = math.inf
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -223,8 +223,11 @@ def calibrate(prob, n: int = CALIBRATION_CANDIDATES, steps: int = CALIBRATION_ST
         return Calibration(prob.case, total, fixed_s, None, 0, drawn, f"{k_long} and {k_short} steps")
     m = len(simulated)
     t_long, t_short = _timed(prob, simulated, s_long), _timed(prob, simulated, s_short)
-    step_s = max(t_long - t_short, 0.0) / (m * (k_long - k_short))
-    fixed_s = max(t_short / m - step_s * k_short, 0.0)
+    if t_long > t_short:
+        step_s = (t_long - t_short) / (m * (k_long - k_short))
+        fixed_s = max(t_short / m - step_s * k_short, 0.0)
+    else:  # timings disturbed by other load: the longer one, all of it per step (an upper bound)
+        step_s, fixed_s = t_long / (m * k_long), 0.0
     return Calibration(prob.case, total, fixed_s, step_s, m, drawn, f"{k_long} and {k_short} steps")
 
 
