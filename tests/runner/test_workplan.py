@@ -173,3 +173,22 @@ def test_the_plan_line_says_what_is_not_known_in_advance():
     assert "about 3,000 evaluations + 1 runs with no evaluation cap" in line and "estimated time at least 3.0 s" in line
     line, _ = estimate_line(cals, {"a": (0, 4, False)}, 4, 2)
     assert "4 runs with no evaluation cap: evaluations not known in advance" in line and "time left shown once" in line
+
+
+def test_force_takes_the_costly_configuration_anyway(tmp_path, monkeypatch):
+    import heurtune.runner.experiment as runner
+    from heurtune.core.families import make_experiment
+    from heurtune.runner.config import load_config
+
+    config_file = tmp_path / "endless.toml"
+    config_file.write_text('extends = "cs_folqi_qtp"\n[scenario]\nhorizon = 1e9\n')
+    config = load_config(str(config_file))
+    exp = make_experiment(config)
+    pending = runner.plan(exp, runs=1)
+    with pytest.raises(ConfigError, match="--force"):
+        runner._calibrate(exp, config, pending, force=False)
+    calibrations, shapes = runner._calibrate(exp, config, pending, force=True)
+    assert calibrations["min"].evaluation_s > 60 and shapes["min"] == (10, 6, 1)  # 10 gains, Mp, ts, ess per loop
+    seen = {}
+    monkeypatch.setattr(runner, "run_experiment", lambda name, **kw: seen.update(kw))
+    assert run([str(config_file), "--force"]) == 0 and seen["force"] is True
