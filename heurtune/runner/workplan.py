@@ -141,7 +141,8 @@ class Calibration:
         Seconds per simulated step of one candidate (None when no calibration candidate was
         simulated, or the horizon could not be cut).
     simulated : int
-        Timed candidates, all simulated (candidates rejected before simulation are set aside).
+        Distinct simulated candidates timed (candidates rejected before simulation are set
+        aside; fewer than asked for are repeated to a full batch).
     candidates : int
         Candidates drawn.
     horizons : str
@@ -221,6 +222,9 @@ def calibrate(prob, n: int = CALIBRATION_CANDIDATES, steps: int = CALIBRATION_ST
     if len(simulated) == 0:
         fixed_s = _timed(prob, np.array(rejected[:n]), s_short) / min(n, len(rejected))
         return Calibration(prob.case, total, fixed_s, None, 0, drawn, f"{k_long} and {k_short} steps")
+    distinct = len(simulated)
+    if distinct < n:  # repeated to a full batch, which is what a batched device is timed on
+        simulated = np.resize(simulated, (n, prob.dim))
     m = len(simulated)
     t_long, t_short = _timed(prob, simulated, s_long), _timed(prob, simulated, s_short)
     if t_long > t_short:
@@ -228,7 +232,7 @@ def calibrate(prob, n: int = CALIBRATION_CANDIDATES, steps: int = CALIBRATION_ST
         fixed_s = max(t_short / m - step_s * k_short, 0.0)
     else:  # timings disturbed by other load: the longer one, all of it per step (an upper bound)
         step_s, fixed_s = t_long / (m * k_long), 0.0
-    return Calibration(prob.case, total, fixed_s, step_s, m, drawn, f"{k_long} and {k_short} steps")
+    return Calibration(prob.case, total, fixed_s, step_s, distinct, drawn, f"{k_long} and {k_short} steps")
 
 
 def borrow_step_cost(calibrations: dict) -> dict:
