@@ -254,6 +254,9 @@ def check_evaluation_time(cal: Calibration, limit: float = EVALUATION_LIMIT_S) -
     if cal.steps is not None and math.isnan(seconds):
         raise ConfigError(f"case {cal.case!r}: one evaluation simulates {cal.steps:,} steps and its cost could not "
                           f"be measured (scenario.horizon / scenario.dt); pass --force to run it anyway")
+    if seconds > limit and (cal.step_s is None or cal.steps is None):
+        raise ConfigError(f"case {cal.case!r}: one evaluation took {format_duration(seconds)} here ({cal.horizons}); "
+                          f"shorten scenario.horizon or raise scenario.dt, or pass --force to run it anyway")
     if seconds > limit:
         raise ConfigError(f"case {cal.case!r}: one evaluation would take about {format_duration(seconds)} "
                           f"({cal.steps:,} simulated steps, scenario.horizon / scenario.dt, at "

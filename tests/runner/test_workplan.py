@@ -118,6 +118,13 @@ def test_calibration_separates_the_fixed_and_the_per_step_cost():
         check_evaluation_time(cal)
 
 
+def test_a_measured_evaluation_over_the_limit_is_refused_too():
+    cal = Calibration("toy", None, 75.0, None, 0, 8, "the configured scenario")
+    with pytest.raises(ConfigError, match=r"^case 'toy': one evaluation took 1 min 15 s here \(the configured scenario\)"):
+        check_evaluation_time(cal)
+    check_evaluation_time(dataclasses.replace(cal, fixed_s=59.0))
+
+
 def test_a_robust_evaluation_counts_the_steps_of_every_scenario():
     from heurtune.core.robust import RobustTuning
 
