@@ -571,12 +571,15 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     clear_heartbeats(parts)
     kept = [pd.read_parquet(parts / f"{s.part_name}.run.parquet").iloc[0] for s in specs if s.part_name in done]
     ids = {case: problem_id(exp, case) for case in exp.cases}
-    bar = Progress(len(specs), len(specs) - len(pending), progress_stream, finished_rows=kept)
+    on_pool = backend != "dask" and executor is None
+    workers = (jobs if on_pool or not pending else  # a Dask cluster is asked only when there is work
+               _dask_workers(scheduler) if executor is None else getattr(executor, "_max_workers", jobs))
+    planned, plan_line, rate = _planned_work(pending, calibrations, shapes, workers)
+    bar = Progress(len(specs), len(specs) - len(pending), progress_stream, finished_rows=kept, planned=planned,
+                   parts=parts, predicted_rate=rate)
     try:
         if pending:
-            workers = (jobs if backend != "dask" and executor is None else
-                       _dask_workers(scheduler) if executor is None else getattr(executor, "_max_workers", jobs))
-            where = (f"{jobs} worker(s)" if backend != "dask" and executor is None else
+            where = (f"{jobs} worker(s)" if on_pool else
                      f"the Dask cluster at {scheduler} ({workers} workers)" if executor is None
                      else "the given executor")
             if device != "cpu":
@@ -585,14 +588,14 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
                 where += ", runs in lockstep"
             print(f"{exp.name}: {len(pending)} of {len(specs)} runs to do ({len(done)} already done), "
                   f"{where}, output {out_dir}", file=progress_stream)
-            bar = _announce(specs, pending, kept, calibrations, shapes, parts, workers, progress_stream)
+            if plan_line:
+                print(plan_line, file=progress_stream)
             bar.start()
             _run_pending(config, pending, parts, bar, jobs=jobs, backend=backend, scheduler=scheduler,
                          executor=executor, lockstep=lockstep)
-        bar.close()
+        bar.close()  # the line ends before the summary
         _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, figures=figures)
     except (KeyboardInterrupt, Terminated) as exc:
-        bar.close()
         kill_workers()
         kept = len(_finished(parts) & {s.part_name for s in specs})
         raise Interrupted(143 if isinstance(exc, Terminated) else 130, kept, len(specs), out_dir) from None
@@ -618,8 +621,10 @@ def _calibrate(exp, config, pending, *, force: bool) -> dict:
     return calibrations, shapes
 
 
-def _announce(specs, pending, kept, calibrations, shapes, parts, workers, stream) -> Progress:
-    """Print the planned work and its estimated time; the progress line that follows it."""
+def _planned_work(pending, calibrations, shapes, workers) -> tuple:
+    """The planned evaluations of every pending run (part name to ``(case, algorithm, count or
+    None)``), the plan line (None with nothing calibrated) and the predicted evaluations per
+    second."""
     planned, per_case = {}, {}
     for spec in pending:
         n, exact = planned_evaluations(spec, *shapes[spec.case]) if not spec.baseline else (1, True)
@@ -627,13 +632,11 @@ def _announce(specs, pending, kept, calibrations, shapes, parts, workers, stream
         if spec.case in calibrations:
             count, unknown, estimated = per_case.get(spec.case, (0, 0, False))
             per_case[spec.case] = (count + (n or 0), unknown + (n is None), estimated or (n is not None and not exact))
+    if not calibrations:
+        return planned, None, None
     line, seconds = estimate_line(calibrations, per_case, len(pending), workers)
-    if calibrations:
-        print(line, file=stream)
     evals = sum(n for n, _, _ in per_case.values())
-    rate = evals / seconds if seconds > 0 and math.isfinite(seconds) else None
-    return Progress(len(specs), len(specs) - len(pending), stream, finished_rows=kept, planned=planned,
-                    parts=parts, predicted_rate=rate)
+    return planned, line, evals / seconds if seconds > 0 and math.isfinite(seconds) else None
 
 
 def _dask_workers(scheduler) -> int:
@@ -781,14 +784,14 @@ def _gather_starts(exp, specs, parts, out_dir):
 
 def _figures(exp, runs, history, best, out_dir):
     for case in exp.cases:
+        prob = exp.problem(case)
         h = history[history["case"] == case]
         failed = runs[(runs["case"] == case) & (runs.get("status") == "failed")] if "status" in runs else runs[:0]
         figures.convergence_figure(h, out_dir / f"convergence_{_slug(case)}.png", case=case,
                                    failures={case: list(failed.get("failure", []))},
-                                   ylabel=getattr(exp.problem(case), "objective_label", None))
+                                   ylabel=getattr(prob, "objective_label", None))
         b = best[best["case"] == case].sort_values(["feasible", "best_f"], ascending=[False, True]).head(1)
         if len(b):
-            prob = exp.problem(case)
             r = b.iloc[0]
             x = np.array([r[n] for n in prob.names])
             title = f"{exp.name} / {case}: best of {r['algorithm']} (run {r['run']})"
