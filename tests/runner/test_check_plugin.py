@@ -49,3 +49,21 @@ def test_mistakes_are_one_line_errors(tmp_path, capsys):
         assert run(argv) == 2
         err = capsys.readouterr().err.strip()
         assert err.startswith("error: ") and message in err and "\n" not in err
+
+
+def test_load_plugin_returns_the_module_it_loaded_for_unit_tests_of_its_update(tmp_path):
+    import numpy as np
+
+    from heurtune.core import registry
+    from heurtune.core.engine import Comparator, SearchSpace
+    from heurtune.core.plugins import load_plugin
+
+    path = tmp_path / "guide_walk_unit.py"
+    path.write_text(_guide_plugin(tmp_path).read_text().replace('"guide_walk"', '"guide_walk_unit"'))
+    module = load_plugin(str(path))
+    assert load_plugin(str(path)) is module  # loaded once
+    X, z, width = np.zeros((3, 2)), np.ones((3, 2)), np.array([2.0, 4.0])
+    assert np.array_equal(module.walk(X, z, 0.5, width), np.tile([1.0, 2.0], (3, 1)))  # the update step, pinned
+    opt = module.RandomWalk(SearchSpace(np.zeros(2), np.ones(2)), registry.make_settings("guide_walk_unit", None),
+                            np.random.default_rng(0), Comparator())
+    assert opt.X.shape == (0, 2) and opt.ask().shape == (20, 2)  # empty population, then the initial one
