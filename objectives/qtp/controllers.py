@@ -100,18 +100,23 @@ class LinearController:
     def n_states(self) -> int:
         return self.A.shape[0]
 
-    def discretise(self, dt: float) -> "DiscreteController":
-        """Exact zero-order-hold discretisation, block by block.
+    def modal_blocks(self) -> list:
+        """The controller's blocks in the form the simulation kernels take them.
 
         A block driven by a single measured signal that is diagonal already (FOLQI builds its
         fractional integrators in partial fractions) or whose eigenvalues are real with a
-        well-conditioned eigenvector matrix (``cond(V) < MODAL_COND_LIMIT``) is put in modal
-        form: each of its states then advances by ``z <- a z + b w_col``. Other blocks (several inputs, complex modes, Jordan
-        chains such as a double integrator) keep a dense matrix exponential.
+        well-conditioned eigenvector matrix (``cond(V) < MODAL_COND_LIMIT``) is modal: each of
+        its states obeys ``z_i' = lam_i z_i + b_i w_col``. Other blocks (several inputs, complex
+        modes, Jordan chains such as a double integrator) stay dense.
+
+        Returns
+        -------
+        list
+            In block order, ``("modal", lam, b, C, col, channel)`` with ``lam``, ``b`` (m,) and
+            ``C`` (2, m) the block's output matrix in modal coordinates, or
+            ``("dense", A, B, C, channel)`` with the block's own matrices.
         """
-        nw = self.B.shape[1]
-        lam_parts, b_parts, C_parts, col_parts, ch_parts = [], [], [], [], []
-        dense = []
+        parts = []
         for (start, stop), ch in zip(self.blocks, self.block_channel):
             A = self.A[start:stop, start:stop]
             B = self.B[start:stop]
@@ -124,13 +129,31 @@ class LinearController:
                 lam, V = np.linalg.eig(A)
             if len(cols) == 1 and (diagonal or (not np.iscomplexobj(lam)
                                                 and np.linalg.cond(V) < MODAL_COND_LIMIT)):
+                parts.append(("modal", lam, B[:, cols[0]] if diagonal else np.linalg.solve(V, B[:, cols[0]]),
+                              C if diagonal else C @ V, int(cols[0]), ch))
+            else:
+                parts.append(("dense", A, B, C, ch))
+        return parts
+
+    def discretise(self, dt: float) -> "DiscreteController":
+        """Exact zero-order-hold discretisation, block by block (see :meth:`modal_blocks`):
+        each modal state advances by ``z <- a z + b w_col``, a dense block by its matrix
+        exponential.
+        """
+        nw = self.B.shape[1]
+        lam_parts, b_parts, C_parts, col_parts, ch_parts = [], [], [], [], []
+        dense = []
+        for part in self.modal_blocks():
+            if part[0] == "modal":
+                _, lam, b, C, col, ch = part
                 lam_parts.append(lam)
-                b_parts.append(B[:, cols[0]] if diagonal else np.linalg.solve(V, B[:, cols[0]]))
-                C_parts.append(C if diagonal else C @ V)
-                col_parts.append(np.full(lam.size, cols[0], dtype=np.int64))
+                b_parts.append(b)
+                C_parts.append(C)
+                col_parts.append(np.full(lam.size, col, dtype=np.int64))
                 ch_parts.append(np.full(lam.size, ch, dtype=np.int64))
             else:
-                n = stop - start
+                _, A, B, C, ch = part
+                n = A.shape[0]
                 M = np.zeros((n + nw, n + nw))
                 M[:n, :n] = A
                 M[:n, n:] = B

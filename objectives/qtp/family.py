@@ -61,6 +61,9 @@ SCHEMA = dict(COMMON_SCHEMA, **{
         "saturation": PAIR,
         "limits": ("none", "physical"),
         "uncertainty": ("map", NUMBER),
+        # the continuous-time loop: largest level error (cm) or an explicit step (s), and the
+        # spacing of its recorded trajectory
+        "tolerance": NUMBER, "step": NUMBER, "output_dt": NUMBER,
     },
     "problem": {
         "objective": tuple(OBJECTIVES) + ("weighted",),

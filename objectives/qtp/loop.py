@@ -16,6 +16,8 @@ import scipy.linalg.lapack
 from heurtune.core.errors import ConfigError
 from heurtune.core.problem import RANGE_RTOL
 from heurtune.objectives.qtp import batch_kernels as _batch_kernels
+from heurtune.objectives.qtp import continuous as _continuous
+from heurtune.objectives.qtp import continuous_kernels as _continuous_kernels
 from heurtune.objectives.qtp import kernels as _kernels
 from heurtune.objectives.qtp.batch_design import discretise_many
 from heurtune.objectives.qtp.controllers import LinearController, build_controller
@@ -85,6 +87,18 @@ class Scenario:
         ``"physical"``: the pumps saturate at the plant's ``u_range`` (with the anti-windup of
         ``saturation``) and every level stays in [0, H_i], the water above a rim being lost;
         needs a plant with ``height`` and ``u_range``. Excludes ``saturation``.
+    tolerance : float or None
+        Largest level error in cm of the continuous-time loop
+        (:mod:`heurtune.objectives.qtp.continuous`): set, the loop is simulated in continuous
+        time by exponential integration with the step that the rule
+        :func:`~heurtune.objectives.qtp.continuous.step_for_tolerance` gives for it, instead of
+        the sampled-data loop at ``dt``. None (default): the sampled loop.
+    step : float or None
+        An explicit step in s of the continuous-time loop (overrides the rule of
+        ``tolerance``; either key selects the continuous loop).
+    output_dt : float
+        Spacing in s of the recorded trajectory of the continuous loop (its dense output);
+        the sampled loop records every ``dt``.
     """
 
     horizon: float = 350.0
@@ -98,6 +112,9 @@ class Scenario:
     saturation: tuple | None = None
     uncertainty: float = 1.0
     limits: str = "none"
+    tolerance: float | None = None
+    step: float | None = None
+    output_dt: float = 0.01
 
     def __post_init__(self):
         for key in ("horizon", "dt", "disturbance_time", "input_disturbance_time", "noise_sd",
@@ -132,6 +149,58 @@ class Scenario:
             raise ConfigError(f"scenario.limits must be one of {', '.join(map(repr, LIMITS))}, got {self.limits!r}")
         if self.limits == "physical" and self.saturation is not None:
             raise ConfigError("scenario.saturation and scenario.limits = 'physical' both set pump limits; give one")
+        self._check_continuous()
+
+    def _check_continuous(self):
+        """The keys of the continuous-time loop: positive and finite, a step budget, and what
+        the continuous loop does not simulate (yet) refused by name."""
+        for key, what in (("tolerance", "the largest level error in cm"), ("step", "the step in s"),
+                          ("output_dt", "the spacing of the recorded trajectory in s")):
+            v = getattr(self, key)
+            if v is None and key != "output_dt":
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+                raise ConfigError(f"scenario.{key} ({what}) must be a finite number > 0, got {v!r}")
+        if not self.continuous:
+            return
+        for key in ("step", "output_dt"):
+            v = getattr(self, key)
+            if v is not None and v > self.horizon:
+                raise ConfigError(f"scenario.{key} must not exceed scenario.horizon ({self.horizon}), got {v!r}")
+        if abs(round(self.horizon / self.output_dt) * self.output_dt - self.horizon) > 1e-9 * self.horizon:
+            raise ConfigError(f"scenario.horizon ({self.horizon}) must be a whole number of scenario.output_dt "
+                              f"({self.output_dt})")
+        steps = self.horizon / self.continuous_step
+        if steps > _continuous.MAX_STEPS:
+            raise ConfigError(
+                f"scenario.tolerance = {self.tolerance!r} needs a step of {self.continuous_step:.3g} s, "
+                f"{steps:,.0f} steps over scenario.horizon = {self.horizon:g} s, more than the budget of "
+                f"{_continuous.MAX_STEPS:,}; raise scenario.tolerance or shorten scenario.horizon")
+        if self.noise_sd > 0:
+            raise ConfigError("scenario.noise_sd > 0 needs the sampled loop: measurement noise is drawn per "
+                              "sample (every scenario.dt); leave out scenario.tolerance and scenario.step, or "
+                              "set noise_sd = 0")
+        if self.saturation is not None or self.limits != "none":
+            key = "saturation" if self.saturation is not None else "limits"
+            raise ConfigError(f"scenario.{key}: the continuous loop does not simulate pump or level limits yet; "
+                              f"leave out scenario.tolerance and scenario.step to use the sampled loop")
+
+    @property
+    def continuous(self) -> bool:
+        """Whether this scenario simulates the continuous-time loop (``tolerance`` or ``step`` set)."""
+        return self.tolerance is not None or self.step is not None
+
+    @property
+    def continuous_step(self) -> float:
+        """The largest step of the continuous loop: ``step``, else the rule's step for ``tolerance``."""
+        if self.step is not None:
+            return float(self.step)
+        return _continuous.step_for_tolerance(float(self.tolerance))
+
+    def step_plan(self):
+        """The segments and steps of the continuous loop (:func:`continuous.plan_steps`)."""
+        return _continuous.plan_steps(self.horizon, self.continuous_step, self.output_disturbance,
+                                      self.disturbance_time, self.input_disturbance, self.input_disturbance_time)
 
     @property
     def n_steps(self) -> int:
@@ -348,6 +417,8 @@ class ClosedLoop:
         """
         if record_levels is None:
             record_levels = record
+        if scenario.continuous:
+            return self._run_continuous(ctrl, scenario, settling_band, record, record_levels)
         coef, u_op, (saturate, u_lo, u_hi), clip, h_max = self._kernel_inputs(scenario)
         n = scenario.n_steps
         rows = n + 1 if record else 0
@@ -373,6 +444,33 @@ class ClosedLoop:
                                 h if record_levels else None, status != _kernels.STATUS_OK,
                                 self.op.h.copy(), u_op.copy(), metrics, P)
 
+    def _run_continuous(self, ctrl, scenario: Scenario, settling_band: float, record: bool,
+                        record_levels: bool) -> SimulationResult:
+        """:meth:`run` of a continuous-time scenario (kernel ``simulate_continuous``)."""
+        coef, u_op, _, _, _ = self._kernel_inputs(scenario)
+        cc = _continuous.ContinuousController.from_linear(ctrl)
+        plan = scenario.step_plan()
+        n_out = int(round(scenario.horizon / scenario.output_dt))
+        t = None
+        if record or record_levels:
+            t = np.arange(n_out + 1) * scenario.output_dt
+            t[-1] = min(t[-1], scenario.horizon)
+        rows = n_out + 1 if (record or record_levels) else 0
+        y, u, h = np.empty((rows, 2)), np.empty((rows, 2)), np.empty((rows, 4))
+        metrics = np.empty(_kernels.N_METRICS)
+        pressure = self.plant_model == "qtp_bond_graph"
+        x_op = self.op.h * self._rho_g if pressure else self.op.h
+        status, _ = _continuous_kernels.simulate_continuous(
+            coef, self._level_per_state, x_op, self.op.h, u_op, cc.lam, cc.b, cc.col, cc.Cm, cc.Aq, cc.Bq, cc.Cq,
+            cc.D, plan.t0, plan.h, plan.steps, plan.graded, plan.dist, plan.uin, plan.post,
+            float(scenario.disturbance_time), float(scenario.horizon), float(settling_band), metrics,
+            float(scenario.output_dt), y, u, h)
+        P = None
+        if record_levels and pressure:
+            P, h = h, h * self._level_per_state
+        return SimulationResult(t, y if record else None, u if record else None, h if record_levels else None,
+                                status != _kernels.STATUS_OK, self.op.h.copy(), u_op.copy(), metrics, P)
+
     def _kernel_inputs(self, scenario: Scenario):
         """The scenario-dependent kernel inputs of :meth:`run`: plant coefficients, operating
         voltages, saturation (on, low, high), level clipping and the heights it clips at."""
@@ -396,9 +494,13 @@ class ClosedLoop:
         ``scenarios``, each equal to what :meth:`run` gives with ``record=False``."""
         scenarios = list(scenarios)
         groups = {}
-        for i, sc in enumerate(scenarios):
-            groups.setdefault((sc.dt, sc.n_steps, self._scenario_arrays(sc)[2].shape), []).append(i)
         discrete, out = {}, [None] * len(scenarios)
+        for i, sc in enumerate(scenarios):
+            if sc.continuous:
+                sim = self.run(ctrl, sc, settling_band=settling_band, record=False)
+                out[i] = (sim.diverged, sim.metrics)
+                continue
+            groups.setdefault((sc.dt, sc.n_steps, self._scenario_arrays(sc)[2].shape), []).append(i)
         for (dt, n_steps, _), members in groups.items():
             if dt not in discrete:
                 discrete[dt] = ctrl.discretise(dt)
@@ -459,6 +561,11 @@ class ClosedLoop:
             return diverged, metrics
         steps = {}
         for s, sc in enumerate(scenarios):
+            if sc.continuous:  # not batched yet: one candidate at a time
+                for i, ctrl in enumerate(ctrls):
+                    sim = self.run(ctrl, sc, settling_band=settling_band, record=False)
+                    diverged[i, s], metrics[i, s] = sim.diverged, sim.metrics
+                continue
             steps.setdefault((sc.dt, sc.n_steps), []).append(s)
         for (dt, n_steps), members in steps.items():
             groups = {}
@@ -523,6 +630,8 @@ class ClosedLoop:
         out = np.full(_kernels.N_METRICS, np.nan)
         if sim.diverged:
             return out
+        if scenario.continuous:  # the run's own sub-step metrics: the record is its dense output
+            return sim.metrics.copy()
         _kernels.loop_metrics(sim.y, sim.u, sim.h_op[:2], sim.u_op, scenario.dt,
                               scenario.disturbance_index, settling_band, out, sim.h)
         return out

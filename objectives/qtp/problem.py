@@ -308,6 +308,9 @@ class Problem(TuningProblem):
             payload["weights"] = self.weights
         if payload["scenario"].get("limits", "none") == "none":
             payload["scenario"].pop("limits", None)
+        for key, default in (("tolerance", None), ("step", None), ("output_dt", 0.01)):
+            if payload["scenario"].get(key, default) == default:
+                payload["scenario"].pop(key, None)
         if self.loop.plant_model != "qtp":
             payload["plant"]["model"] = self.loop.plant_model
         payload.update(self.tuning_identity())

@@ -1,0 +1,131 @@
+"""The continuous-time QTP closed loop: controller in modal form, step plan, simulation.
+
+The Python side of :mod:`heurtune.objectives.qtp.continuous_kernels`: it puts a
+:class:`~heurtune.objectives.qtp.controllers.LinearController` in the form the kernel takes
+(modal states ``z_i' = lam_i z_i + b_i w_col`` and dense blocks), and plans the step grid of a
+scenario: a segment starts at t = 0 and at every discontinuity (the output and input
+disturbance times), its first step after a discontinuity is graded (h/16, h/16, h/8, h/4, h/2)
+and the rest are equal steps of at most ``h``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+# The step rule: the step that keeps the largest level error under ``tolerance`` cm. The
+# method is fourth order, so the error scales as h^4: h = STEP_AT_REFERENCE (tolerance /
+# REFERENCE_TOLERANCE)^(1/4), within [MIN_STEP, MAX_STEP]. The constant is validated in
+# tests/objectives/qtp/test_continuous.py and benchmarks/work_precision.py (docs/model.md).
+REFERENCE_TOLERANCE = 0.005
+STEP_AT_REFERENCE = 0.125
+MAX_STEP = 1.0
+MIN_STEP = 1e-4
+# A scenario whose step rule needs more steps than this over its horizon is refused.
+MAX_STEPS = 10_000_000
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ContinuousController:
+    """A controller as the continuous kernel takes it (see ``simulate_continuous``).
+
+    Attributes
+    ----------
+    lam, b : (nd,) modal eigenvalues and input gains; col : (nd,) int64 the measured signal of
+        each mode; Cm : (2, nd) their output weights
+    Aq : (nq, nq), Bq : (nq, 4), Cq : (2, nq): the dense blocks, block diagonal
+    D : (2, 4) static feedback
+    """
+
+    lam: np.ndarray
+    b: np.ndarray
+    col: np.ndarray
+    Cm: np.ndarray
+    Aq: np.ndarray
+    Bq: np.ndarray
+    Cq: np.ndarray
+    D: np.ndarray
+
+    @classmethod
+    def from_linear(cls, ctrl) -> "ContinuousController":
+        """Modal form of a :class:`LinearController` (:meth:`LinearController.modal_blocks`)."""
+        lam, b, col, Cm, dense = [], [], [], [], []
+        for part in ctrl.modal_blocks():
+            if part[0] == "modal":
+                _, l_, b_, C_, c_, _ = part
+                lam.append(np.real(l_))
+                b.append(np.real(b_))
+                Cm.append(np.real(C_))
+                col.append(np.full(len(l_), c_, dtype=np.int64))
+            else:
+                dense.append(part[1:4])
+        nq = sum(d[0].shape[0] for d in dense)
+        Aq = np.zeros((nq, nq))
+        Bq = np.zeros((nq, 4))
+        Cq = np.zeros((2, nq))
+        k = 0
+        for A, B, C in dense:
+            m = A.shape[0]
+            Aq[k:k + m, k:k + m] = A
+            Bq[k:k + m] = B
+            Cq[:, k:k + m] = C
+            k += m
+        cat = (lambda xs, empty: np.ascontiguousarray(np.concatenate(xs)) if xs else empty)
+        return cls(lam=cat(lam, np.zeros(0)), b=cat(b, np.zeros(0)), col=cat(col, np.zeros(0, dtype=np.int64)),
+                   Cm=np.ascontiguousarray(np.hstack(Cm)) if Cm else np.zeros((2, 0)), Aq=Aq, Bq=Bq,
+                   Cq=np.ascontiguousarray(Cq), D=np.ascontiguousarray(ctrl.D, dtype=np.float64))
+
+
+def step_for_tolerance(tolerance: float) -> float:
+    """The step of the continuous loop for a largest level error of ``tolerance`` cm."""
+    h = STEP_AT_REFERENCE * (tolerance / REFERENCE_TOLERANCE) ** 0.25
+    return float(min(max(h, MIN_STEP), MAX_STEP))
+
+
+@dataclasses.dataclass(frozen=True)
+class StepPlan:
+    """The segments of a continuous simulation (arrays as ``simulate_continuous`` takes them)."""
+
+    t0: np.ndarray
+    h: np.ndarray
+    steps: np.ndarray
+    graded: np.ndarray
+    dist: np.ndarray
+    uin: np.ndarray
+    post: np.ndarray
+
+    @property
+    def n_steps(self) -> int:
+        """Steps the plan takes (graded ones counted one by one)."""
+        return int(self.steps.sum() + 4 * self.graded.sum())
+
+
+def plan_steps(horizon: float, step: float, output_disturbance, disturbance_time: float,
+               input_disturbance, input_disturbance_time: float) -> StepPlan:
+    """Segments between the discontinuities of a scenario, each in equal steps of at most ``step``.
+
+    A breakpoint is a disturbance time inside (0, horizon) whose step is not zero. Each
+    segment after a breakpoint grades its first step.
+    """
+    d_out = np.asarray(output_disturbance, dtype=np.float64)
+    d_in = np.asarray(input_disturbance, dtype=np.float64)
+    breaks = {0.0, float(horizon)}
+    if np.any(d_out != 0) and 0.0 < disturbance_time < horizon:
+        breaks.add(float(disturbance_time))
+    if np.any(d_in != 0) and 0.0 < input_disturbance_time < horizon:
+        breaks.add(float(input_disturbance_time))
+    edges = sorted(breaks)
+    t0, h, steps, graded, dist, uin, post = [], [], [], [], [], [], []
+    for a, b in zip(edges[:-1], edges[1:]):
+        n = max(1, math.ceil((b - a) / step - 1e-9))
+        t0.append(a)
+        h.append((b - a) / n)
+        steps.append(n)
+        graded.append(a > 0.0)
+        dist.append(d_out if a >= disturbance_time else np.zeros(2))
+        uin.append(d_in if a >= input_disturbance_time else np.zeros(2))
+        post.append(a >= disturbance_time)
+    return StepPlan(np.array(t0), np.array(h), np.array(steps, dtype=np.int64), np.array(graded, dtype=np.bool_),
+                    np.array(dist), np.array(uin), np.array(post, dtype=np.bool_))

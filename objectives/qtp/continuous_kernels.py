@@ -1,0 +1,774 @@
+"""Numba kernels of the continuous-time QTP closed loop: exponential integration (ETDRK4).
+
+The loop is ``Y' = L Y + N(x)`` with ``Y = (x, z)``: the plant state ``x`` (4) and the
+controller states ``z``. The linear part holds the controller's own dynamics and the way its
+states drive the pumps,
+
+    L = [[0, Bp C], [0, Lambda]],    Lambda = diag(modal lam_i) (+) dense blocks A_q,
+
+and ``N`` depends on the plant state alone: the square-root outflows, the operating and
+disturbance voltages, the static feedback ``Bp D w`` and the controller's input ``B w``, with
+``w`` the measured deviations. ``L`` is block upper triangular with a zero plant block, so
+``phi_k(h L)`` is known from the controller's own ``phi`` functions::
+
+    phi_k(h L) [v_x; v_z] = [v_x / k! + h Bp C phi_{k+1}(h Lambda) v_z;  phi_k(h Lambda) v_z]
+
+and every stage costs O(number of modal states) (plus small matrix products for dense
+blocks). Cox and Matthews' ETDRK4 is then exact for the controller's fast modes and their
+effect on the levels, whatever their speed, and fourth order in the slow, nonlinear rest.
+The Python side (:mod:`heurtune.objectives.qtp.continuous`) plans the steps; see
+docs/model.md for the method, its step rule and its validation.
+
+Arrays and scalars in, preallocated arrays out; shapes and dtypes float64 unless stated.
+"""
+
+import math
+
+import numpy as np
+from numba import njit
+
+from heurtune.objectives.qtp.kernels import LEVEL_LIMIT, N_METRICS, STATUS_DIVERGED, STATUS_OK
+
+# phi_0 .. phi_4 are needed: the plant rows of phi_3(h L) read phi_4 of the controller.
+N_PHI = 5
+# Levels of the step table: step h 2^-l for l = 0 .. N_LEVELS - 1 (the graded first steps
+# after a discontinuity go down to h / 16, whose half step is h / 32).
+N_LEVELS = 6
+# Steps after a discontinuity, as levels: h/16, h/16, h/8, h/4, h/2 (they add up to h).
+GRADED_LEVELS = (4, 4, 3, 2, 1)
+# Below this |z| the scalar phi functions are summed as Taylor series (the recurrence
+# phi_{k+1} = (phi_k - 1/k!) / z cancels); 20 terms leave a truncation under 1e-19.
+_TAYLOR_BELOW = 1.0
+_TAYLOR_TERMS = 20
+_INV_FACT = (1.0, 1.0, 0.5, 1.0 / 6.0, 1.0 / 24.0, 1.0 / 120.0)
+
+# Per-lane metric state indices (see _node): running integrals, extremes and the last exit.
+_FAST = {"reassoc", "contract", "nsz", "arcp"}
+
+
+@njit(cache=True)
+def phi_scalar(z, out):
+    """``out[k] = phi_k(z)`` for k = 0 .. 4, ``phi_0 = exp``, ``phi_{k+1}(z) = (phi_k(z) - 1/k!) / z``."""
+    if abs(z) < _TAYLOR_BELOW:
+        for k in range(N_PHI):
+            # sum_j z^j / (j + k)!
+            term = 1.0
+            for j in range(1, k + 1):
+                term /= j
+            s = term
+            for j in range(1, _TAYLOR_TERMS):
+                term *= z / (j + k)
+                s += term
+            out[k] = s
+        return
+    out[0] = math.exp(z)
+    out[1] = math.expm1(z) / z
+    for k in range(1, N_PHI - 1):
+        out[k + 1] = (out[k] - _INV_FACT[k]) / z
+
+
+@njit(cache=True)
+def phi_matrix_levels(A, h, out):
+    """``out[l, k] = phi_k(h 2^-l A)`` for l = 0 .. N_LEVELS - 1, k = 0 .. 4 (scaling and squaring).
+
+    ``A`` (n, n); ``out`` (N_LEVELS, N_PHI, n, n). The argument is scaled by 2^-s until its
+    1-norm is at most 1/2 (and at least to the finest level), the functions are summed as
+    Taylor series there (``phi_4`` by Horner, then ``phi_k = I / k! + X phi_{k+1}``), and then
+    doubled back with ``phi_k(2X) = 2^-k (phi_0(X) phi_k(X) + sum_{j=1..k} phi_j(X) / (k-j)!)``;
+    the last N_LEVELS doublings are the levels.
+    """
+    n = A.shape[0]
+    if n == 0:
+        return
+    norm = 0.0
+    for j in range(n):
+        col = 0.0
+        for i in range(n):
+            col += abs(A[i, j])
+        norm = max(norm, col)
+    norm *= h
+    s = N_LEVELS - 1
+    while norm / 2.0 ** s > 0.5:
+        s += 1
+    X = A * (h / 2.0 ** s)
+    eye = np.eye(n)
+    phi = np.empty((N_PHI, n, n))
+    # phi_4(X) = sum_j X^j / (j + 4)!: Horner from the highest term.
+    terms = 14
+    P = eye / _fact(terms + 4)
+    for j in range(terms - 1, -1, -1):
+        P = X @ P + eye / _fact(j + 4)
+    phi[4] = P
+    for k in range(3, -1, -1):
+        phi[k] = eye * _INV_FACT[k] + X @ phi[k + 1]
+    level = s  # phi now holds h 2^-s A
+    while True:
+        if level < N_LEVELS:
+            out[level] = phi
+        if level == 0:
+            break
+        new = np.empty_like(phi)
+        for k in range(N_PHI):
+            acc = phi[0] @ phi[k]
+            for j in range(1, k + 1):
+                acc = acc + phi[j] * (1.0 / _fact(k - j))
+            new[k] = acc / 2.0 ** k
+        phi = new
+        level -= 1
+
+
+@njit(cache=True)
+def _fact(n):
+    f = 1.0
+    for i in range(2, n + 1):
+        f *= i
+    return f
+
+
+# Rows of the step table (see step_tables): controller state -> pump voltage after a phi
+# function, at the half step c = h/2 and the full step h of each step level.
+_R_C1, _R_C10, _R_C0, _R_H1, _R_H0 = 0, 2, 4, 6, 8
+N_ROWS = 10
+# Input couplings (2, 4) of the measured signals through the controller: C phi_k B at c for
+# k = 1..4, C phi_1(c)^2 B at c, and C phi_k B at h for k = 1..4.
+_G_C1, _G_C2, _G_C3, _G_C4, _G_C11, _G_H1, _G_H2, _G_H3, _G_H4 = range(9)
+N_COUPLINGS = 9
+# Step levels: a step of level l is h 2^-l, l = 0..4 (its half step is level l + 1).
+N_STEP_LEVELS = N_LEVELS - 1
+
+
+@njit(cache=True)
+def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, rows, coup, prop_m, prop_q, prop_qb):
+    """Everything an ETDRK4 step of the segment needs from the controller, per step level.
+
+    For each step level ``l`` (step ``H = h 2^-l``, half step ``c = H / 2``; Lambda the modal
+    eigenvalues (+) the dense blocks, B the input matrix, C the output matrix) writes
+
+    - ``rows[l]`` (N_ROWS, nd + nq): ``C phi_1(c)``, ``C phi_1(c) phi_0(c)``, ``C phi_0(c)``,
+      ``C phi_1(H)``, ``C phi_0(H)`` (two rows each), applied to the controller state;
+    - ``coup[l]`` (N_COUPLINGS, 2, 4): ``C phi_k(c) B`` (k = 1..4), ``C phi_1(c)^2 B``,
+      ``C phi_k(H) B`` (k = 1..4), applied to measured signals;
+    - ``prop_m[l]`` (4, nd): ``phi_0(H)`` and ``phi_k(H) b`` (k = 1..3) of the modal states;
+    - ``prop_q[l]`` (nq, nq) ``phi_0(H)`` and ``prop_qb[l]`` (3, nq, 4) ``phi_k(H) Bq`` of the dense
+      part.
+    """
+    nd = lam.size
+    nq = Aq.shape[0]
+    pmc = np.empty(N_PHI)
+    pmh = np.empty(N_PHI)
+    for l in range(N_STEP_LEVELS):
+        H = h / 2.0 ** l
+        c = 0.5 * H
+        for r in range(N_ROWS):
+            for i in range(nd + nq):
+                rows[l, r, i] = 0.0
+        for g in range(N_COUPLINGS):
+            for r in range(2):
+                for j in range(4):
+                    coup[l, g, r, j] = 0.0
+        for i in range(nd):
+            phi_scalar(c * lam[i], pmc)
+            phi_scalar(H * lam[i], pmh)
+            col = mi[i]
+            for r in range(2):
+                cr = Cm[r, i]
+                rows[l, _R_C1 + r, i] = cr * pmc[1]
+                rows[l, _R_C10 + r, i] = cr * pmc[1] * pmc[0]
+                rows[l, _R_C0 + r, i] = cr * pmc[0]
+                rows[l, _R_H1 + r, i] = cr * pmh[1]
+                rows[l, _R_H0 + r, i] = cr * pmh[0]
+                cb = cr * bm[i]
+                for k in range(1, 5):
+                    coup[l, _G_C1 + k - 1, r, col] += cb * pmc[k]
+                    coup[l, _G_H1 + k - 1, r, col] += cb * pmh[k]
+                coup[l, _G_C11, r, col] += cb * pmc[1] * pmc[1]
+            prop_m[l, 0, i] = pmh[0]
+            for k in range(1, 4):
+                prop_m[l, k, i] = pmh[k] * bm[i]
+    if nq == 0:
+        return
+    tc = np.empty((N_LEVELS, N_PHI, nq, nq))
+    phi_matrix_levels(Aq, h / 2.0, tc)  # level l of this table is c of step level l
+    th = np.empty((N_LEVELS, N_PHI, nq, nq))
+    phi_matrix_levels(Aq, h, th)
+    for l in range(N_STEP_LEVELS):
+        C1c = Cq @ tc[l, 1]
+        C10c = C1c @ tc[l, 0]
+        C0c = Cq @ tc[l, 0]
+        C1h = Cq @ th[l, 1]
+        C0h = Cq @ th[l, 0]
+        for r in range(2):
+            for i in range(nq):
+                rows[l, _R_C1 + r, nd + i] = C1c[r, i]
+                rows[l, _R_C10 + r, nd + i] = C10c[r, i]
+                rows[l, _R_C0 + r, nd + i] = C0c[r, i]
+                rows[l, _R_H1 + r, nd + i] = C1h[r, i]
+                rows[l, _R_H0 + r, nd + i] = C0h[r, i]
+        for k in range(1, 5):
+            coup[l, _G_C1 + k - 1] += Cq @ (tc[l, k] @ Bq)
+            coup[l, _G_H1 + k - 1] += Cq @ (th[l, k] @ Bq)
+        coup[l, _G_C11] += C1c @ (tc[l, 1] @ Bq)
+        prop_q[l] = th[l, 0]
+        for k in range(1, 4):
+            prop_qb[l, k - 1] = th[l, k] @ Bq
+
+
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _measure(x, s, d1, d2, h_op, w):
+    """Measured deviations ``w`` of plant state ``x`` (levels ``s x``, disturbance on y1, y2)."""
+    w[0] = s * x[0] + (d1 - h_op[0])
+    w[1] = s * x[1] + (d2 - h_op[1])
+    w[2] = s * x[2] - h_op[2]
+    w[3] = s * x[3] - h_op[3]
+
+
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _plant_n(x, w, c, v1, v2, Dc, nx):
+    """Plant rows of N: outflows, operating (and input disturbance) voltages ``v`` and the
+    static feedback ``Dc w``."""
+    u1 = v1 + Dc[0, 0] * w[0] + Dc[0, 1] * w[1] + Dc[0, 2] * w[2] + Dc[0, 3] * w[3]
+    u2 = v2 + Dc[1, 0] * w[0] + Dc[1, 1] * w[1] + Dc[1, 2] * w[2] + Dc[1, 3] * w[3]
+    s1 = math.sqrt(max(x[0], 0.0))
+    s2 = math.sqrt(max(x[1], 0.0))
+    s3 = math.sqrt(max(x[2], 0.0))
+    s4 = math.sqrt(max(x[3], 0.0))
+    nx[0] = c[4] * s3 - c[0] * s1 + c[6] * u1
+    nx[1] = c[5] * s4 - c[1] * s2 + c[7] * u2
+    nx[2] = c[8] * u2 - c[2] * s3
+    nx[3] = c[9] * u1 - c[3] * s4
+
+
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _gw(G, w, g, acc):
+    """``acc += g G w`` for a (2, 4) coupling ``G``."""
+    acc[0] += g * (G[0, 0] * w[0] + G[0, 1] * w[1] + G[0, 2] * w[2] + G[0, 3] * w[3])
+    acc[1] += g * (G[1, 0] * w[0] + G[1, 1] * w[1] + G[1, 2] * w[2] + G[1, 3] * w[3])
+
+
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _add_pump(x, c, v0, v1, out):
+    """``out = x + Bp v`` with ``Bp v = (c6 v1, c7 v2, c8 v2, c9 v1)``."""
+    out[0] = x[0] + c[6] * v0
+    out[1] = x[1] + c[7] * v1
+    out[2] = x[2] + c[8] * v1
+    out[3] = x[3] + c[9] * v0
+
+
+@njit(cache=True, fastmath=_FAST)
+def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2, v1, v2, h_op, Dc, scr, wst,
+                 r, acc, x_new, z_new, x_mid, du_mid, du_end):
+    """One ETDRK4 (Cox-Matthews) step of length ``h`` from plant state ``x`` and controller
+    state ``z`` (modal states first, then dense), tables of the step's level from
+    :func:`step_tables`.
+
+    The controller rows of N are ``B w`` (w the measured deviations at the stage), so every
+    controller term reduces to the couplings of the tables applied to the stages' ``w``, and
+    the controller state is read once, by the ``rows`` (one pass). Writes the state after the
+    step (``x_new``, ``z_new``), the dense output at the midpoint (``x_mid``, controller output
+    ``du_mid``) and the controller output at the end ``du_end``. Scratch: ``scr`` (10, 4) and
+    ``wst`` (3, 4), ``r`` (N_ROWS,) and ``acc`` (2,); after the step ``scr[0]``, ``scr[8]``, ``scr[9]`` hold N_x at the start, P2x
+    and P3x, and ``wst`` the measured signals w_n, P2w, P3w, which :func:`_dense_at` reads.
+    """
+    nd = prop_m.shape[1]
+    nz = z.size
+    half = 0.5 * h
+    hh = half * half
+    nx_n, nx_a, nx_b, nx_c = scr[0], scr[1], scr[2], scr[3]
+    xa, xb, xc, w = scr[4], scr[5], scr[6], scr[7]
+    p2x, p3x = scr[8], scr[9]
+    w_n, p2w, p3w = wst[0], wst[1], wst[2]
+    # The controller state's five readings (two rows each).
+    for k in range(N_ROWS):
+        rk = 0.0
+        for i in range(nz):
+            rk += rows[k, i] * z[i]
+        r[k] = rk
+    # stage n
+    _measure(x, s, d1, d2, h_op, w_n)
+    _plant_n(x, w_n, c, v1, v2, Dc, nx_n)
+    # E(h/2) Y_n, plant rows: x + (h/2) Bp C phi_1(h/2) z
+    e0 = half * r[_R_C1]
+    e1 = half * r[_R_C1 + 1]
+    # a = E(h/2) Y_n + (h/2) phi_1(h/2 L) N_n
+    acc[0] = e0
+    acc[1] = e1
+    _gw(coup[_G_C2], w_n, hh, acc)
+    for i in range(4):
+        xa[i] = x[i] + half * nx_n[i]
+    _add_pump(xa, c, acc[0], acc[1], xa)
+    _measure(xa, s, d1, d2, h_op, w)
+    _plant_n(xa, w, c, v1, v2, Dc, nx_a)
+    for i in range(4):
+        p2w[i] = w[i]  # w_a, kept in the P2 slot until P2 is formed
+    # b = E(h/2) Y_n + (h/2) phi_1(h/2 L) N_a
+    acc[0] = e0
+    acc[1] = e1
+    _gw(coup[_G_C2], w, hh, acc)
+    for i in range(4):
+        xb[i] = x[i] + half * nx_a[i]
+    _add_pump(xb, c, acc[0], acc[1], xb)
+    _measure(xb, s, d1, d2, h_op, w)
+    _plant_n(xb, w, c, v1, v2, Dc, nx_b)
+    for i in range(4):
+        p3w[i] = w[i]  # w_b, kept in the P3 slot
+    # c = E(h/2) a + (h/2) phi_1(h/2 L) (2 N_b - N_n); the plant rows of E(h/2) a read
+    # C phi_1(h/2) a_z with a_z = phi_0(h/2) z + (h/2) phi_1(h/2) B w_n
+    acc[0] = half * r[_R_C10]
+    acc[1] = half * r[_R_C10 + 1]
+    _gw(coup[_G_C11], w_n, hh, acc)
+    for i in range(4):
+        w[i] = 2.0 * p3w[i] - w_n[i]
+    _gw(coup[_G_C2], w, hh, acc)
+    for i in range(4):
+        xc[i] = xa[i] + half * (2.0 * nx_b[i] - nx_n[i])
+    _add_pump(xc, c, acc[0], acc[1], xc)
+    _measure(xc, s, d1, d2, h_op, w)
+    _plant_n(xc, w, c, v1, v2, Dc, nx_c)
+    # P2 = -3 N_n + 2 N_a + 2 N_b - N_c, P3 = 4 (N_n - N_a - N_b + N_c), for N_x and w
+    for i in range(4):
+        wa, wb = p2w[i], p3w[i]
+        p2w[i] = -3.0 * w_n[i] + 2.0 * (wa + wb) - w[i]
+        p3w[i] = 4.0 * (w_n[i] - wa - wb + w[i])
+        p2x[i] = -3.0 * nx_n[i] + 2.0 * (nx_a[i] + nx_b[i]) - nx_c[i]
+        p3x[i] = 4.0 * (nx_n[i] - nx_a[i] - nx_b[i] + nx_c[i])
+    # end of the step
+    acc[0] = h * r[_R_H1]
+    acc[1] = h * r[_R_H1 + 1]
+    _gw(coup[_G_H2], w_n, h * h, acc)
+    _gw(coup[_G_H3], p2w, h * h, acc)
+    _gw(coup[_G_H4], p3w, h * h, acc)
+    for i in range(4):
+        x_new[i] = x[i] + h * (nx_n[i] + 0.5 * p2x[i] + p3x[i] * (1.0 / 6.0))
+    _add_pump(x_new, c, acc[0], acc[1], x_new)
+    for i in range(nd):
+        col = mi[i]
+        z_new[i] = prop_m[0, i] * z[i] + h * (prop_m[1, i] * w_n[col] + prop_m[2, i] * p2w[col]
+                                              + prop_m[3, i] * p3w[col])
+    for i in range(nz - nd):
+        acc_i = 0.0
+        for j in range(nz - nd):
+            acc_i += prop_q[i, j] * z[nd + j]
+        for j in range(4):
+            acc_i += h * (prop_qb[0, i, j] * w_n[j] + prop_qb[1, i, j] * p2w[j] + prop_qb[2, i, j] * p3w[j])
+        z_new[nd + i] = acc_i
+    du_end[0] = r[_R_H0]
+    du_end[1] = r[_R_H0 + 1]
+    _gw(coup[_G_H1], w_n, h, du_end)
+    _gw(coup[_G_H2], p2w, h, du_end)
+    _gw(coup[_G_H3], p3w, h, du_end)
+    _measure(x_new, s, d1, d2, h_op, w)
+    _gw(Dc, w, 1.0, du_end)
+    # midpoint: the dense output at theta = 1/2 (see _dense_at), tables at h/2
+    acc[0] = e0
+    acc[1] = e1
+    _gw(coup[_G_C2], w_n, hh, acc)
+    _gw(coup[_G_C3], p2w, 0.5 * hh, acc)
+    _gw(coup[_G_C4], p3w, 0.25 * hh, acc)
+    for i in range(4):
+        x_mid[i] = x[i] + half * (nx_n[i] + 0.25 * p2x[i] + p3x[i] * (1.0 / 24.0))
+    _add_pump(x_mid, c, acc[0], acc[1], x_mid)
+    du_mid[0] = r[_R_C0]
+    du_mid[1] = r[_R_C0 + 1]
+    _gw(coup[_G_C1], w_n, half, du_mid)
+    _gw(coup[_G_C2], p2w, 0.5 * half, du_mid)
+    _gw(coup[_G_C3], p3w, 0.25 * half, du_mid)
+    _measure(x_mid, s, d1, d2, h_op, w)
+    _gw(Dc, w, 1.0, du_mid)
+
+
+@njit(cache=True, fastmath=_FAST)
+def _pump_voltages(x, z, Cm, Cq, s, d1, d2, h_op, Dc, w, du):
+    """Controller output ``du = C z + Dc w`` at state (x, z) (the operating voltage not added)."""
+    nd = Cm.shape[1]
+    _measure(x, s, d1, d2, h_op, w)
+    du[0] = 0.0
+    du[1] = 0.0
+    _gw(Dc, w, 1.0, du)
+    for i in range(nd):
+        du[0] += Cm[0, i] * z[i]
+        du[1] += Cm[1, i] * z[i]
+    for i in range(Cq.shape[1]):
+        du[0] += Cq[0, i] * z[nd + i]
+        du[1] += Cq[1, i] * z[nd + i]
+
+
+@njit(cache=True, fastmath=_FAST)
+def _dense_at(theta, h, x, z, lam, bm, mi, Cm, Aq, Bq, Cq, c, s, d1, d2, h_op, Dc, scr, wst, w, x_out, du_out):
+    """Dense output at ``t_n + theta h`` of the step just taken from (x, z) by
+    :func:`_etdrk4_step` (whose stage combinations are still in ``scr`` and ``wst``)::
+
+        x(tau) = x + tau Bp C phi_1 z + tau (N_x + theta P2x / 2 + theta^2 P3x / 6)
+                 + tau^2 Bp C (phi_2 B w_n + theta phi_3 B P2w + theta^2 phi_4 B P3w)
+        z(tau) = phi_0 z + tau (phi_1 B w_n + theta phi_2 B P2w + theta^2 phi_3 B P3w),
+
+    ``tau = theta h``, the phi functions of ``tau Lambda`` computed here (this serves the
+    recorded trajectory, not the metrics). Writes the plant state ``x_out`` and the controller
+    output ``du_out``.
+    """
+    tau = theta * h
+    nd = lam.size
+    nq = Aq.shape[0]
+    nx_n, p2x, p3x = scr[0], scr[8], scr[9]
+    w_n, p2w, p3w = wst[0], wst[1], wst[2]
+    ph = np.empty(N_PHI)
+    g0 = 0.0
+    g1 = 0.0  # C (tau phi_1 z + tau^2 (phi_2 B w_n + ...)): the controller's push on the levels
+    cz0 = 0.0
+    cz1 = 0.0  # C z(tau)
+    t2 = theta * theta
+    for i in range(nd):
+        phi_scalar(tau * lam[i], ph)
+        col = mi[i]
+        b = bm[i]
+        push = tau * ph[1] * z[i] + tau * tau * b * (ph[2] * w_n[col] + theta * ph[3] * p2w[col]
+                                                     + t2 * ph[4] * p3w[col])
+        zi = ph[0] * z[i] + tau * b * (ph[1] * w_n[col] + theta * ph[2] * p2w[col] + t2 * ph[3] * p3w[col])
+        g0 += Cm[0, i] * push
+        g1 += Cm[1, i] * push
+        cz0 += Cm[0, i] * zi
+        cz1 += Cm[1, i] * zi
+    if nq > 0:
+        tab = np.empty((N_LEVELS, N_PHI, nq, nq))
+        phi_matrix_levels(Aq, tau, tab)
+        zq = z[nd:]
+        bw = Bq @ w_n
+        b2 = Bq @ p2w
+        b3 = Bq @ p3w
+        push = tau * (tab[0, 1] @ zq) + tau * tau * (tab[0, 2] @ bw + theta * (tab[0, 3] @ b2)
+                                                      + t2 * (tab[0, 4] @ b3))
+        zt = tab[0, 0] @ zq + tau * (tab[0, 1] @ bw + theta * (tab[0, 2] @ b2) + t2 * (tab[0, 3] @ b3))
+        for i in range(nq):
+            g0 += Cq[0, i] * push[i]
+            g1 += Cq[1, i] * push[i]
+            cz0 += Cq[0, i] * zt[i]
+            cz1 += Cq[1, i] * zt[i]
+    for i in range(4):
+        x_out[i] = x[i] + tau * (nx_n[i] + 0.5 * theta * p2x[i] + t2 * p3x[i] / 6.0)
+    _add_pump(x_out, c, g0, g1, x_out)
+    _measure(x_out, s, d1, d2, h_op, w)
+    du_out[0] = cz0
+    du_out[1] = cz1
+    _gw(Dc, w, 1.0, du_out)
+
+
+# Signals followed at every node (step points and midpoints): |e1|, |e2|, the four levels, the
+# two pump voltages.
+_N_SIG = 8
+
+
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _vertex(t0, f0, t1, f1, t2, f2):
+    """Extreme value of the parabola through three nodes (``t0 < t1 < t2``), its vertex kept
+    within [t0, t2]; ``f1`` when the three are collinear."""
+    s0 = (f1 - f0) / (t1 - t0)
+    s1 = (f2 - f1) / (t2 - t1)
+    curv = (s1 - s0) / (t2 - t0)
+    if curv == 0.0:
+        return f1
+    tv = 0.5 * (t0 + t1) - s0 / (2.0 * curv)
+    tv = min(max(tv, t0), t2)
+    return f0 + s0 * (tv - t0) + curv * (tv - t0) * (tv - t1)
+
+
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _crossing(t0, f0, t1, f1, t2, f2, band, has_prev):
+    """Time in [t1, t2] where the interpolant of the nodes crosses ``band`` (f1 > band >= f2):
+    the parabola through (t0, t1, t2) when ``has_prev``, else the chord through t1 and t2."""
+    lin = t1 + (t2 - t1) * (f1 - band) / (f1 - f2) if f1 > f2 else t2
+    if not has_prev:
+        return lin
+    s0 = (f1 - f0) / (t1 - t0)
+    s1 = (f2 - f1) / (t2 - t1)
+    curv = (s1 - s0) / (t2 - t0)
+    # p(t) = f1 + q (t - t1) + curv (t - t1)^2 with q the slope at t1 of that parabola
+    q = s1 - curv * (t2 - t1)
+    if curv == 0.0:
+        return lin
+    # solve curv r^2 + q r + (f1 - band) = 0 for r = t - t1 in [0, t2 - t1]
+    disc = q * q - 4.0 * curv * (f1 - band)
+    if disc < 0.0:
+        return lin
+    sq = math.sqrt(disc)
+    best = lin
+    found = False
+    for r in ((-q - sq) / (2.0 * curv), (-q + sq) / (2.0 * curv)):
+        if 0.0 <= r <= t2 - t1 and not found:
+            best = t1 + r
+            found = True
+    return best
+
+
+@njit(cache=True, fastmath=_FAST)
+def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc,
+                        seg_t0, seg_h, seg_steps, seg_graded, seg_dist, seg_uin, seg_post,
+                        t_dist, horizon, band_pct, metrics, out_dt, y_rec, u_rec, h_rec):
+    """Continuous-time closed loop by ETDRK4 on a planned grid, with its metrics.
+
+    Parameters
+    ----------
+    c : (10,) plant coefficients (``kernels.plant_coefficients`` or the bond-graph ones)
+    level_per_state : float, level per unit of plant state (1 for the level model)
+    x_init : (4,) initial plant state; h_op : (4,) operating levels; u_op : (2,) voltages
+    lam, bm : (nd,) modal eigenvalues and input gains; mi : (nd,) int64 input of each mode;
+    Cm : (2, nd) their output weights
+    Aq : (nq, nq), Bq : (nq, 4), Cq : (2, nq): the dense controller blocks
+    Dc : (2, 4) static feedback
+    seg_t0, seg_h : (S,) start and step of each segment (segments start at 0 and at every
+        discontinuity); seg_steps : (S,) int64, steps of ``seg_h`` in it; seg_graded : (S,)
+        bool, whether the first of those steps is taken as h/16, h/16, h/8, h/4, h/2;
+        seg_dist, seg_uin : (S, 2) output and input disturbance in force; seg_post : (S,) bool,
+        whether the segment lies after the output disturbance time ``t_dist``
+    horizon : float, end time T; band_pct : float, settling band in percent
+    metrics : (N_METRICS,) output in the order of ``kernels.METRIC_NAMES``
+    out_dt : float; y_rec, u_rec : (M + 1, 2), h_rec : (M + 1, 4) the dense output at
+        ``t = k out_dt`` (measured levels, applied voltages, plant states), or 0 rows
+
+    Returns
+    -------
+    status : int, STATUS_OK or STATUS_DIVERGED (metrics NaN, records NaN from there)
+    n_steps : int, steps taken
+    """
+    nd = lam.size
+    nq = Aq.shape[0]
+    nz = nd + nq
+    s = level_per_state
+    state_limit = LEVEL_LIMIT / s
+    rows = np.empty((N_STEP_LEVELS, N_ROWS, nz))
+    coup = np.empty((N_STEP_LEVELS, N_COUPLINGS, 2, 4))
+    prop_m = np.empty((N_STEP_LEVELS, 4, nd))
+    prop_q = np.zeros((N_STEP_LEVELS, nq, nq))
+    prop_qb = np.zeros((N_STEP_LEVELS, 3, nq, 4))
+    x = x_init.copy()
+    z = np.zeros(nz)
+    x_new = np.empty(4)
+    z_new = np.empty(nz)
+    x_mid = np.empty(4)
+    u_mid = np.empty(2)
+    u_end = np.empty(2)
+    du0 = np.empty(2)
+    w = np.empty(4)
+    scr = np.empty((10, 4))
+    wst = np.empty((3, 4))
+    rbuf = np.empty(N_ROWS)
+    acc = np.empty(2)
+    xr = np.empty(4)
+    dur = np.empty(2)
+    band = np.array([band_pct / 100.0 * h_op[0], band_pct / 100.0 * h_op[1]])
+    # Simpson sums: IAE, ISE, ITAE per output; J, Jdev per input
+    iae = np.zeros(2)
+    ise = np.zeros(2)
+    itae = np.zeros(2)
+    jj = np.zeros(2)
+    jdev = np.zeros(2)
+    tv = np.zeros(2)
+    mp = np.zeros(2)
+    # last exit from the band: (t, value) of the node before, of the exit node, of the node after
+    ex_prev = np.zeros((2, 2))
+    ex_out = np.full((2, 2), -1.0)
+    ex_in = np.zeros((2, 2))
+    ex_has_prev = np.zeros(2, dtype=np.bool_)
+    pending = np.zeros(2, dtype=np.bool_)
+    lo = np.full(_N_SIG, np.inf)
+    hi = np.full(_N_SIG, -np.inf)
+    # Window of the last three nodes of the segment (for the parabolic refinement).
+    win_t = np.zeros(3)
+    win_v = np.zeros((3, _N_SIG))
+    f0 = np.empty(_N_SIG)
+    fm = np.empty(_N_SIG)
+    f1 = np.empty(_N_SIG)
+    u_prev = np.empty(2)
+    rec = y_rec.shape[0]
+    k_rec = 0
+    n_taken = 0
+    diverged = False
+    first_node = True
+    for sg in range(seg_t0.size):
+        h = seg_h[sg]
+        step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, rows, coup, prop_m, prop_q, prop_qb)
+        d1 = seg_dist[sg, 0]
+        d2 = seg_dist[sg, 1]
+        v1 = u_op[0] + seg_uin[sg, 0]
+        v2 = u_op[1] + seg_uin[sg, 1]
+        post = seg_post[sg]
+        t = seg_t0[sg]
+        n_win = 0
+        # node at the segment start (right limit)
+        _pump_voltages(x, z, Cm, Cq, s, d1, d2, h_op, Dc, w, du0)
+        _signals(w, x, s, u_op, du0, f0)
+        n_win = _visit(t, f0, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
+                       ex_has_prev, pending, tv, u_prev, first_node)
+        first_node = False
+        n_sub = seg_steps[sg] + (4 if seg_graded[sg] else 0)
+        for j in range(n_sub):
+            if seg_graded[sg] and j < 5:
+                level = GRADED_LEVELS[j]
+            else:
+                level = 0
+            hs = h / 2.0 ** level
+            _etdrk4_step(x, z, hs, rows[level], coup[level], prop_m[level], prop_q[level], prop_qb[level], mi, c, s,
+                         d1, d2, v1, v2, h_op, Dc, scr, wst, rbuf, acc, x_new, z_new, x_mid, u_mid, u_end)
+            n_taken += 1
+            if not (abs(x_new[0]) + abs(x_new[1]) + abs(x_new[2]) + abs(x_new[3]) < state_limit):
+                diverged = True
+                break
+            # recorded grid points in [t, t + hs)
+            while k_rec < rec and k_rec * out_dt < t + hs - 1e-9 * hs:
+                theta = (k_rec * out_dt - t) / hs
+                _dense_at(max(theta, 0.0), hs, x, z, lam, bm, mi, Cm, Aq, Bq, Cq, c, s, d1, d2, h_op, Dc, scr, wst,
+                          w, xr, dur)
+                _measure(xr, s, d1, d2, h_op, w)
+                y_rec[k_rec, 0] = w[0] + h_op[0]
+                y_rec[k_rec, 1] = w[1] + h_op[1]
+                u_rec[k_rec, 0] = u_op[0] + dur[0]
+                u_rec[k_rec, 1] = u_op[1] + dur[1]
+                for i in range(4):
+                    h_rec[k_rec, i] = xr[i]
+                k_rec += 1
+            # midpoint and end nodes
+            _measure(x_mid, s, d1, d2, h_op, w)
+            _signals(w, x_mid, s, u_op, u_mid, fm)
+            n_win = _visit(t + 0.5 * hs, fm, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
+                           ex_has_prev, pending, tv, u_prev, False)
+            _measure(x_new, s, d1, d2, h_op, w)
+            _signals(w, x_new, s, u_op, u_end, f1)
+            n_win = _visit(t + hs, f1, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
+                           ex_has_prev, pending, tv, u_prev, False)
+            # Simpson's rule over the step
+            wq = hs / 6.0
+            tm = t + 0.5 * hs
+            te = t + hs
+            for i in range(2):
+                iae[i] += wq * (f0[i] + 4.0 * fm[i] + f1[i])
+                ise[i] += wq * (f0[i] * f0[i] + 4.0 * fm[i] * fm[i] + f1[i] * f1[i])
+                itae[i] += wq * (t * f0[i] + 4.0 * tm * fm[i] + te * f1[i])
+                a0 = f0[6 + i]
+                am = fm[6 + i]
+                a1 = f1[6 + i]
+                jj[i] += wq * (a0 * a0 + 4.0 * am * am + a1 * a1)
+                b0 = a0 - u_op[i]
+                bmm = am - u_op[i]
+                b1 = a1 - u_op[i]
+                jdev[i] += wq * (b0 * b0 + 4.0 * bmm * bmm + b1 * b1)
+            for i in range(_N_SIG):
+                f0[i] = f1[i]
+            t = te
+            x, x_new = x_new, x
+            z, z_new = z_new, z
+        if diverged:
+            break
+    if diverged:
+        for kk in range(k_rec, rec):
+            for i in range(2):
+                y_rec[kk, i] = np.nan
+                u_rec[kk, i] = np.nan
+            for i in range(4):
+                h_rec[kk, i] = np.nan
+        for i in range(N_METRICS):
+            metrics[i] = np.nan
+        return STATUS_DIVERGED, n_taken
+    # the end point T
+    while k_rec < rec:
+        y_rec[k_rec, 0] = s * x[0] + seg_dist[seg_t0.size - 1, 0]
+        y_rec[k_rec, 1] = s * x[1] + seg_dist[seg_t0.size - 1, 1]
+        u_rec[k_rec, 0] = f1[6]
+        u_rec[k_rec, 1] = f1[7]
+        for i in range(4):
+            h_rec[k_rec, i] = x[i]
+        k_rec += 1
+    for i in range(2):
+        y0 = h_op[i]
+        if ex_out[i, 0] < 0.0:
+            ts = 0.0
+        elif pending[i]:
+            ts = horizon - t_dist
+        else:
+            ts = _crossing(ex_prev[i, 0], ex_prev[i, 1], ex_out[i, 0], ex_out[i, 1], ex_in[i, 0], ex_in[i, 1],
+                           band[i], ex_has_prev[i]) - t_dist
+        metrics[i] = mp[i] / y0 * 100.0
+        metrics[2 + i] = ts
+        metrics[4 + i] = f1[i] / y0 * 100.0
+        metrics[6 + i] = iae[i]
+        metrics[8 + i] = ise[i]
+        metrics[10 + i] = itae[i]
+        metrics[12 + i] = jj[i]
+        metrics[14 + i] = jdev[i]
+        metrics[16 + i] = tv[i]
+    metrics[18] = min(min(lo[2], lo[3]), min(lo[4], lo[5]))
+    metrics[19] = max(max(hi[2], hi[3]), max(hi[4], hi[5]))
+    metrics[20] = min(lo[6], lo[7])
+    metrics[21] = max(hi[6], hi[7])
+    return STATUS_OK, n_taken
+
+
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _signals(w, x, s, u_op, du, f):
+    """The followed signals at a node: |e1|, |e2| (``w`` measured there), levels, voltages."""
+    f[0] = abs(w[0])
+    f[1] = abs(w[1])
+    f[2] = s * x[0]
+    f[3] = s * x[1]
+    f[4] = s * x[2]
+    f[5] = s * x[3]
+    f[6] = u_op[0] + du[0]
+    f[7] = u_op[1] + du[1]
+
+
+@njit(cache=True, fastmath=_FAST)
+def _visit(t, f, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in, ex_has_prev, pending,
+           tv, u_prev, first):
+    """Fold one node (time ``t``, signals ``f``) into the extremes, the overshoot, the band
+    exits and the total variation; returns the new window count."""
+    # total variation over consecutive nodes, jumps at discontinuities included
+    if not first:
+        tv[0] += abs(f[6] - u_prev[0])
+        tv[1] += abs(f[7] - u_prev[1])
+    u_prev[0] = f[6]
+    u_prev[1] = f[7]
+    # window of the segment's last three nodes
+    if n_win < 3:
+        win_t[n_win] = t
+        for i in range(_N_SIG):
+            win_v[n_win, i] = f[i]
+        n_win += 1
+    else:
+        win_t[0] = win_t[1]
+        win_t[1] = win_t[2]
+        win_t[2] = t
+        for i in range(_N_SIG):
+            win_v[0, i] = win_v[1, i]
+            win_v[1, i] = win_v[2, i]
+            win_v[2, i] = f[i]
+    for i in range(2, _N_SIG):
+        lo[i] = min(lo[i], f[i])
+        hi[i] = max(hi[i], f[i])
+    if post:
+        for i in range(2):
+            mp[i] = max(mp[i], f[i])
+    if n_win == 3:
+        t0, t1, t2 = win_t[0], win_t[1], win_t[2]
+        for i in range(_N_SIG):
+            a, b, cc = win_v[0, i], win_v[1, i], win_v[2, i]
+            if b >= a and b >= cc:
+                v = _vertex(t0, a, t1, b, t2, cc)
+                if i < 2:
+                    if post:
+                        mp[i] = max(mp[i], v)
+                else:
+                    hi[i] = max(hi[i], v)
+            if b <= a and b <= cc and i >= 2:
+                lo[i] = min(lo[i], _vertex(t0, a, t1, b, t2, cc))
+    if post:
+        for i in range(2):
+            if f[i] > band[i]:
+                ex_out[i, 0] = t
+                ex_out[i, 1] = f[i]
+                ex_has_prev[i] = n_win >= 2
+                if n_win >= 2:
+                    ex_prev[i, 0] = win_t[n_win - 2]
+                    ex_prev[i, 1] = win_v[n_win - 2, i]
+                pending[i] = True
+            elif pending[i]:
+                ex_in[i, 0] = t
+                ex_in[i, 1] = f[i]
+                pending[i] = False
+    return n_win
