@@ -452,8 +452,54 @@ def _dense_at(theta, h, x, z, lam, bm, mi, Cm, Aq, Bq, Cq, c, s, d1, d2, h_op, D
 
 
 # Signals followed at every node (step points and midpoints): |e1|, |e2|, the four levels, the
-# two pump voltages.
-_N_SIG = 8
+# two pump voltages (whose extremes are followed), then e1, e2 with their signs.
+_N_EXT = 8
+_N_SIG = 10
+
+
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _abs_moments(e0, em, e1):
+    """``(int_0^1 |p|, int_0^1 s |p|)`` of the parabola p through e0, em, e1 at s = 0, 1/2, 1.
+
+    Where the three have one sign this is Simpson's rule; where p changes sign it is split at
+    its roots and integrated exactly, so that a zero crossing of the error inside a step costs
+    no accuracy (IAE and ITAE of an oscillating response cross zero once per half period)."""
+    if (e0 >= 0.0 and em >= 0.0 and e1 >= 0.0) or (e0 <= 0.0 and em <= 0.0 and e1 <= 0.0):
+        a0, am, a1 = abs(e0), abs(em), abs(e1)
+        return (a0 + 4.0 * am + a1) / 6.0, (2.0 * am + a1) / 6.0
+    # p(s) = e0 + b s + c s^2
+    b = -3.0 * e0 + 4.0 * em - e1
+    c = 2.0 * e0 - 4.0 * em + 2.0 * e1
+    r1 = 2.0
+    r2 = 2.0
+    if c == 0.0:
+        if b != 0.0:
+            r1 = -e0 / b
+    else:
+        disc = b * b - 4.0 * c * e0
+        if disc >= 0.0:
+            sq = math.sqrt(disc)
+            q = -0.5 * (b + math.copysign(sq, b))
+            ra = q / c
+            rb = e0 / q if q != 0.0 else 2.0
+            r1 = min(ra, rb)
+            r2 = max(ra, rb)
+    m0 = 0.0
+    m1 = 0.0
+    lo = 0.0
+    for hi in (r1, r2, 1.0):
+        if not (lo < hi <= 1.0):
+            continue
+        # int p and int s p over [lo, hi]
+        i0 = (e0 * (hi - lo) + b * (hi * hi - lo * lo) / 2.0 + c * (hi ** 3 - lo ** 3) / 3.0)
+        i1 = (e0 * (hi * hi - lo * lo) / 2.0 + b * (hi ** 3 - lo ** 3) / 3.0 + c * (hi ** 4 - lo ** 4) / 4.0)
+        if i0 < 0.0:
+            i0 = -i0
+            i1 = -i1
+        m0 += i0
+        m1 += i1
+        lo = hi
+    return m0, m1
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")
@@ -638,9 +684,10 @@ def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm,
             tm = t + 0.5 * hs
             te = t + hs
             for i in range(2):
-                iae[i] += wq * (f0[i] + 4.0 * fm[i] + f1[i])
+                m0, m1 = _abs_moments(f0[8 + i], fm[8 + i], f1[8 + i])
+                iae[i] += hs * m0
                 ise[i] += wq * (f0[i] * f0[i] + 4.0 * fm[i] * fm[i] + f1[i] * f1[i])
-                itae[i] += wq * (t * f0[i] + 4.0 * tm * fm[i] + te * f1[i])
+                itae[i] += hs * (t * m0 + hs * m1)
                 a0 = f0[6 + i]
                 am = fm[6 + i]
                 a1 = f1[6 + i]
@@ -711,6 +758,8 @@ def _signals(w, x, s, u_op, du, f):
     f[5] = s * x[3]
     f[6] = u_op[0] + du[0]
     f[7] = u_op[1] + du[1]
+    f[8] = w[0]
+    f[9] = w[1]
 
 
 @njit(cache=True, fastmath=_FAST)
@@ -738,7 +787,7 @@ def _visit(t, f, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, e
             win_v[0, i] = win_v[1, i]
             win_v[1, i] = win_v[2, i]
             win_v[2, i] = f[i]
-    for i in range(2, _N_SIG):
+    for i in range(2, _N_EXT):
         lo[i] = min(lo[i], f[i])
         hi[i] = max(hi[i], f[i])
     if post:
@@ -746,7 +795,7 @@ def _visit(t, f, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, e
             mp[i] = max(mp[i], f[i])
     if n_win == 3:
         t0, t1, t2 = win_t[0], win_t[1], win_t[2]
-        for i in range(_N_SIG):
+        for i in range(_N_EXT):
             a, b, cc = win_v[0, i], win_v[1, i], win_v[2, i]
             if b >= a and b >= cc:
                 v = _vertex(t0, a, t1, b, t2, cc)

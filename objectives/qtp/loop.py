@@ -163,6 +163,13 @@ class Scenario:
                 raise ConfigError(f"scenario.{key} ({what}) must be a finite number > 0, got {v!r}")
         if not self.continuous:
             return
+        if self.tolerance is not None and self.step is not None:
+            raise ConfigError("scenario.tolerance and scenario.step both set the continuous loop's step; give one")
+        if self.tolerance is not None and _continuous.step_for_tolerance(self.tolerance, None) <= _continuous.MIN_STEP:
+            floor = _continuous.REFERENCE_TOLERANCE * (_continuous.MIN_STEP / _continuous.DEFAULT_STEP_AT_REFERENCE) ** 4
+            raise ConfigError(f"scenario.tolerance = {self.tolerance!r} is below what the loop can meet (its smallest "
+                              f"step, {_continuous.MIN_STEP:g} s, reaches about {floor:.1g} cm); give a tolerance "
+                              f"above that")
         for key in ("step", "output_dt"):
             v = getattr(self, key)
             if v is not None and v > self.horizon:
@@ -190,16 +197,21 @@ class Scenario:
         """Whether this scenario simulates the continuous-time loop (``tolerance`` or ``step`` set)."""
         return self.tolerance is not None or self.step is not None
 
-    @property
-    def continuous_step(self) -> float:
-        """The largest step of the continuous loop: ``step``, else the rule's step for ``tolerance``."""
+    def continuous_step_for(self, kind: str | None = None) -> float:
+        """The largest step of the continuous loop under a controller of type ``kind``:
+        ``step``, else the rule's step for ``tolerance`` (:func:`continuous.step_for_tolerance`)."""
         if self.step is not None:
             return float(self.step)
-        return _continuous.step_for_tolerance(float(self.tolerance))
+        return _continuous.step_for_tolerance(float(self.tolerance), kind)
 
-    def step_plan(self):
+    @property
+    def continuous_step(self) -> float:
+        """:meth:`continuous_step_for` the controller type with the smallest step."""
+        return self.continuous_step_for(None)
+
+    def step_plan(self, kind: str | None = None):
         """The segments and steps of the continuous loop (:func:`continuous.plan_steps`)."""
-        return _continuous.plan_steps(self.horizon, self.continuous_step, self.output_disturbance,
+        return _continuous.plan_steps(self.horizon, self.continuous_step_for(kind), self.output_disturbance,
                                       self.disturbance_time, self.input_disturbance, self.input_disturbance_time)
 
     @property
@@ -449,7 +461,7 @@ class ClosedLoop:
         """:meth:`run` of a continuous-time scenario (kernel ``simulate_continuous``)."""
         coef, u_op, _, _, _ = self._kernel_inputs(scenario)
         cc = _continuous.ContinuousController.from_linear(ctrl)
-        plan = scenario.step_plan()
+        plan = scenario.step_plan(self.kind)
         n_out = int(round(scenario.horizon / scenario.output_dt))
         t = None
         if record or record_levels:

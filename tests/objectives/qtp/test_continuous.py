@@ -1,0 +1,409 @@
+"""The continuous-time QTP loop (exponential integration) against independent continuous solutions.
+
+References:
+- ``reference_qtp.reference_loop``: the FOLQI loop written anew (plant, Oustaloup filter by
+  scipy's zpk2ss, LQR by python-control), integrated by Radau at rtol 1e-11;
+- :func:`radau_loop` below: any heurtune ``LinearController`` (LADR, LQI, a double integrator)
+  closed around ``reference_qtp.plant_rhs`` and integrated by Radau, with the integrals
+  (IAE, J) as quadrature states, for the metrics;
+- the phi functions against scipy's ``expm`` of the augmented matrix.
+
+Tolerances are those the issue sets for ``tolerance = 0.005``: the largest level error
+0.005 cm, J and IAE within 0.05 %, ts within 0.005 s. The references are solved 1,000 times more
+tightly, so the bound is the method's error alone.
+"""
+
+import math
+
+import numpy as np
+import pytest
+import scipy.linalg
+from scipy.integrate import solve_ivp
+from scipy.optimize import brentq
+
+import reference_qtp as ref
+from heurtune.core.errors import ConfigError
+from heurtune.objectives.qtp import continuous as cont
+from heurtune.objectives.qtp import continuous_kernels as ck
+from heurtune.objectives.qtp.loop import METRIC_NAMES, ClosedLoop, Scenario
+from heurtune.objectives.qtp.model import preset
+
+THESIS_MIN = dict(Q11=0.4431, Q22=0.3027, Q33=0.4434, Q44=1.5722, R11=4.2253, R22=2.5994,
+                  Ki1=1.7411, Ki2=7.1716, alpha1=0.9814, alpha2=0.8437)
+THESIS_NMP = dict(Q11=1.0788, Q22=1.0036, Q33=0.1676, Q44=1.7933, R11=3.6276, R22=3.7317,
+                  Ki1=6.9248, Ki2=2.6781, alpha1=0.8020, alpha2=0.8700)
+# Weakly damped (closed-loop poles -0.005 +- 1.14j) inside the thesis bounds: the issue's example.
+WEAK = dict(Q11=2.5, Q22=2.5, Q33=2.5, Q44=2.5, R11=0.1, R22=0.1, Ki1=8.0, Ki2=8.0, alpha1=1.8, alpha2=1.8)
+IOLQI_NMP = dict(Q11=2.4266, Q22=1.1754, Q33=0.1141, Q44=2.3565, R11=4.9639, R22=3.8190, Ki1=1.0003, Ki2=1.0205)
+
+T = 350.0
+TOL = 0.005
+IDX = {name: i for i, name in enumerate(METRIC_NAMES)}
+
+
+def plant_dict(case, factor=1.0):
+    p = preset(case)
+    return dict(A=[x * factor for x in p.A], a=[x * factor for x in p.a], k=list(p.k), gamma=list(p.gamma),
+                levels=list(p.levels))
+
+
+# -- phi functions ---------------------------------------------------------------------------
+
+def phi_by_expm(M, k_max=4):
+    """phi_0 .. phi_k_max of a square M from the exponential of [[M, I, 0..], [0, 0, I..], ...]."""
+    n = M.shape[0]
+    big = np.zeros(((k_max + 1) * n, (k_max + 1) * n))
+    big[:n, :n] = M
+    for k in range(k_max):
+        big[k * n:(k + 1) * n, (k + 1) * n:(k + 2) * n] = np.eye(n)
+    E = scipy.linalg.expm(big)
+    return [E[:n, :n]] + [E[:n, k * n:(k + 1) * n] for k in range(1, k_max + 1)]
+
+
+@pytest.mark.parametrize("z", [-1e3, -40.0, -3.0, -1.0, -0.999, -0.3, -1e-7, 0.0, 1e-9, 0.5, 1.0, 2.0])
+def test_scalar_phi_functions(z):
+    out = np.empty(5)
+    ck.phi_scalar(z, out)
+    expected = [p[0, 0] for p in phi_by_expm(np.array([[z]]))]
+    # Both sides are accurate to a few ulps of the largest term; 1e-13 leaves room for expm.
+    np.testing.assert_allclose(out, expected, rtol=1e-13, atol=1e-300)
+
+
+@pytest.mark.parametrize("h", [0.01, 0.4, 7.0])
+def test_matrix_phi_levels_match_expm(h):
+    rng = np.random.default_rng(3)
+    # A stable, non-normal block with a Jordan pair and a fast mode, like LADR's observer.
+    A = np.array([[0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [-3.0, -5.0, -20.0, 0.3], [0.0, 0.0, 0.0, -60.0]])
+    A += 0.01 * rng.standard_normal(A.shape)
+    tab = np.empty((ck.N_LEVELS, ck.N_PHI, 4, 4))
+    ck.phi_matrix_levels(A, h, tab)
+    for level in range(ck.N_LEVELS):
+        expected = phi_by_expm(A * h / 2.0 ** level)
+        for k in range(ck.N_PHI):
+            scale = np.abs(expected[k]).max()
+            np.testing.assert_allclose(tab[level, k], expected[k], rtol=0, atol=1e-11 * scale)
+
+
+# -- the loop against the independent FOLQI model ----------------------------------------------
+
+@pytest.fixture(scope="module")
+def folqi_references():
+    """Radau solutions of the independent FOLQI loop on a 0.05 s grid, computed once."""
+    t = np.arange(0.0, T + 1e-9, 0.05)
+    out = {}
+    for name, case, gains, realisation in [("min", "min", THESIS_MIN, "direct"), ("nmp", "nmp", THESIS_NMP, "direct"),
+                                           ("weak", "min", WEAK, "direct"),
+                                           ("weak-split", "min", WEAK, "integer_split")]:
+        y, u = ref.reference_loop(plant_dict(case), gains, t, realisation=realisation, rtol=1e-11, atol=1e-12)
+        out[name] = (t, y, u)
+    return out
+
+
+def continuous_run(case, kind, gains, *, realisation="direct", plant_model="qtp", **scenario):
+    loop = ClosedLoop(preset(case), kind, realisation=realisation, plant_model=plant_model)
+    sc = Scenario(output_dt=0.05, **scenario)
+    return loop, loop.run(loop.controller(gains), sc)
+
+
+@pytest.mark.parametrize("name, case, gains, realisation", [
+    ("min", "min", THESIS_MIN, "direct"),
+    ("nmp", "nmp", THESIS_NMP, "direct"),
+    ("weak", "min", WEAK, "direct"),
+    ("weak-split", "min", WEAK, "integer_split"),  # two exact integrators per pump: a dense block
+])
+def test_levels_within_the_tolerance_of_the_continuous_reference(folqi_references, name, case, gains, realisation):
+    t, y_ref, u_ref = folqi_references[name]
+    _, sim = continuous_run(case, "folqi", gains, realisation=realisation, tolerance=TOL)
+    assert not sim.diverged
+    np.testing.assert_allclose(sim.t, t, rtol=0, atol=1e-9)
+    assert np.abs(sim.y - y_ref).max() <= TOL
+    # The voltages carry the controller's high-frequency gain on the same error.
+    assert np.abs(sim.u - u_ref).max() <= 20 * TOL
+
+
+def test_error_is_fourth_order_in_the_step(folqi_references):
+    """Halving the step divides the largest level error by about 2^4 (min, thesis gains)."""
+    t, y_ref, _ = folqi_references["min"]
+    errors = []
+    for h in (1.0, 0.5, 0.25):
+        _, sim = continuous_run("min", "folqi", THESIS_MIN, step=h)
+        errors.append(np.abs(sim.y - y_ref).max())
+    ratios = [errors[i] / errors[i + 1] for i in range(2)]
+    # measured 33 and 15 (16 is fourth order; the first pair is not yet asymptotic)
+    assert all(r > 10.0 for r in ratios), (errors, ratios)
+
+
+def test_sampled_loop_is_first_order_and_far_less_accurate(folqi_references):
+    """Why the continuous loop: the sampled loop's error at the default dt is 5x the
+    continuous loop's tolerance, at 30x the steps."""
+    t, y_ref, _ = folqi_references["min"]
+    loop = ClosedLoop(preset("min"), "folqi")
+    sampled = loop.run(loop.controller(THESIS_MIN), Scenario())
+    err_sampled = np.abs(sampled.y[::5] - y_ref).max()
+    _, sim = continuous_run("min", "folqi", THESIS_MIN, tolerance=TOL)
+    assert err_sampled > 3 * TOL > 3 * np.abs(sim.y - y_ref).max()
+
+
+# -- any controller, the metrics, the bond graph: against radau_loop --------------------------
+
+def radau_loop(loop, ctrl, *, d=(1.0, 1.0), t_d=50.0, horizon=T, factor=1.0):
+    """Independent continuous loop: ``reference_qtp.plant_rhs`` closed by the controller's own
+    (A, B, C, D), integrated by Radau with IAE_i and J_j as quadrature states.
+
+    Returns the dense solution of each piece, the operating levels and voltages, and the
+    integrals at the end."""
+    P = plant_dict(loop.plant.name if loop.plant.name in ("min", "nmp") else "min", factor)
+    h0, _ = ref.equilibrium(plant_dict(loop.plant.name))
+    _, u0 = ref.equilibrium(P)
+    A, B, C, D = ctrl.A, ctrl.B, ctrl.C, ctrl.D
+    nz = A.shape[0]
+
+    def parts(s, dist):
+        h, z = s[:4], s[4:4 + nz]
+        w = h - h0
+        w[:2] += dist
+        u = u0 + C @ z + D @ w
+        return h, z, w, u
+
+    def rhs(t, s, dist):
+        h, z, w, u = parts(s, dist)
+        return np.concatenate([ref.plant_rhs(h, u, P), A @ z + B @ w, np.abs(w[:2]), u * u])
+
+    s0 = np.concatenate([h0, np.zeros(nz), np.zeros(4)])
+    pieces = []
+    for t0, t1, dist in [(0.0, t_d, np.zeros(2)), (t_d, horizon, np.asarray(d, dtype=float))]:
+        sol = solve_ivp(rhs, (t0, t1), s0, method="Radau", args=(dist,), rtol=1e-11, atol=1e-12, dense_output=True)
+        assert sol.success
+        pieces.append((t0, t1, dist, sol))
+        s0 = sol.y[:, -1]
+    return pieces, h0, u0, s0[-4:], parts
+
+
+def reference_metrics(pieces, h0, integrals, parts, band_pct=3.0):
+    """Mp, ts (last exit from the band, by brentq on the dense solution), IAE and J."""
+    t0, t1, dist, sol = pieces[1]
+    out = {}
+    grid = np.linspace(t0, t1, 700_001)
+    Y = sol.sol(grid)
+    for i in range(2):
+        e = np.abs(Y[i] - h0[i] + dist[i])
+        k = int(np.argmax(e))
+        out[f"Mp{i + 1}"] = e[k] / h0[i] * 100.0
+        band = band_pct / 100.0 * h0[i]
+        outside = np.flatnonzero(e > band)
+        if outside.size == 0:
+            out[f"ts{i + 1}"] = 0.0
+        else:
+            j = outside[-1]
+            f = lambda t: abs(sol.sol(t)[i] - h0[i] + dist[i]) - band  # noqa: E731
+            out[f"ts{i + 1}"] = brentq(f, grid[j], grid[j + 1], xtol=1e-12) - t0
+        out[f"IAE{i + 1}"] = integrals[i]
+        out[f"J{i + 1}"] = integrals[2 + i]
+    return out
+
+
+CONTROLLERS = {
+    "folqi-min": ("min", "folqi", THESIS_MIN, {}),
+    "folqi-weak": ("min", "folqi", WEAK, {}),
+    "iolqi-nmp": ("nmp", "iolqi", IOLQI_NMP, {}),
+    "lqi-min": ("min", "lqi", dict(Q11=1.0, Q22=1.0, Q33=0.5, Q44=0.5, Qi1=0.05, Qi2=0.05, R11=1.0, R22=1.0), {}),
+}
+# The scenario each case is checked under, and the relative IAE bound it meets there. The weakly
+# damped candidate oscillates for the whole 300 s: its level error of 3e-4 cm at tolerance
+# 0.005 (step 0.125 s) adds up to 0.11 % of its IAE, so it meets the 0.05 % target only at a
+# tolerance 16 times tighter (step 0.0625 s, measured 0.007 %). The step rule is per problem,
+# not yet per candidate (docs/model.md, "Step rule").
+SCENARIOS = {"folqi-weak": (dict(tolerance=TOL / 16), 5e-4)}
+
+
+@pytest.fixture(scope="module")
+def ladr_gains():
+    """Thesis Table 4.7's LADR of the minimum-phase plant (observer blocks: dense, complex)."""
+    from heurtune.objectives.qtp.controllers import decision_names
+    from heurtune.objectives.qtp.thesis.printed import printed_row
+
+    row = printed_row("4.7", "min-ladr")
+    return {n: float(row[n]) for n in decision_names("ladr")}
+
+
+@pytest.mark.parametrize("name", list(CONTROLLERS) + ["ladr-min"])
+def test_metrics_within_the_targets_of_the_continuous_reference(name, ladr_gains):
+    case, kind, gains, options = CONTROLLERS[name] if name != "ladr-min" else ("min", "ladr", ladr_gains, {})
+    loop = ClosedLoop(preset(case), kind, **options)
+    ctrl = loop.controller(gains)
+    pieces, h0, _, integrals, parts = radau_loop(loop, ctrl)
+    expected = reference_metrics(pieces, h0, integrals, parts)
+    keys, iae_rel = SCENARIOS.get(name, (dict(tolerance=TOL), 5e-4))
+    sim = loop.run(ctrl, Scenario(**keys), record=False)
+    assert not sim.diverged
+    m = dict(zip(METRIC_NAMES, sim.metrics))
+    for i in (1, 2):
+        assert m[f"J{i}"] == pytest.approx(expected[f"J{i}"], rel=5e-4), name
+        assert m[f"IAE{i}"] == pytest.approx(expected[f"IAE{i}"], rel=iae_rel), name
+        assert abs(m[f"ts{i}"] - expected[f"ts{i}"]) <= 0.005, name
+        # Mp: the jump at t_d or a refined maximum; 0.005 cm on a 1 cm deviation
+        assert m[f"Mp{i}"] == pytest.approx(expected[f"Mp{i}"], abs=0.005 / h0[i - 1] * 100), name
+    # the levels of the dense output against the reference, at the default tolerance
+    rec = loop.run(ctrl, Scenario(tolerance=TOL, output_dt=0.5))
+    for t0, t1, dist, sol in pieces:
+        mask = (rec.t >= t0) & (rec.t < t1)
+        assert np.abs(rec.h[mask] - sol.sol(rec.t[mask])[:4].T).max() <= TOL, name
+
+
+def test_bond_graph_model_follows_the_level_model():
+    """The pressure formulation simulates the same loop: levels agree to the tolerance."""
+    loop_h = ClosedLoop(preset("min"), "folqi")
+    loop_p = ClosedLoop(preset("min"), "folqi", plant_model="qtp_bond_graph")
+    ctrl = loop_h.controller(THESIS_MIN)
+    pieces, _, _, _, _ = radau_loop(loop_h, ctrl)
+    sc = Scenario(tolerance=TOL, output_dt=0.5)
+    sim_p = loop_p.run(ctrl, sc)
+    assert sim_p.P is not None
+    for t0, t1, _, sol in pieces:
+        mask = (sim_p.t >= t0) & (sim_p.t < t1)
+        assert np.abs(sim_p.h[mask] - sol.sol(sim_p.t[mask])[:4].T).max() <= TOL
+    np.testing.assert_allclose(sim_p.metrics, loop_h.run(ctrl, sc, record=False).metrics, rtol=1e-9)
+
+
+def test_uncertainty_and_input_disturbance_segments():
+    """A +30 % plant and an input step at 120 s (a third segment, graded): levels within the
+    tolerance of Radau on the same loop."""
+    loop = ClosedLoop(preset("min"), "folqi")
+    ctrl = loop.controller(THESIS_MIN)
+    sc = Scenario(tolerance=TOL, output_dt=0.25, uncertainty=1.3, input_disturbance=(0.3, -0.2),
+                  input_disturbance_time=120.0)
+    sim = loop.run(ctrl, sc)
+    P = plant_dict("min", 1.3)
+    h0, _ = ref.equilibrium(plant_dict("min"))
+    _, u0 = ref.equilibrium(P)
+    A, B, C, D = ctrl.A, ctrl.B, ctrl.C, ctrl.D
+
+    def rhs(t, s, d, ui):
+        h, z = s[:4], s[4:]
+        w = h - h0
+        w[:2] += d
+        u = u0 + C @ z + D @ w
+        return np.concatenate([ref.plant_rhs(h, u + ui, P), A @ z + B @ w])
+
+    s0 = np.concatenate([h0, np.zeros(A.shape[0])])
+    worst = 0.0
+    for t0, t1, d, ui in [(0, 50, (0, 0), (0, 0)), (50, 120, (1, 1), (0, 0)), (120, T, (1, 1), (0.3, -0.2))]:
+        sol = solve_ivp(rhs, (t0, t1), s0, method="Radau", args=(np.array(d, float), np.array(ui, float)),
+                        rtol=1e-11, atol=1e-12, dense_output=True)
+        mask = (sim.t >= t0) & (sim.t < t1)
+        worst = max(worst, np.abs(sim.h[mask] - sol.sol(sim.t[mask])[:4].T).max())
+        s0 = sol.y[:, -1]
+    assert worst <= TOL
+
+
+# -- plan, records, divergence, errors ----------------------------------------------------------
+
+def test_step_plan_starts_a_graded_segment_at_each_discontinuity():
+    plan = Scenario(tolerance=TOL, input_disturbance=(0.1, 0.0), input_disturbance_time=200.0).step_plan("folqi")
+    np.testing.assert_allclose(plan.t0, [0.0, 50.0, 200.0])
+    assert plan.graded.tolist() == [False, True, True] and plan.post.tolist() == [False, True, True]
+    np.testing.assert_allclose(plan.h * plan.steps, [50.0, 150.0, 150.0])
+    assert np.all(plan.h <= cont.step_for_tolerance(TOL, "folqi") + 1e-12)
+    # no disturbance: one segment
+    assert Scenario(tolerance=TOL, output_disturbance=(0.0, 0.0)).step_plan().t0.tolist() == [0.0]
+
+
+def test_step_rule_is_fourth_root_of_the_tolerance():
+    assert cont.step_for_tolerance(0.005, "folqi") == pytest.approx(0.125)
+    assert cont.step_for_tolerance(0.005 * 16, "folqi") == pytest.approx(0.25)
+    assert cont.step_for_tolerance(0.005, "ladr") == pytest.approx(0.05)
+    assert cont.step_for_tolerance(0.005) == pytest.approx(0.05)  # unknown type: the smallest
+    assert cont.step_for_tolerance(1e9, "folqi") == cont.MAX_STEP
+
+
+def test_recorded_and_unrecorded_runs_have_the_same_metrics():
+    loop = ClosedLoop(preset("nmp"), "folqi")
+    ctrl = loop.controller(THESIS_NMP)
+    sc = Scenario(tolerance=TOL)
+    a = loop.run(ctrl, sc)
+    b = loop.run(ctrl, sc, record=False)
+    np.testing.assert_array_equal(a.metrics, b.metrics)
+    assert a.y.shape == (35001, 2) and a.t[-1] == T
+    np.testing.assert_array_equal(loop.metrics(a, sc, 3.0), a.metrics)
+    # the record at t_d is the right limit: the measured step is in it
+    k = int(round(50.0 / 0.01))
+    assert a.y[k, 0] - a.h[k, 0] == pytest.approx(1.0)
+    assert a.y[k - 1, 0] == pytest.approx(a.h[k - 1, 0])
+
+
+def test_a_diverging_candidate_is_flagged_finite_and_infeasible():
+    """The weak candidate at a 1 s step: the explicit part is unstable. The run is flagged, its
+    metrics NaN, and the problem reports a failed, infeasible evaluation."""
+    loop = ClosedLoop(preset("min"), "folqi")
+    sim = loop.run(loop.controller(WEAK), Scenario(step=1.0))
+    assert sim.diverged and np.isnan(sim.metrics).all()
+    assert np.isnan(sim.y[-1]).all() and np.isfinite(sim.y[0]).all()
+    import heurtune
+
+    prob = heurtune.load_experiment("cs_folqi_qtp").problem("min")
+    x = np.array([WEAK[n] for n in prob.names])
+    ev = prob.evaluate(x, Scenario(step=1.0))
+    assert not ev.feasible[0] and ev.reason[0] == "diverged" and np.isfinite(ev.f[0])
+
+
+def test_problem_evaluates_continuous_scenarios_on_every_device():
+    import heurtune
+
+    prob = heurtune.load_experiment("cs_folqi_qtp").problem("min")
+    X = np.array([[THESIS_MIN[n] for n in prob.names], [WEAK[n] for n in prob.names]])
+    sc = Scenario(tolerance=TOL)
+    cpu = prob.evaluate(X, sc)
+    prob.set_device("cpu-batch")
+    batch = prob.evaluate(X, sc)
+    # The batched design (batch_design) rounds differently from the one-by-one design; the
+    # simulation is the same kernel. The objective agrees to 1e-12; small metrics (ess of
+    # 1e-3 %) carry that rounding relatively larger (measured 2e-11).
+    np.testing.assert_allclose(cpu.f, batch.f, rtol=1e-12)
+    np.testing.assert_allclose(cpu.metrics, batch.metrics, rtol=1e-9)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(tolerance=0.0), r"scenario.tolerance \(the largest level error in cm\) must be a finite number > 0, got 0.0"),
+    (dict(tolerance=-1.0), r"scenario.tolerance .* must be a finite number > 0, got -1.0"),
+    (dict(tolerance=math.inf), r"scenario.tolerance .* must be a finite number > 0, got inf"),
+    (dict(tolerance=math.nan), r"scenario.tolerance .* must be a finite number > 0, got nan"),
+    (dict(tolerance=TOL, output_dt=0.0), r"scenario.output_dt .* must be a finite number > 0, got 0.0"),
+    (dict(step=-0.1), r"scenario.step .* must be a finite number > 0, got -0.1"),
+    (dict(step=400.0), r"scenario.step must not exceed scenario.horizon \(350.0\), got 400.0"),
+    (dict(tolerance=TOL, output_dt=0.3), r"scenario.horizon \(350.0\) must be a whole number of scenario.output_dt"),
+    (dict(tolerance=1e-30), r"scenario.tolerance = 1e-30 is below what the loop can meet"),
+    (dict(tolerance=TOL, step=0.1), r"scenario.tolerance and scenario.step both set"),
+    (dict(tolerance=TOL, noise_sd=0.1), r"scenario.noise_sd > 0 needs the sampled loop"),
+    (dict(tolerance=TOL, saturation=(0.0, 10.0)), r"scenario.saturation: the continuous loop does not simulate"),
+    (dict(step=0.1, limits="physical"), r"scenario.limits: the continuous loop does not simulate"),
+])
+def test_bad_continuous_keys_get_one_line_errors(kwargs, message):
+    with pytest.raises(ConfigError, match=message) as exc:
+        Scenario(**kwargs)
+    assert "\n" not in str(exc.value)
+
+
+def test_step_budget_is_stated():
+    """(The budget check uses the smallest step of any controller type.)"""
+    """A tolerance that cannot be met within the budget of steps is refused, naming it."""
+    with pytest.raises(ConfigError, match=r"more than the budget of 10,000,000; raise scenario.tolerance"):
+        Scenario(horizon=35000.0, dt=0.01, disturbance_time=50.0, tolerance=1e-9)
+
+
+def test_cli_refuses_a_bad_tolerance_with_exit_code_2(tmp_path, capsys):
+    from heurtune.runner.experiment import run
+
+    cfg = tmp_path / "exp.toml"
+    cfg.write_text('extends = "cs_folqi_qtp"\n[scenario]\ntolerance = -1.0\n')
+    assert run([str(cfg), "--smoke", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "scenario.tolerance" in err and not (tmp_path / "out").exists()
+
+
+def test_problem_id_of_sampled_scenarios_is_unchanged():
+    """The new keys enter a problem's identity only when set, so earlier results keep their ids."""
+    import heurtune
+
+    prob = heurtune.load_experiment("cs_folqi_qtp").problem("min")
+    scenario = prob.identity()["scenario"]
+    assert not {"tolerance", "step", "output_dt"} & set(scenario)
