@@ -28,6 +28,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_engine.py
 	$(BIN)/python benchmarks/bench_robust.py
 	$(BIN)/python benchmarks/bench_batch.py --gpu
+	$(BIN)/python benchmarks/work_precision.py
 
 clean:
 	rm -rf $(VENV) results build *.egg-info
