@@ -236,7 +236,10 @@ def test_run_status_flags_failed_runs():
 
 def test_thesis_configs_keep_their_problems_and_numbers():
     """The shipped thesis set-up is unchanged: same problem ids as before issue 9 and the same
-    objective, bit for bit, for the README's best cs_folqi_qtp gains."""
+    objective for the README's best cs_folqi_qtp gains. Bit for bit on the machine the values
+    were taken on (Intel Xeon, AVX-512); the kernels let LLVM reassociate sums, so their last
+    bit depends on the vector width of the CPU (an AMD EPYC gives 4254.28220658345, one unit in
+    the last place lower), hence 1e-13 relative."""
     exp = heurtune.load_experiment("cs_folqi_qtp")
     assert {c: problem_id(exp, c) for c in exp.cases} == {"min": "b82a33e350f3", "nmp": "ed3cb6596bba"}
     iolqi = heurtune.load_experiment("cs_iolqi_qtp")
@@ -245,7 +248,7 @@ def test_thesis_configs_keep_their_problems_and_numbers():
              alpha1=1.408, alpha2=0.1016)
     for case, f in (("min", 4254.282206583451), ("nmp", 4024.573262013267)):
         prob = exp.problem(case)
-        assert prob.evaluate(np.array([x[n] for n in prob.names])).f[0] == f
+        assert prob.evaluate(np.array([x[n] for n in prob.names])).f[0] == pytest.approx(f, rel=1e-13, abs=0)
 
 
 # Printed nmp gain sets of the thesis (Q11..Q44, R11, R22, Ki1, Ki2[, alpha1, alpha2]).
