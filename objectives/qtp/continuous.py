@@ -42,6 +42,7 @@ class ContinuousController:
         each mode; Cm : (2, nd) their output weights
     Aq : (nq, nq), Bq : (nq, 4), Cq : (2, nq): the dense blocks, block diagonal
     D : (2, 4) static feedback
+    channel : (nd + nq,) int64, the pump each state belongs to (its anti-windup channel)
     """
 
     lam: np.ndarray
@@ -52,20 +53,23 @@ class ContinuousController:
     Bq: np.ndarray
     Cq: np.ndarray
     D: np.ndarray
+    channel: np.ndarray
 
     @classmethod
     def from_linear(cls, ctrl) -> "ContinuousController":
         """Modal form of a :class:`LinearController` (:meth:`LinearController.modal_blocks`)."""
-        lam, b, col, Cm, dense = [], [], [], [], []
+        lam, b, col, Cm, dense, ch_m, ch_q = [], [], [], [], [], [], []
         for part in ctrl.modal_blocks():
             if part[0] == "modal":
-                _, l_, b_, C_, c_, _ = part
+                _, l_, b_, C_, c_, ch = part
                 lam.append(np.real(l_))
                 b.append(np.real(b_))
                 Cm.append(np.real(C_))
                 col.append(np.full(len(l_), c_, dtype=np.int64))
+                ch_m.append(np.full(len(l_), ch, dtype=np.int64))
             else:
                 dense.append(part[1:4])
+                ch_q.append(np.full(part[1].shape[0], part[4], dtype=np.int64))
         nq = sum(d[0].shape[0] for d in dense)
         Aq = np.zeros((nq, nq))
         Bq = np.zeros((nq, 4))
@@ -80,7 +84,8 @@ class ContinuousController:
         cat = (lambda xs, empty: np.ascontiguousarray(np.concatenate(xs)) if xs else empty)
         return cls(lam=cat(lam, np.zeros(0)), b=cat(b, np.zeros(0)), col=cat(col, np.zeros(0, dtype=np.int64)),
                    Cm=np.ascontiguousarray(np.hstack(Cm)) if Cm else np.zeros((2, 0)), Aq=Aq, Bq=Bq,
-                   Cq=np.ascontiguousarray(Cq), D=np.ascontiguousarray(ctrl.D, dtype=np.float64))
+                   Cq=np.ascontiguousarray(Cq), D=np.ascontiguousarray(ctrl.D, dtype=np.float64),
+                   channel=np.concatenate(ch_m + ch_q) if ch_m or ch_q else np.zeros(0, dtype=np.int64))
 
 
 def step_for_tolerance(tolerance: float, kind: str | None = None) -> float:

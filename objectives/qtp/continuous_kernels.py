@@ -255,13 +255,17 @@ def _add_pump(x, c, v0, v1, out):
 
 
 @njit(cache=True, fastmath=_FAST)
-def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2, v1, v2, h_op, Dc, scr, wst,
-                 r, acc, x_new, z_new, x_mid, du_mid, du_end):
+def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2, v1, v2, h_op, Dc, Dn, pm0, pm1,
+                 scr, wst, r, acc, x_new, z_new, x_mid, du_mid, du_end):
     """One ETDRK4 (Cox-Matthews) step of length ``h`` from plant state ``x`` and controller
     state ``z`` (modal states first, then dense), tables of the step's level from
     :func:`step_tables`.
 
-    The controller rows of N are ``B w`` (w the measured deviations at the stage), so every
+    ``Dn`` is the static feedback as N sees it and ``pm0``, ``pm1`` (1 or 0) whether each
+    pump's controller states push on the plant: a saturated pump has its row of ``Dn`` and its
+    push at 0, and its voltage, the limit, in ``v``; ``Dc`` gives the controller outputs
+    (unclipped, for the switching tests). The controller rows of N are ``B w`` (w the measured
+    deviations at the stage), so every
     controller term reduces to the couplings of the tables applied to the stages' ``w``, and
     the controller state is read once, by the ``rows`` (one pass). Writes the state after the
     step (``x_new``, ``z_new``), the dense output at the midpoint (``x_mid``, controller output
@@ -285,7 +289,7 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
         r[k] = rk
     # stage n
     _measure(x, s, d1, d2, h_op, w_n)
-    _plant_n(x, w_n, c, v1, v2, Dc, nx_n)
+    _plant_n(x, w_n, c, v1, v2, Dn, nx_n)
     # E(h/2) Y_n, plant rows: x + (h/2) Bp C phi_1(h/2) z
     e0 = half * r[_R_C1]
     e1 = half * r[_R_C1 + 1]
@@ -295,9 +299,9 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     _gw(coup[_G_C2], w_n, hh, acc)
     for i in range(4):
         xa[i] = x[i] + half * nx_n[i]
-    _add_pump(xa, c, acc[0], acc[1], xa)
+    _add_pump(xa, c, pm0 * acc[0], pm1 * acc[1], xa)
     _measure(xa, s, d1, d2, h_op, w)
-    _plant_n(xa, w, c, v1, v2, Dc, nx_a)
+    _plant_n(xa, w, c, v1, v2, Dn, nx_a)
     for i in range(4):
         p2w[i] = w[i]  # w_a, kept in the P2 slot until P2 is formed
     # b = E(h/2) Y_n + (h/2) phi_1(h/2 L) N_a
@@ -306,9 +310,9 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     _gw(coup[_G_C2], w, hh, acc)
     for i in range(4):
         xb[i] = x[i] + half * nx_a[i]
-    _add_pump(xb, c, acc[0], acc[1], xb)
+    _add_pump(xb, c, pm0 * acc[0], pm1 * acc[1], xb)
     _measure(xb, s, d1, d2, h_op, w)
-    _plant_n(xb, w, c, v1, v2, Dc, nx_b)
+    _plant_n(xb, w, c, v1, v2, Dn, nx_b)
     for i in range(4):
         p3w[i] = w[i]  # w_b, kept in the P3 slot
     # c = E(h/2) a + (h/2) phi_1(h/2 L) (2 N_b - N_n); the plant rows of E(h/2) a read
@@ -321,9 +325,9 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     _gw(coup[_G_C2], w, hh, acc)
     for i in range(4):
         xc[i] = xa[i] + half * (2.0 * nx_b[i] - nx_n[i])
-    _add_pump(xc, c, acc[0], acc[1], xc)
+    _add_pump(xc, c, pm0 * acc[0], pm1 * acc[1], xc)
     _measure(xc, s, d1, d2, h_op, w)
-    _plant_n(xc, w, c, v1, v2, Dc, nx_c)
+    _plant_n(xc, w, c, v1, v2, Dn, nx_c)
     # P2 = -3 N_n + 2 N_a + 2 N_b - N_c, P3 = 4 (N_n - N_a - N_b + N_c), for N_x and w
     for i in range(4):
         wa, wb = p2w[i], p3w[i]
@@ -339,7 +343,7 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     _gw(coup[_G_H4], p3w, h * h, acc)
     for i in range(4):
         x_new[i] = x[i] + h * (nx_n[i] + 0.5 * p2x[i] + p3x[i] * (1.0 / 6.0))
-    _add_pump(x_new, c, acc[0], acc[1], x_new)
+    _add_pump(x_new, c, pm0 * acc[0], pm1 * acc[1], x_new)
     for i in range(nd):
         col = mi[i]
         z_new[i] = prop_m[0, i] * z[i] + h * (prop_m[1, i] * w_n[col] + prop_m[2, i] * p2w[col]
@@ -366,7 +370,7 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     _gw(coup[_G_C4], p3w, 0.25 * hh, acc)
     for i in range(4):
         x_mid[i] = x[i] + half * (nx_n[i] + 0.25 * p2x[i] + p3x[i] * (1.0 / 24.0))
-    _add_pump(x_mid, c, acc[0], acc[1], x_mid)
+    _add_pump(x_mid, c, pm0 * acc[0], pm1 * acc[1], x_mid)
     du_mid[0] = r[_R_C0]
     du_mid[1] = r[_R_C0 + 1]
     _gw(coup[_G_C1], w_n, half, du_mid)
@@ -393,7 +397,8 @@ def _pump_voltages(x, z, Cm, Cq, s, d1, d2, h_op, Dc, w, du):
 
 
 @njit(cache=True, fastmath=_FAST)
-def _dense_at(theta, h, x, z, lam, bm, mi, Cm, Aq, Bq, Cq, c, s, d1, d2, h_op, Dc, scr, wst, w, x_out, du_out):
+def _dense_at(theta, h, x, z, lam, bm, mi, Cm, Aq, Bq, Cq, c, s, d1, d2, h_op, Dc, pm0, pm1, scr, wst, w, x_out,
+              du_out):
     """Dense output at ``t_n + theta h`` of the step just taken from (x, z) by
     :func:`_etdrk4_step` (whose stage combinations are still in ``scr`` and ``wst``)::
 
@@ -444,7 +449,7 @@ def _dense_at(theta, h, x, z, lam, bm, mi, Cm, Aq, Bq, Cq, c, s, d1, d2, h_op, D
             cz1 += Cq[1, i] * zt[i]
     for i in range(4):
         x_out[i] = x[i] + tau * (nx_n[i] + 0.5 * theta * p2x[i] + t2 * p3x[i] / 6.0)
-    _add_pump(x_out, c, g0, g1, x_out)
+    _add_pump(x_out, c, pm0 * g0, pm1 * g1, x_out)
     _measure(x_out, s, d1, d2, h_op, w)
     du_out[0] = cz0
     du_out[1] = cz1
@@ -544,10 +549,110 @@ def _crossing(t0, f0, t1, f1, t2, f2, band, has_prev):
     return best
 
 
+# Switching: a pump is free (0) or saturated at its upper (+1) or lower (-1) limit; a tank is
+# free (0) or held at its rim (+1) or its floor (-1). Event codes: 0, 1 the pumps, 2..5 the tanks.
+N_EVENTS = 6
+# Rows of the plant coefficients that a held tank's equation uses (outflow, inflow from above,
+# pump gain), masked while it is held.
+_TANK_COEFS = ((0, 4, 6), (1, 5, 7), (2, 8, -1), (3, 9, -1))
+# Conditional integration can chatter: a released pump whose free controller drives it straight
+# back into saturation (the continuous analogue of a sliding mode). A pump that re-enters
+# saturation within SLIDING_WINDOW steps of its release is sliding: its next releases are taken
+# at step ends (it stays saturated to the end of the step) until a whole step passes with it free.
+SLIDING_WINDOW = 0.125
+# Beyond this many located switches in one run, switches are taken at step ends without location.
+MAX_LOCATED_EVENTS = 500
+# Bisection steps of an event's location (2^-40 of a step).
+_LOCATE_ITERATIONS = 40
+
+
 @njit(cache=True, fastmath=_FAST)
-def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc,
+def _mode_arrays(sat, held, lam, bm, Aq, Bq, channel, c, Dc, u_op, uin, u_min, u_max,
+                 lam_e, bm_e, Aq_e, Bq_e, c_e, Dn, v, pm):
+    """The effective loop of a switching mode: the saturated pumps' controller states frozen
+    (conditional integration: their eigenvalues and input gains 0), their voltage the limit and
+    their feedback and push 0; the held tanks' equations masked."""
+    nd = lam.size
+    for i in range(nd):
+        frozen = sat[channel[i]] != 0
+        lam_e[i] = 0.0 if frozen else lam[i]
+        bm_e[i] = 0.0 if frozen else bm[i]
+    for i in range(Aq.shape[0]):
+        frozen = sat[channel[nd + i]] != 0
+        for j in range(Aq.shape[1]):
+            Aq_e[i, j] = 0.0 if frozen else Aq[i, j]
+        for j in range(4):
+            Bq_e[i, j] = 0.0 if frozen else Bq[i, j]
+    for i in range(10):
+        c_e[i] = c[i]
+    for i in range(4):
+        if held[i] != 0:
+            for k in _TANK_COEFS[i]:
+                if k >= 0:
+                    c_e[k] = 0.0
+    for j in range(2):
+        free = sat[j] == 0
+        for k in range(4):
+            Dn[j, k] = Dc[j, k] if free else 0.0
+        pm[j] = 1.0 if free else 0.0
+        lim = u_max if sat[j] > 0 else u_min
+        v[j] = (u_op[j] if free else lim) + uin[j]
+
+
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _tank_slope(i, x, u1, u2, c):
+    """dx_i/dt of tank i with the applied voltages (unmasked coefficients)."""
+    s1 = math.sqrt(max(x[0], 0.0))
+    s2 = math.sqrt(max(x[1], 0.0))
+    s3 = math.sqrt(max(x[2], 0.0))
+    s4 = math.sqrt(max(x[3], 0.0))
+    if i == 0:
+        return c[4] * s3 - c[0] * s1 + c[6] * u1
+    if i == 1:
+        return c[5] * s4 - c[1] * s2 + c[7] * u2
+    if i == 2:
+        return c[8] * u2 - c[2] * s3
+    return c[9] * u1 - c[3] * s4
+
+
+@njit(cache=True, fastmath=_FAST)
+def _event_values(x, du, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c, g):
+    """Switching functions at a point (plant state ``x``, controller output ``du``): ``g[k] > 0``
+    when event k has happened (a free pump outside its range, a saturated one back inside, a
+    free tank past a limit, a held tank whose slope points back in)."""
+    for j in range(N_EVENTS):
+        g[j] = -1.0
+    uc1 = u_op[0] + du[0]
+    uc2 = u_op[1] + du[1]
+    if saturate:
+        for j in range(2):
+            uc = uc1 if j == 0 else uc2
+            if sat[j] == 0:
+                g[j] = max(uc - u_max, u_min - uc)
+            elif sat[j] > 0:
+                g[j] = u_max - uc
+            else:
+                g[j] = uc - u_min
+    if clip:
+        u1 = min(max(uc1, u_min), u_max) if saturate else uc1
+        u2 = min(max(uc2, u_min), u_max) if saturate else uc2
+        if saturate:
+            u1 = u_max if sat[0] > 0 else (u_min if sat[0] < 0 else u1)
+            u2 = u_max if sat[1] > 0 else (u_min if sat[1] < 0 else u2)
+        for i in range(4):
+            if held[i] == 0:
+                g[2 + i] = max(x[i] - h_max[i], -x[i])
+            elif held[i] > 0:
+                g[2 + i] = -_tank_slope(i, x, u1, u2, c)
+            else:
+                g[2 + i] = _tank_slope(i, x, u1, u2, c)
+
+
+@njit(cache=True, fastmath=_FAST)
+def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel,
                         seg_t0, seg_h, seg_steps, seg_graded, seg_dist, seg_uin, seg_post,
-                        t_dist, horizon, band_pct, metrics, out_dt, y_rec, u_rec, h_rec):
+                        t_dist, horizon, saturate, u_min, u_max, clip, h_max, band_pct, metrics, out_dt,
+                        y_rec, u_rec, h_rec):
     """Continuous-time closed loop by ETDRK4 on a planned grid, with its metrics.
 
     Parameters
@@ -558,16 +663,24 @@ def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm,
     lam, bm : (nd,) modal eigenvalues and input gains; mi : (nd,) int64 input of each mode;
     Cm : (2, nd) their output weights
     Aq : (nq, nq), Bq : (nq, 4), Cq : (2, nq): the dense controller blocks
-    Dc : (2, 4) static feedback
+    Dc : (2, 4) static feedback; channel : (nd + nq,) int64, the pump of each controller state
     seg_t0, seg_h : (S,) start and step of each segment (segments start at 0 and at every
         discontinuity); seg_steps : (S,) int64, steps of ``seg_h`` in it; seg_graded : (S,)
         bool, whether the first of those steps is taken as h/16, h/16, h/8, h/4, h/2;
         seg_dist, seg_uin : (S, 2) output and input disturbance in force; seg_post : (S,) bool,
         whether the segment lies after the output disturbance time ``t_dist``
-    horizon : float, end time T; band_pct : float, settling band in percent
+    horizon : float, end time T
+    saturate : bool; u_min, u_max : pump limits with conditional-integration anti-windup (the
+        states of a pump's channel are held while its controller output lies outside them)
+    clip : bool; h_max : (4,) tank heights in state units: each level stays in [0, h_max_i]
+    band_pct : float, settling band in percent
     metrics : (N_METRICS,) output in the order of ``kernels.METRIC_NAMES``
     out_dt : float; y_rec, u_rec : (M + 1, 2), h_rec : (M + 1, 4) the dense output at
         ``t = k out_dt`` (measured levels, applied voltages, plant states), or 0 rows
+
+    A switch (a pump reaching or leaving a limit, a level reaching a rim or the floor, a held
+    level's slope turning back) is located inside the step on the dense output by bisection;
+    the step is cut there, the loop changes mode, and a new graded span starts at the switch.
 
     Returns
     -------
@@ -599,6 +712,25 @@ def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm,
     acc = np.empty(2)
     xr = np.empty(4)
     dur = np.empty(2)
+    # the switching mode and its effective loop
+    sat = np.zeros(2, dtype=np.int64)
+    held = np.zeros(4, dtype=np.int64)
+    lam_e = lam.copy()
+    bm_e = bm.copy()
+    Aq_e = Aq.copy()
+    Bq_e = Bq.copy()
+    c_e = c.copy()
+    Dn = Dc.copy()
+    v = np.empty(2)
+    pm = np.ones(2)
+    gm = np.empty(N_EVENTS)
+    g1 = np.empty(N_EVENTS)
+    ga = np.empty(N_EVENTS)
+    switching = saturate or clip
+    n_events = 0
+    t_release = np.full(2, -np.inf)
+    sliding = np.zeros(2, dtype=np.bool_)
+    free_at_start = np.zeros(2, dtype=np.bool_)
     band = np.array([band_pct / 100.0 * h_op[0], band_pct / 100.0 * h_op[1]])
     # Simpson sums: IAE, ISE, ITAE per output; J, Jdev per input
     iae = np.zeros(2)
@@ -616,70 +748,141 @@ def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm,
     pending = np.zeros(2, dtype=np.bool_)
     lo = np.full(_N_SIG, np.inf)
     hi = np.full(_N_SIG, -np.inf)
-    # Window of the last three nodes of the segment (for the parabolic refinement).
+    # Window of the last three nodes of the span (for the parabolic refinement).
     win_t = np.zeros(3)
     win_v = np.zeros((3, _N_SIG))
     f0 = np.empty(_N_SIG)
     fm = np.empty(_N_SIG)
     f1 = np.empty(_N_SIG)
     u_prev = np.empty(2)
+    ua = np.empty(2)
     rec = y_rec.shape[0]
     k_rec = 0
     n_taken = 0
     diverged = False
     first_node = True
     for sg in range(seg_t0.size):
-        h = seg_h[sg]
-        step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, rows, coup, prop_m, prop_q, prop_qb)
         d1 = seg_dist[sg, 0]
         d2 = seg_dist[sg, 1]
-        v1 = u_op[0] + seg_uin[sg, 0]
-        v2 = u_op[1] + seg_uin[sg, 1]
         post = seg_post[sg]
         t = seg_t0[sg]
-        n_win = 0
-        # node at the segment start (right limit)
+        t_end = seg_t0[sg] + seg_h[sg] * seg_steps[sg]
+        if sg == seg_t0.size - 1:
+            t_end = horizon
+        h_target = seg_h[sg]
+        graded = seg_graded[sg]
+        # the mode at the segment start: a jump of the measurement may push a pump across a limit
         _pump_voltages(x, z, Cm, Cq, s, d1, d2, h_op, Dc, w, du0)
-        _signals(w, x, s, u_op, du0, f0)
-        n_win = _visit(t, f0, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
+        if saturate:
+            for j in range(2):
+                uc = u_op[j] + du0[j]
+                sat[j] = 1 if uc > u_max else (-1 if uc < u_min else 0)
+        _mode_arrays(sat, held, lam, bm, Aq, Bq, channel, c, Dc, u_op, seg_uin[sg], u_min, u_max,
+                     lam_e, bm_e, Aq_e, Bq_e, c_e, Dn, v, pm)
+        _applied(du0, u_op, sat, saturate, u_min, u_max, ua)
+        _signals(w, x, s, u_op, ua, f0)
+        n_win = _visit(t, f0, post, band, 0, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
                        ex_has_prev, pending, tv, u_prev, first_node)
         first_node = False
-        n_sub = seg_steps[sg] + (4 if seg_graded[sg] else 0)
-        for j in range(n_sub):
-            if seg_graded[sg] and j < 5:
-                level = GRADED_LEVELS[j]
+        # Positions within a span count in units of h/16: the graded steps (1, 1, 2, 4, 8 units),
+        # a sliding pump's steps (1 unit) and the plain steps (16 units, or the largest step that
+        # keeps the position aligned) all land on the span's grid and end on its end exactly.
+        pos = 0
+        units = 0
+        gi = 0
+        h = h_target
+        replan = True
+        while t < t_end - 1e-12 * max(1.0, t_end):
+            if replan:
+                n_span = max(1, int(math.ceil((t_end - t) / h_target - 1e-9)))
+                h = (t_end - t) / n_span
+                units = 16 * n_span
+                pos = 0
+                gi = 0
+                step_tables(lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, h, rows, coup, prop_m, prop_q, prop_qb)
+                replan = False
+            if graded and gi < 5:
+                level = GRADED_LEVELS[gi]
+                gi += 1
+            elif sliding[0] or sliding[1]:
+                level = 4
             else:
                 level = 0
+                while pos % (16 >> level) != 0:
+                    level += 1
             hs = h / 2.0 ** level
-            _etdrk4_step(x, z, hs, rows[level], coup[level], prop_m[level], prop_q[level], prop_qb[level], mi, c, s,
-                         d1, d2, v1, v2, h_op, Dc, scr, wst, rbuf, acc, x_new, z_new, x_mid, u_mid, u_end)
+            pos += 16 >> level
+            free_at_start[0] = sat[0] == 0
+            free_at_start[1] = sat[1] == 0
+            if pos >= units:
+                hs = t_end - t  # the last step ends on the segment's end exactly
+            _etdrk4_step(x, z, hs, rows[level], coup[level], prop_m[level], prop_q[level], prop_qb[level], mi, c_e,
+                         s, d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x_new, z_new,
+                         x_mid, u_mid, u_end)
             n_taken += 1
             if not (abs(x_new[0]) + abs(x_new[1]) + abs(x_new[2]) + abs(x_new[3]) < state_limit):
                 diverged = True
                 break
+            fired = -1
+            if switching:
+                _event_values(x_mid, u_mid, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c, gm)
+                _event_values(x_new, u_end, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c, g1)
+                th_lo = 1.0
+                for k in range(N_EVENTS):
+                    if k < 2 and sliding[k] and sat[k] != 0:
+                        continue  # a sliding pump is released at the step's end (below)
+                    if gm[k] > 0.0 or g1[k] > 0.0:
+                        # bisection on the dense output, in the half where the sign changes
+                        a_, b_ = (0.0, 0.5) if gm[k] > 0.0 else (0.5, 1.0)
+                        if n_events < MAX_LOCATED_EVENTS:
+                            for _ in range(_LOCATE_ITERATIONS):
+                                mid = 0.5 * (a_ + b_)
+                                _dense_at(mid, hs, x, z, lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, c_e, s, d1, d2, h_op,
+                                          Dc, pm[0], pm[1], scr, wst, w, xr, dur)
+                                _event_values(xr, dur, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c, ga)
+                                if ga[k] > 0.0:
+                                    b_ = mid
+                                else:
+                                    a_ = mid
+                        if b_ < th_lo:
+                            th_lo = b_
+                            fired = k
+                if fired >= 0 and th_lo < 1.0 and n_events < MAX_LOCATED_EVENTS:
+                    # cut the step at the switch and take it again
+                    hs = th_lo * hs
+                    step_tables(lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, hs, rows, coup, prop_m, prop_q, prop_qb)
+                    _etdrk4_step(x, z, hs, rows[0], coup[0], prop_m[0], prop_q[0], prop_qb[0], mi, c_e, s, d1, d2,
+                                 v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x_new, z_new, x_mid,
+                                 u_mid, u_end)
+                    n_events += 1
+                elif fired >= 0:
+                    n_events += 1
             # recorded grid points in [t, t + hs)
             while k_rec < rec and k_rec * out_dt < t + hs - 1e-9 * hs:
                 theta = (k_rec * out_dt - t) / hs
-                _dense_at(max(theta, 0.0), hs, x, z, lam, bm, mi, Cm, Aq, Bq, Cq, c, s, d1, d2, h_op, Dc, scr, wst,
-                          w, xr, dur)
+                _dense_at(max(theta, 0.0), hs, x, z, lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, c_e, s, d1, d2, h_op, Dc,
+                          pm[0], pm[1], scr, wst, w, xr, dur)
                 _measure(xr, s, d1, d2, h_op, w)
+                _applied(dur, u_op, sat, saturate, u_min, u_max, ua)
                 y_rec[k_rec, 0] = w[0] + h_op[0]
                 y_rec[k_rec, 1] = w[1] + h_op[1]
-                u_rec[k_rec, 0] = u_op[0] + dur[0]
-                u_rec[k_rec, 1] = u_op[1] + dur[1]
+                u_rec[k_rec, 0] = u_op[0] + ua[0]
+                u_rec[k_rec, 1] = u_op[1] + ua[1]
                 for i in range(4):
                     h_rec[k_rec, i] = xr[i]
                 k_rec += 1
             # midpoint and end nodes
             _measure(x_mid, s, d1, d2, h_op, w)
-            _signals(w, x_mid, s, u_op, u_mid, fm)
+            _applied(u_mid, u_op, sat, saturate, u_min, u_max, ua)
+            _signals(w, x_mid, s, u_op, ua, fm)
             n_win = _visit(t + 0.5 * hs, fm, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
                            ex_has_prev, pending, tv, u_prev, False)
             _measure(x_new, s, d1, d2, h_op, w)
-            _signals(w, x_new, s, u_op, u_end, f1)
+            _applied(u_end, u_op, sat, saturate, u_min, u_max, ua)
+            _signals(w, x_new, s, u_op, ua, f1)
             n_win = _visit(t + hs, f1, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
                            ex_has_prev, pending, tv, u_prev, False)
-            # Simpson's rule over the step
+            # Simpson's rule over the step (IAE and ITAE split at the error's zero crossings)
             wq = hs / 6.0
             tm = t + 0.5 * hs
             te = t + hs
@@ -701,6 +904,44 @@ def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm,
             t = te
             x, x_new = x_new, x
             z, z_new = z_new, z
+            du0[0] = u_end[0]
+            du0[1] = u_end[1]
+            changed = fired >= 0
+            if fired >= 0:
+                # the new mode: the switching element changes state, a new graded span starts
+                if fired < 2:
+                    uc = u_op[fired] + u_end[fired]
+                    if sat[fired] == 0:  # the limit it crossed
+                        sat[fired] = 1 if abs(uc - u_max) <= abs(uc - u_min) else -1
+                        if t - t_release[fired] < SLIDING_WINDOW * h_target:
+                            sliding[fired] = True
+                    else:
+                        sat[fired] = 0
+                        t_release[fired] = t
+                else:
+                    i = fired - 2
+                    if held[i] == 0:  # held exactly on the limit it reached
+                        held[i] = 1 if abs(x[i] - h_max[i]) <= abs(x[i]) else -1
+                        x[i] = h_max[i] if held[i] > 0 else 0.0
+                    else:
+                        held[i] = 0
+            if saturate:
+                for k in range(2):
+                    if k == fired:
+                        continue
+                    uc = u_op[k] + u_end[k]
+                    if sliding[k] and sat[k] != 0 and u_min < uc < u_max:
+                        sat[k] = 0  # a sliding pump is released at the end of its step
+                        t_release[k] = t
+                        changed = True
+                    elif sliding[k] and sat[k] == 0 and free_at_start[k]:
+                        sliding[k] = False  # a whole step free: it no longer slides
+            if changed:
+                _mode_arrays(sat, held, lam, bm, Aq, Bq, channel, c, Dc, u_op, seg_uin[sg], u_min, u_max,
+                             lam_e, bm_e, Aq_e, Bq_e, c_e, Dn, v, pm)
+                n_win = 0
+                graded = True
+                replan = True
         if diverged:
             break
     if diverged:
@@ -744,7 +985,28 @@ def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm,
     metrics[19] = max(max(hi[2], hi[3]), max(hi[4], hi[5]))
     metrics[20] = min(lo[6], lo[7])
     metrics[21] = max(hi[6], hi[7])
+    # a parabola through a kink at a limit must not refine past it
+    if saturate:
+        metrics[20] = max(metrics[20], u_min)
+        metrics[21] = min(metrics[21], u_max)
+    if clip:
+        metrics[18] = max(metrics[18], 0.0)
+        metrics[19] = min(metrics[19], s * max(max(h_max[0], h_max[1]), max(h_max[2], h_max[3])))
     return STATUS_OK, n_taken
+
+
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _applied(du, u_op, sat, saturate, u_min, u_max, out):
+    """Applied voltage deviations: the controller's, or the limit's for a saturated pump."""
+    for j in range(2):
+        out[j] = du[j]
+        if saturate:
+            if sat[j] > 0:
+                out[j] = u_max - u_op[j]
+            elif sat[j] < 0:
+                out[j] = u_min - u_op[j]
+            else:
+                out[j] = min(max(du[j], u_min - u_op[j]), u_max - u_op[j])
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")

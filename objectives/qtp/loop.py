@@ -187,10 +187,6 @@ class Scenario:
             raise ConfigError("scenario.noise_sd > 0 needs the sampled loop: measurement noise is drawn per "
                               "sample (every scenario.dt); leave out scenario.tolerance and scenario.step, or "
                               "set noise_sd = 0")
-        if self.saturation is not None or self.limits != "none":
-            key = "saturation" if self.saturation is not None else "limits"
-            raise ConfigError(f"scenario.{key}: the continuous loop does not simulate pump or level limits yet; "
-                              f"leave out scenario.tolerance and scenario.step to use the sampled loop")
 
     @property
     def continuous(self) -> bool:
@@ -459,7 +455,7 @@ class ClosedLoop:
     def _run_continuous(self, ctrl, scenario: Scenario, settling_band: float, record: bool,
                         record_levels: bool) -> SimulationResult:
         """:meth:`run` of a continuous-time scenario (kernel ``simulate_continuous``)."""
-        coef, u_op, _, _, _ = self._kernel_inputs(scenario)
+        coef, u_op, (saturate, u_lo, u_hi), clip, h_max = self._kernel_inputs(scenario)
         cc = _continuous.ContinuousController.from_linear(ctrl)
         plan = scenario.step_plan(self.kind)
         n_out = int(round(scenario.horizon / scenario.output_dt))
@@ -474,8 +470,9 @@ class ClosedLoop:
         x_op = self.op.h * self._rho_g if pressure else self.op.h
         status, _ = _continuous_kernels.simulate_continuous(
             coef, self._level_per_state, x_op, self.op.h, u_op, cc.lam, cc.b, cc.col, cc.Cm, cc.Aq, cc.Bq, cc.Cq,
-            cc.D, plan.t0, plan.h, plan.steps, plan.graded, plan.dist, plan.uin, plan.post,
-            float(scenario.disturbance_time), float(scenario.horizon), float(settling_band), metrics,
+            cc.D, cc.channel, plan.t0, plan.h, plan.steps, plan.graded, plan.dist, plan.uin, plan.post,
+            float(scenario.disturbance_time), float(scenario.horizon), bool(saturate), float(u_lo), float(u_hi),
+            bool(clip), np.asarray(h_max, dtype=np.float64), float(settling_band), metrics,
             float(scenario.output_dt), y, u, h)
         P = None
         if record_levels and pressure:
