@@ -153,7 +153,7 @@ class Scenario:
 
     def _check_continuous(self):
         """The keys of the continuous-time loop: positive and finite, a step budget, and what
-        the continuous loop does not simulate (yet) refused by name."""
+        the continuous loop does not simulate (measurement noise) refused by name."""
         for key, what in (("tolerance", "the largest level error in cm"), ("step", "the step in s"),
                           ("output_dt", "the spacing of the recorded trajectory in s")):
             v = getattr(self, key)
