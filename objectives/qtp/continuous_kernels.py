@@ -41,25 +41,27 @@ GRADED_LEVELS = (4, 4, 3, 2, 1)
 _TAYLOR_BELOW = 1.0
 _TAYLOR_TERMS = 20
 _INV_FACT = (1.0, 1.0, 0.5, 1.0 / 6.0, 1.0 / 24.0, 1.0 / 120.0)
+# 1 / (j + 4)! for the Taylor series of phi_4
+_INV_FACT_4 = tuple(1.0 / math.factorial(j + 4) for j in range(_TAYLOR_TERMS))
 
 # Per-lane metric state indices (see _node): running integrals, extremes and the last exit.
 _FAST = {"reassoc", "contract", "nsz", "arcp"}
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=_FAST)
 def phi_scalar(z, out):
-    """``out[k] = phi_k(z)`` for k = 0 .. 4, ``phi_0 = exp``, ``phi_{k+1}(z) = (phi_k(z) - 1/k!) / z``."""
+    """``out[k] = phi_k(z)`` for k = 0 .. 4, ``phi_0 = exp``, ``phi_{k+1}(z) = (phi_k(z) - 1/k!) / z``.
+
+    Below |z| = 1, phi_4 is summed as its Taylor series and the others follow downwards by
+    ``phi_k = 1/k! + z phi_{k+1}`` (no cancellation); above, upwards from ``exp`` and ``expm1``."""
     if abs(z) < _TAYLOR_BELOW:
-        for k in range(N_PHI):
-            # sum_j z^j / (j + k)!
-            term = 1.0
-            for j in range(1, k + 1):
-                term /= j
-            s = term
-            for j in range(1, _TAYLOR_TERMS):
-                term *= z / (j + k)
-                s += term
-            out[k] = s
+        # phi_4(z) = sum_j z^j / (j + 4)!, by Horner from the highest term
+        p4 = 0.0
+        for j in range(_TAYLOR_TERMS - 1, -1, -1):
+            p4 = p4 * z + _INV_FACT_4[j]
+        out[4] = p4
+        for k in range(3, -1, -1):
+            out[k] = _INV_FACT[k] + z * out[k + 1]
         return
     out[0] = math.exp(z)
     out[1] = math.expm1(z) / z
@@ -1024,7 +1026,7 @@ def _signals(w, x, s, u_op, du, f):
     f[9] = w[1]
 
 
-@njit(cache=True, fastmath=_FAST)
+@njit(cache=True, fastmath=_FAST, inline="always")
 def _visit(t, f, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in, ex_has_prev, pending,
            tv, u_prev, first):
     """Fold one node (time ``t``, signals ``f``) into the extremes, the overshoot, the band

@@ -8,6 +8,8 @@ times each configured controller type; :meth:`Experiment.problem` builds its
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from heurtune.core.errors import ConfigError
@@ -48,6 +50,8 @@ SCHEMA = dict(COMMON_SCHEMA, **{
         "oustaloup_order": int,
         "band": PAIR,
         "realisation": ("direct", "integer_split"),
+        # a digital controller: sampled with zero-order hold every sample_time s (the sampled loop)
+        "sample_time": NUMBER,
         # One pairing for every case, "auto" (the one the sign of det G(0) allows), or a table
         # naming it per plant case.
         "pairing": ("oneof", (("diagonal", "anti-diagonal", "auto"),
@@ -127,6 +131,7 @@ class Experiment(ExperimentBase):
             raise ConfigError(f"{self.name}: controller.pairing applies to {', '.join(PAIRED_TYPES)}; "
                               f"{unpaired[0]} designs its full integral gain (leave pairing out)")
         sc = dict(config.get("scenario", {}))
+        self._digital_controller(ctrl.get("sample_time"), sc)
         uncertainty = sc.pop("uncertainty", DEFAULT_UNCERTAINTY)
         if "nominal" not in uncertainty:
             uncertainty = {"nominal": 1.0, **uncertainty}
@@ -183,6 +188,33 @@ class Experiment(ExperimentBase):
 
     def __repr__(self):
         return f"Experiment({self.name!r}, cases={self.cases}, controllers={self.controllers})"
+
+    def _digital_controller(self, sample_time, sc: dict) -> None:
+        """``[controller] sample_time``: the controller is digital, sampled with zero-order hold
+        every ``sample_time`` s, which is the sampled loop with ``dt = sample_time`` (the plant
+        stepped by RK4 in between, several steps when it is long). Writes it into the scenario
+        keys ``sc``; the problem, and its id, are those of the same ``dt``."""
+        if sample_time is None:
+            return
+        where = f"{self.name}: controller.sample_time"
+        if isinstance(sample_time, bool) or not isinstance(sample_time, (int, float)) \
+                or not math.isfinite(sample_time) or sample_time <= 0:
+            raise ConfigError(f"{where} must be a finite number > 0 (s), got {sample_time!r}")
+        for key in ("tolerance", "step"):
+            if key in sc:
+                raise ConfigError(f"{where} and scenario.{key} both set: a digital controller runs the sampled "
+                                  f"loop, scenario.{key} the continuous one; give one")
+        if "dt" in sc and float(sc["dt"]) != float(sample_time):
+            raise ConfigError(f"{where} ({sample_time}) and scenario.dt ({sc['dt']}) both set the sample period; "
+                              f"give one")
+        horizon = float(sc.get("horizon", 350.0))
+        if sample_time > horizon:
+            raise ConfigError(f"{where} ({sample_time}) must not exceed scenario.horizon ({horizon})")
+        for key, default in (("horizon", 350.0), ("disturbance_time", 50.0), ("input_disturbance_time", 0.0)):
+            t = float(sc.get(key, default))
+            if abs(round(t / sample_time) * sample_time - t) > 1e-9 * max(1.0, t):
+                raise ConfigError(f"{where} ({sample_time}) must divide scenario.{key} ({t:g})")
+        sc["dt"] = float(sample_time)
 
     def _fixed_controllers(self, entries: list) -> dict:
         """``{case: {name: x}}`` from the config's ``[[baselines]]`` (gains given as ``x`` or

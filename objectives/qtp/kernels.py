@@ -385,7 +385,7 @@ def _modal_sum(z, ad, bd, lo, hi, w):
 @njit(cache=True, fastmath=_FAST)
 def simulate_loop(c, level_per_state, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel, segments,
                   dt, n_steps, i_out_dist, out_dist, i_in_dist, in_dist, noise,
-                  saturate, u_min, u_max, clip_levels, h_max, band_pct, metrics, y_rec, u_rec, h_rec):
+                  saturate, u_min, u_max, clip_levels, h_max, band_pct, metrics, y_rec, u_rec, h_rec, substeps=1):
     """Fixed-step closed loop: sampled linear controller, RK4 nonlinear plant, metrics.
 
     The plant state ``x`` follows the square-root law of :func:`plant_coefficients` (levels
@@ -438,6 +438,9 @@ def simulate_loop(c, level_per_state, h_init, h_op, u_op, ad, bd, state_input, A
     y_rec, u_rec : (n_steps + 1, 2) measured levels and applied voltages, or shape (0, 2)
     h_rec : (n_steps + 1, 4) true plant states (levels times ``1 / level_per_state``), or
         shape (0, 4)
+    substeps : int
+        RK4 steps of the plant per sample (1: one step of ``dt``; more for a long sample period,
+        the voltages still held over the whole sample)
 
     Returns
     -------
@@ -474,6 +477,7 @@ def simulate_loop(c, level_per_state, h_init, h_op, u_op, ad, bd, state_input, A
     hm1, hm2, hm3, hm4 = (h_max[0], h_max[1], h_max[2], h_max[3]) if clip_levels else (0.0, 0.0, 0.0, 0.0)
     # Divergence bound in state units (LEVEL_LIMIT itself for the level model).
     state_limit = LEVEL_LIMIT / level_per_state
+    dt_plant = dt / substeps
     h_lo = math.inf
     h_hi = -math.inf
     diverged_at = -1
@@ -562,7 +566,15 @@ def simulate_loop(c, level_per_state, h_init, h_op, u_op, ad, bd, state_input, A
         if k >= i_in_dist:
             u1 += in_dist[0]
             u2 += in_dist[1]
-        if clip_levels:
+        if substeps > 1:  # a long sample period: the plant in several RK4 steps between samples
+            for _ in range(substeps):
+                if clip_levels:
+                    h1, h2, h3, h4 = _rk4_limited(h1, h2, h3, h4, c[6] * u1, c[7] * u2, c[8] * u2, c[9] * u1, c,
+                                                  dt_plant, hm1, hm2, hm3, hm4)
+                else:
+                    h1, h2, h3, h4 = _rk4_step(h1, h2, h3, h4, c[6] * u1, c[7] * u2, c[8] * u2, c[9] * u1, c,
+                                               dt_plant)
+        elif clip_levels:
             h1, h2, h3, h4 = _rk4_limited(h1, h2, h3, h4, c[6] * u1, c[7] * u2, c[8] * u2, c[9] * u1, c, dt,
                                           hm1, hm2, hm3, hm4)
         else:
@@ -602,7 +614,7 @@ def simulate_scenarios(c, level_per_state, h_init, h_op, u_op, ad, bd, state_inp
     ``u_op`` (S, 2), ``i_out_dist``, ``i_in_dist`` (S,) int64, ``out_dist``, ``in_dist`` (S, 2),
     ``noise`` (S, n_steps + 1, 4) or (S, 0, 4), ``saturate``, ``clip_levels`` (S,) bool,
     ``u_min``, ``u_max`` (S,), ``h_max`` (S, 4); the controller, ``h_init``, ``h_op``, ``dt``,
-    ``n_steps`` and ``band_pct`` are shared. Writes ``metrics`` (S, N_METRICS) and ``status``
+    ``n_steps`` and ``band_pct`` are shared (one plant step per sample). Writes ``metrics`` (S, N_METRICS) and ``status``
     (S,), each row exactly what :func:`simulate_loop` gives for that scenario.
     """
     y_rec = np.empty((0, 2))

@@ -39,6 +39,10 @@ PLANT_MODELS = ("qtp", "qtp_bond_graph")
 # was lowest at 128 to 256 (77 ns) and rose past that as the lanes' state left the cache.
 CPU_TILE = 256
 
+# The longest RK4 step of the plant in the sampled loop: a longer sample period (a slow digital
+# controller, [controller] sample_time) steps the plant several times between samples.
+MAX_PLANT_STEP = 0.05
+
 # Allowed values of Scenario.limits: the thesis' unlimited model, or the plant's physical limits.
 LIMITS = ("none", "physical")
 
@@ -185,8 +189,8 @@ class Scenario:
                 f"{_continuous.MAX_STEPS:,}; raise scenario.tolerance or shorten scenario.horizon")
         if self.noise_sd > 0:
             raise ConfigError("scenario.noise_sd > 0 needs the sampled loop: measurement noise is drawn per "
-                              "sample (every scenario.dt); leave out scenario.tolerance and scenario.step, or "
-                              "set noise_sd = 0")
+                              "sample; give controller.sample_time (a digital controller) instead of "
+                              "scenario.tolerance / scenario.step, or set noise_sd = 0")
 
     @property
     def continuous(self) -> bool:
@@ -213,6 +217,11 @@ class Scenario:
     @property
     def n_steps(self) -> int:
         return int(round(self.horizon / self.dt))
+
+    @property
+    def plant_substeps(self) -> int:
+        """RK4 steps of the plant per sample of the sampled loop (``dt`` over MAX_PLANT_STEP)."""
+        return max(1, math.ceil(self.dt / MAX_PLANT_STEP - 1e-9))
 
     @property
     def disturbance_index(self) -> int:
@@ -437,12 +446,14 @@ class ClosedLoop:
         out_dist, in_dist, noise = self._scenario_arrays(scenario)
         pressure = self.plant_model == "qtp_bond_graph"
         x_op = self.op.h * self._rho_g if pressure else self.op.h  # initial plant state
+        # substeps only when needed: the call without them is the kernel specialised to one step
+        extra = (scenario.plant_substeps,) if scenario.plant_substeps > 1 else ()
         status, _ = _kernels.simulate_loop(
             coef, self._level_per_state, x_op, self.op.h, u_op, dc.ad, dc.bd, dc.state_input,
             dc.Ad, dc.Bd, dc.Cc, dc.Dc, dc.state_channel, dc.segments,
             scenario.dt, n, scenario.disturbance_index, out_dist,
             scenario.input_disturbance_index, in_dist,
-            noise, saturate, u_lo, u_hi, clip, h_max, float(settling_band), metrics, y, u, h,
+            noise, saturate, u_lo, u_hi, clip, h_max, float(settling_band), metrics, y, u, h, *extra,
         )
         t = np.arange(n + 1) * scenario.dt if record or record_levels else None
         P = None
@@ -514,9 +525,10 @@ class ClosedLoop:
             if dt not in discrete:
                 discrete[dt] = ctrl.discretise(dt)
             dc = discrete[dt]
-            if len(members) == 1:
-                sim = self.run(ctrl, scenarios[members[0]], settling_band=settling_band, record=False, discrete=dc)
-                out[members[0]] = (sim.diverged, sim.metrics)
+            if len(members) == 1 or scenarios[members[0]].plant_substeps > 1:
+                for i in members:
+                    sim = self.run(ctrl, scenarios[i], settling_band=settling_band, record=False, discrete=dc)
+                    out[i] = (sim.diverged, sim.metrics)
                 continue
             group = [scenarios[i] for i in members]
             inputs = [self._kernel_inputs(sc) for sc in group]
@@ -570,7 +582,7 @@ class ClosedLoop:
             return diverged, metrics
         steps = {}
         for s, sc in enumerate(scenarios):
-            if sc.continuous:  # not batched yet: one candidate at a time
+            if sc.continuous or sc.plant_substeps > 1:  # not batched (yet): one candidate at a time
                 for i, ctrl in enumerate(ctrls):
                     sim = self.run(ctrl, sc, settling_band=settling_band, record=False)
                     diverged[i, s], metrics[i, s] = sim.diverged, sim.metrics
