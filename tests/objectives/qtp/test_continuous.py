@@ -553,6 +553,29 @@ def test_bad_sample_times_get_one_line_errors(tmp_path, text, message):
     assert "\n" not in str(exc.value)
 
 
+def test_an_experiment_runs_the_continuous_loop_end_to_end(tmp_path):
+    """A config that sets [scenario] tolerance runs, resumes and is a problem of its own (its
+    own problem_id, so that its runs never mix with the sampled loop's)."""
+    import pandas as pd
+
+    from heurtune.runner.experiment import run
+
+    cfg = tmp_path / "cont.toml"
+    cfg.write_text('extends = "cs_folqi_qtp"\n[plant]\ncases = ["min"]\n[scenario]\ntolerance = 0.005\n')
+    out = tmp_path / "out"
+    args = [str(cfg), "--smoke", "--runs", "1", "--max-epochs", "1", "--no-figures", "--out", str(out)]
+    assert run(args) == 0
+    runs = pd.read_parquet(out / "runs.parquet")
+    assert len(runs) == 1 and runs.status.iloc[0] == "feasible" and np.isfinite(runs["J@nominal"].iloc[0])
+    import heurtune
+    from heurtune.runner.experiment import problem_id
+
+    sampled = heurtune.load_experiment("cs_folqi_qtp")
+    assert runs.problem_id.iloc[0] != problem_id(sampled, "min")
+    assert run(args) == 0  # resumes: nothing to redo
+    assert pd.read_parquet(out / "runs.parquet").equals(runs)
+
+
 def test_problem_id_of_sampled_scenarios_is_unchanged():
     """The new keys enter a problem's identity only when set, so earlier results keep their ids."""
     import heurtune
