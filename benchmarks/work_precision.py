@@ -218,7 +218,8 @@ def main(argv=None):
         for label, (case, gains) in CASES.items():
             rows += run_case(label, case, gains, args.repeats, args.quick)
     print(f"QTP work-precision, {cpu_name()}, one core, BLAS 1 thread; reference Radau rtol 1e-11")
-    print("| case | method | setting | ms / evaluation | level error (cm) | J rel. error | IAE rel. error | ts error (s) |")
+    print("| case | method | setting | ms / evaluation | level error (cm) | J rel. error | IAE rel. error "
+          "| ts error (s) |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     for r in rows:
         cells = [f"{r[k]:.2e}" if np.isfinite(r[k]) else "" for k in ("level_cm", "J_rel", "IAE_rel", "ts_s")]

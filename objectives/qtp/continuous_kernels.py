@@ -36,15 +36,17 @@ N_PHI = 5
 N_LEVELS = 6
 # Steps after a discontinuity, as levels: h/16, h/16, h/8, h/4, h/2 (they add up to h).
 GRADED_LEVELS = (4, 4, 3, 2, 1)
-# Below this |z| the scalar phi functions are summed as Taylor series (the recurrence
-# phi_{k+1} = (phi_k - 1/k!) / z cancels); 20 terms leave a truncation under 1e-19.
+# Below this |z| phi_4 is summed as its Taylor series and the lower ones follow from it (the
+# upward recurrence phi_{k+1} = (phi_k - 1/k!) / z cancels there); 20 terms leave a truncation
+# under 1e-19.
 _TAYLOR_BELOW = 1.0
 _TAYLOR_TERMS = 20
 _INV_FACT = (1.0, 1.0, 0.5, 1.0 / 6.0, 1.0 / 24.0, 1.0 / 120.0)
 # 1 / (j + 4)! for the Taylor series of phi_4
 _INV_FACT_4 = tuple(1.0 / math.factorial(j + 4) for j in range(_TAYLOR_TERMS))
 
-# Per-lane metric state indices (see _node): running integrals, extremes and the last exit.
+# Floating-point licence of the kernels, as in kernels.py: reassociation lets LLVM vectorise the
+# sums over the controller's modes; NaN and inf keep their IEEE meaning (divergence checks).
 _FAST = {"reassoc", "contract", "nsz", "arcp"}
 
 
@@ -272,8 +274,9 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     the controller state is read once, by the ``rows`` (one pass). Writes the state after the
     step (``x_new``, ``z_new``), the dense output at the midpoint (``x_mid``, controller output
     ``du_mid``) and the controller output at the end ``du_end``. Scratch: ``scr`` (10, 4) and
-    ``wst`` (3, 4), ``r`` (N_ROWS,) and ``acc`` (2,); after the step ``scr[0]``, ``scr[8]``, ``scr[9]`` hold N_x at the start, P2x
-    and P3x, and ``wst`` the measured signals w_n, P2w, P3w, which :func:`_dense_at` reads.
+    ``wst`` (3, 4), ``r`` (N_ROWS,) and ``acc`` (2,); after the step ``scr[0]``, ``scr[8]``,
+    ``scr[9]`` hold N_x at the start, P2x and P3x, and ``wst`` the measured signals w_n, P2w,
+    P3w, which :func:`_dense_at` reads.
     """
     nd = prop_m.shape[1]
     nz = z.size
@@ -886,7 +889,6 @@ def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm,
                            ex_has_prev, pending, tv, u_prev, False)
             # Simpson's rule over the step (IAE and ITAE split at the error's zero crossings)
             wq = hs / 6.0
-            tm = t + 0.5 * hs
             te = t + hs
             for i in range(2):
                 m0, m1 = _abs_moments(f0[8 + i], fm[8 + i], f1[8 + i])

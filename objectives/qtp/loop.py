@@ -170,7 +170,8 @@ class Scenario:
         if self.tolerance is not None and self.step is not None:
             raise ConfigError("scenario.tolerance and scenario.step both set the continuous loop's step; give one")
         if self.tolerance is not None and _continuous.step_for_tolerance(self.tolerance, None) <= _continuous.MIN_STEP:
-            floor = _continuous.REFERENCE_TOLERANCE * (_continuous.MIN_STEP / _continuous.DEFAULT_STEP_AT_REFERENCE) ** 4
+            ratio = _continuous.MIN_STEP / _continuous.DEFAULT_STEP_AT_REFERENCE
+            floor = _continuous.REFERENCE_TOLERANCE * ratio ** 4
             raise ConfigError(f"scenario.tolerance = {self.tolerance!r} is below what the loop can meet (its smallest "
                               f"step, {_continuous.MIN_STEP:g} s, reaches about {floor:.1g} cm); give a tolerance "
                               f"above that")
@@ -183,10 +184,11 @@ class Scenario:
                               f"({self.output_dt})")
         steps = self.horizon / self.continuous_step
         if steps > _continuous.MAX_STEPS:
+            key = "tolerance" if self.tolerance is not None else "step"
             raise ConfigError(
-                f"scenario.tolerance = {self.tolerance!r} needs a step of {self.continuous_step:.3g} s, "
+                f"scenario.{key} = {getattr(self, key)!r} needs a step of {self.continuous_step:.3g} s, "
                 f"{steps:,.0f} steps over scenario.horizon = {self.horizon:g} s, more than the budget of "
-                f"{_continuous.MAX_STEPS:,}; raise scenario.tolerance or shorten scenario.horizon")
+                f"{_continuous.MAX_STEPS:,}; raise scenario.{key} or shorten scenario.horizon")
         if self.noise_sd > 0:
             raise ConfigError("scenario.noise_sd > 0 needs the sampled loop: measurement noise is drawn per "
                               "sample; give controller.sample_time (a digital controller) instead of "

@@ -532,7 +532,8 @@ def test_a_long_sample_period_steps_the_plant_between_samples():
         if k == sc.n_steps:
             break
         z = dc.step(z, w)
-        sol = solve_ivp(lambda t, x: ref.plant_rhs(x, u, P), (0.0, 0.1), h, method="DOP853", rtol=1e-11, atol=1e-12)
+        sol = solve_ivp(lambda t, x, v: ref.plant_rhs(x, v, P), (0.0, 0.1), h, args=(u,), method="DOP853",
+                        rtol=1e-11, atol=1e-12)
         h = sol.y[:, -1]
     assert worst < 1e-9
 
@@ -544,8 +545,10 @@ def test_a_long_sample_period_steps_the_plant_between_samples():
     ("[controller]\nsample_time = 0.01\n[scenario]\ntolerance = 0.005\n",
      r"controller.sample_time and scenario.tolerance both set"),
     ("[controller]\nsample_time = 0.02\n", r"controller.sample_time \(0.02\) and scenario.dt \(0.01\) both set"),
-    ("[controller]\nsample_time = 0.3\n[scenario]\ndt = 0.3\n", r"controller.sample_time \(0.3\) must divide scenario.horizon \(350\)"),
-    ("[controller]\nsample_time = 400.0\n[scenario]\ndt = 400.0\n", r"controller.sample_time \(400.0\) must not exceed scenario.horizon"),
+    ("[controller]\nsample_time = 0.3\n[scenario]\ndt = 0.3\n",
+     r"controller.sample_time \(0.3\) must divide scenario.horizon \(350\)"),
+    ("[controller]\nsample_time = 400.0\n[scenario]\ndt = 400.0\n",
+     r"controller.sample_time \(400.0\) must not exceed scenario.horizon"),
 ])
 def test_bad_sample_times_get_one_line_errors(tmp_path, text, message):
     with pytest.raises(ConfigError, match=message) as exc:
