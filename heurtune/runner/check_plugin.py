@@ -32,8 +32,10 @@ def _parser():
     return ap
 
 
-def run(argv=None, stream=sys.stdout) -> int:
-    """Entry point; returns the exit status."""
+def run(argv=None, stream=None) -> int:
+    """Entry point; returns the exit status (the lines go to ``stream``, default the
+    ``sys.stdout`` of the call)."""
+    stream = sys.stdout if stream is None else stream
     args = _parser().parse_args(argv)
     try:
         before = set(registry.available())

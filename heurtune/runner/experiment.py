@@ -849,10 +849,11 @@ def summary_table(runs: pd.DataFrame, exp) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def print_summary(runs: pd.DataFrame, exp, stream=sys.stdout):
+def print_summary(runs: pd.DataFrame, exp, stream=None):
     """Per case and optimiser: best, mean, SD, median, worst objective over the successful runs,
     feasible runs, failed runs, mean convergence epoch and evaluations, wall time and the best gains
-    (:func:`summary_table`)."""
+    (:func:`summary_table`), to ``stream`` (default: the ``sys.stdout`` of the call)."""
+    stream = sys.stdout if stream is None else stream
     summary = summary_table(runs, exp)
     table = summary[["case", "algorithm", "runs", "best", "mean", "sd", "median", "worst"]].assign(
         feasible=[f"{a}/{b}" for a, b in zip(summary["feasible"], summary["runs"])], failed=summary["failed"],

@@ -104,9 +104,10 @@ class Progress:
         Seconds between lines when the stream is not a terminal.
     """
 
-    def __init__(self, total: int, done: int, stream=sys.stdout, finished_rows=(), *, planned=None,
+    def __init__(self, total: int, done: int, stream=None, finished_rows=(), *, planned=None,
                  parts=None, predicted_rate=None, log_interval: float = 30.0):
         self.total, self.done = total, done
+        stream = sys.stdout if stream is None else stream  # the current one, not the import's
         self.stream = stream
         self.tty = stream.isatty()
         self.best = {}

@@ -392,10 +392,51 @@ def test_step_plan_starts_a_graded_segment_at_each_discontinuity():
 
 def test_step_rule_is_fourth_root_of_the_tolerance():
     assert cont.step_for_tolerance(0.005, "folqi") == pytest.approx(0.125)
+    assert cont.step_for_tolerance(0.005, "folqi", damping=0.3) == pytest.approx(0.25)
+    assert cont.step_for_tolerance(0.005, "folqi", damping=0.01) == pytest.approx(0.125)
+    assert cont.step_for_tolerance(0.005, "ladr", damping=0.9) == pytest.approx(0.05)
     assert cont.step_for_tolerance(0.005 * 16, "folqi") == pytest.approx(0.25)
     assert cont.step_for_tolerance(0.005, "ladr") == pytest.approx(0.05)
     assert cont.step_for_tolerance(0.005) == pytest.approx(0.05)  # unknown type: the smallest
     assert cont.step_for_tolerance(1e9, "folqi") == cont.MAX_STEP
+
+
+def test_damping_ratio_of_the_slow_oscillatory_modes():
+    wr = np.array([-300.0, -0.5, -0.5, -0.01, -0.01, -2.0])
+    wi = np.array([0.0, 2.0, -2.0, 1.0, -1.0, 0.0])
+    assert cont.damping_ratio(wr, wi) == pytest.approx(0.01 / math.hypot(0.01, 1.0))
+    assert cont.damping_ratio(np.array([-1.0, -50.0]), np.array([0.0, 40.0])) == 1.0  # none slow and oscillatory
+    loop = ClosedLoop(preset("min"), "folqi")
+    assert loop.damping(loop.controller(WEAK)) < cont.WELL_DAMPED < loop.damping(loop.controller(THESIS_MIN))
+
+
+def test_the_per_candidate_step_rule_meets_the_tolerance_on_random_candidates():
+    """The rule's step (0.25 s for a well-damped loop, 0.125 s otherwise) against the same loop
+    at 0.02 s (itself 1e-7 cm from Radau, fourth order) on random stable candidates of the
+    thesis bounds and the least damped among many: every one within the tolerance."""
+    import heurtune
+
+    rng = np.random.default_rng(2026)
+    worst = {}
+    for name, case in (("cs_folqi_qtp", "min"), ("cs_folqi_qtp", "nmp"), ("cs_iolqi_qtp", "min"), ("cs_lqi_qtp", "min")):
+        prob = heurtune.load_experiment(name).problem(case)
+        loop = prob.loop
+        found = []
+        while len(found) < 40:
+            x = prob.lower + rng.random(prob.dim) * (prob.upper - prob.lower)
+            try:
+                ctrl = loop.controller(dict(zip(prob.names, x)))
+            except Exception:
+                continue
+            if loop.stability_margin(ctrl) < 0:
+                found.append((loop.damping(ctrl), ctrl))
+        found.sort(key=lambda item: item[0])
+        for damping, ctrl in found[:6] + found[-2:]:  # the least damped, and two of the best
+            fine = loop.run(ctrl, Scenario(step=0.02, output_dt=0.5))
+            sim = loop.run(ctrl, Scenario(tolerance=TOL, output_dt=0.5))
+            err = np.abs(sim.h - fine.h).max()
+            worst[(name, case)] = max(worst.get((name, case), 0.0), err)
+    assert max(worst.values()) <= TOL, worst
 
 
 def test_recorded_and_unrecorded_runs_have_the_same_metrics():
@@ -556,7 +597,7 @@ def test_bad_sample_times_get_one_line_errors(tmp_path, text, message):
     assert "\n" not in str(exc.value)
 
 
-def test_an_experiment_runs_the_continuous_loop_end_to_end(tmp_path):
+def test_an_experiment_runs_the_continuous_loop_end_to_end(tmp_path, capsys):
     """A config that sets [scenario] tolerance runs, resumes and is a problem of its own (its
     own problem_id, so that its runs never mix with the sampled loop's)."""
     import pandas as pd
@@ -577,6 +618,7 @@ def test_an_experiment_runs_the_continuous_loop_end_to_end(tmp_path):
     assert runs.problem_id.iloc[0] != problem_id(sampled, "min")
     assert run(args) == 0  # resumes: nothing to redo
     assert pd.read_parquet(out / "runs.parquet").equals(runs)
+    assert "1 of 1 runs" not in capsys.readouterr().out.split("\n")[-3:]
 
 
 def test_problem_id_of_sampled_scenarios_is_unchanged():
