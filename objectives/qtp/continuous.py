@@ -26,15 +26,6 @@ import numpy as np
 REFERENCE_TOLERANCE = 0.005
 STEP_AT_REFERENCE = {"folqi": 0.125, "iolqi": 0.125, "lqi": 0.125, "ladr": 0.05}
 DEFAULT_STEP_AT_REFERENCE = min(STEP_AT_REFERENCE.values())
-# Per candidate: a loop whose slow oscillatory closed-loop modes (|mu| < SLOW_MODES rad/s) all
-# have a damping ratio of at least WELL_DAMPED takes twice the step. Measured on 270 random
-# stable FOLQI, IOLQI and LQI candidates of the thesis bounds (the 12 least and 3 best damped of
-# 150 per case and type, tests and docs/model.md): at 0.25 s every candidate with a damping
-# ratio of 0.012 or more is within 3.0e-3 cm; below, 6.3e-3 (0.0098) and 2.3e-2 cm (0.0008),
-# which 0.125 s brings to 3.7e-4 and 1.5e-3 cm. LADR keeps its step.
-WELL_DAMPED = 0.02
-SLOW_MODES = 10.0
-WELL_DAMPED_FACTOR = {"folqi": 2.0, "iolqi": 2.0, "lqi": 2.0}
 MAX_STEP = 1.0
 MIN_STEP = 1e-4
 # A scenario whose step rule needs more steps than this over its horizon is refused.
@@ -97,23 +88,10 @@ class ContinuousController:
                    channel=np.concatenate(ch_m + ch_q) if ch_m or ch_q else np.zeros(0, dtype=np.int64))
 
 
-def damping_ratio(wr: np.ndarray, wi: np.ndarray) -> float:
-    """The smallest damping ratio of the slow oscillatory modes among the closed-loop
-    eigenvalues ``wr + i wi`` (1.0 when there is none)."""
-    mag = np.hypot(wr, wi)
-    slow = (np.abs(wi) > 1e-9 * np.maximum(mag, 1.0)) & (mag < SLOW_MODES)
-    if not slow.any():
-        return 1.0
-    return float(np.min(-wr[slow] / mag[slow]))
-
-
-def step_for_tolerance(tolerance: float, kind: str | None = None, damping: float | None = None) -> float:
+def step_for_tolerance(tolerance: float, kind: str | None = None) -> float:
     """The step of the continuous loop for a largest level error of ``tolerance`` cm under a
-    controller of type ``kind`` (None: the smallest of the known types' steps) whose loop has
-    the damping ratio ``damping`` (:func:`damping_ratio`; None: not known, the type's step)."""
+    controller of type ``kind`` (None: the smallest of the known types' steps)."""
     h0 = STEP_AT_REFERENCE.get(kind, DEFAULT_STEP_AT_REFERENCE)
-    if damping is not None and damping >= WELL_DAMPED:
-        h0 *= WELL_DAMPED_FACTOR.get(kind, 1.0)
     h = h0 * (tolerance / REFERENCE_TOLERANCE) ** 0.25
     return float(min(max(h, MIN_STEP), MAX_STEP))
 

@@ -199,22 +199,21 @@ class Scenario:
         """Whether this scenario simulates the continuous-time loop (``tolerance`` or ``step`` set)."""
         return self.tolerance is not None or self.step is not None
 
-    def continuous_step_for(self, kind: str | None = None, damping: float | None = None) -> float:
-        """The largest step of the continuous loop under a controller of type ``kind`` whose
-        loop has the damping ratio ``damping``: ``step``, else the rule's step for
-        ``tolerance`` (:func:`continuous.step_for_tolerance`)."""
+    def continuous_step_for(self, kind: str | None = None) -> float:
+        """The largest step of the continuous loop under a controller of type ``kind``:
+        ``step``, else the rule's step for ``tolerance`` (:func:`continuous.step_for_tolerance`)."""
         if self.step is not None:
             return float(self.step)
-        return _continuous.step_for_tolerance(float(self.tolerance), kind, damping)
+        return _continuous.step_for_tolerance(float(self.tolerance), kind)
 
     @property
     def continuous_step(self) -> float:
         """:meth:`continuous_step_for` the controller type with the smallest step."""
         return self.continuous_step_for(None)
 
-    def step_plan(self, kind: str | None = None, damping: float | None = None):
+    def step_plan(self, kind: str | None = None):
         """The segments and steps of the continuous loop (:func:`continuous.plan_steps`)."""
-        return _continuous.plan_steps(self.horizon, self.continuous_step_for(kind, damping), self.output_disturbance,
+        return _continuous.plan_steps(self.horizon, self.continuous_step_for(kind), self.output_disturbance,
                                       self.disturbance_time, self.input_disturbance, self.input_disturbance_time)
 
     @property
@@ -331,7 +330,6 @@ class ClosedLoop:
         state["_plants"] = {}
         state["_scenarios"] = {}
         state["_limits"] = None
-        state.pop("_spectrum", None)
         return state
 
     def __setstate__(self, state):
@@ -353,22 +351,10 @@ class ClosedLoop:
         if not np.isfinite(Acl).all():
             return math.inf
         # LAPACK dgeev without eigenvectors (numpy's eigvals adds checks and copies)
-        wr, wi, _, _, info = _DGEEV(Acl, compute_vl=0, compute_vr=0, overwrite_a=1)
+        wr, _, _, _, info = _DGEEV(Acl, compute_vl=0, compute_vr=0, overwrite_a=1)
         if info != 0:
             return math.inf
-        self._spectrum = (ctrl, wr, wi)  # the continuous loop's step rule reads it (damping)
         return float(wr.max())
-
-    def damping(self, ctrl: LinearController) -> float:
-        """Smallest damping ratio of the slow oscillatory modes of the linearised loop
-        (:func:`continuous.damping_ratio`), from the eigenvalues of the last
-        :meth:`stability_margin` when it checked ``ctrl``."""
-        cached = getattr(self, "_spectrum", None)
-        if cached is None or cached[0] is not ctrl:
-            if not math.isfinite(self.stability_margin(ctrl)):
-                return 0.0
-            cached = self._spectrum
-        return _continuous.damping_ratio(cached[1], cached[2])
 
     # -- simulation -----------------------------------------------------------------------
     def _scenario_arrays(self, scenario: Scenario):
@@ -484,7 +470,7 @@ class ClosedLoop:
         """:meth:`run` of a continuous-time scenario (kernel ``simulate_continuous``)."""
         coef, u_op, (saturate, u_lo, u_hi), clip, h_max = self._kernel_inputs(scenario)
         cc = _continuous.ContinuousController.from_linear(ctrl)
-        plan = scenario.step_plan(self.kind, self.damping(ctrl) if scenario.step is None else None)
+        plan = scenario.step_plan(self.kind)
         n_out = int(round(scenario.horizon / scenario.output_dt))
         t = None
         if record or record_levels:

@@ -133,6 +133,26 @@ def test_error_is_fourth_order_in_the_step(folqi_references):
     assert all(r > 10.0 for r in ratios), (errors, ratios)
 
 
+def test_the_step_rule_meets_the_tolerance_at_the_corners_of_the_bounds():
+    """Optimisers go to the bounds. At the corners of the thesis bounds (all Q, all R, both Ki
+    and both alpha at a bound or alpha = 1), against the same loop at 0.02 s (itself 1e-7 cm
+    from Radau): every stable one within the tolerance at the rule's 0.125 s (measured worst
+    9.6e-4 cm, Q = 2.5, R = 0.1, Ki = 10, alpha = 0.1, whose loop is well damped and yet 2.5e-2
+    cm off at 0.25 s: no damping-based rule licenses a longer step)."""
+    import itertools
+
+    loop = ClosedLoop(preset("min"), "folqi")
+    worst = 0.0
+    for Q, R, Ki, a in itertools.product([0.01, 2.5], [0.1, 5.0], [0.1, 10.0], [0.1, 1.0, 2.0]):
+        ctrl = loop.controller(dict(Q11=Q, Q22=Q, Q33=Q, Q44=Q, R11=R, R22=R, Ki1=Ki, Ki2=Ki, alpha1=a, alpha2=a))
+        if not loop.stability_margin(ctrl) < 0:
+            continue
+        fine = loop.run(ctrl, Scenario(step=0.02, output_dt=0.5))
+        sim = loop.run(ctrl, Scenario(tolerance=TOL, output_dt=0.5))
+        worst = max(worst, np.abs(sim.h - fine.h).max())
+    assert worst <= TOL
+
+
 def test_sampled_loop_is_first_order_and_far_less_accurate(folqi_references):
     """Why the continuous loop: the sampled loop's error at the default dt is 5x the
     continuous loop's tolerance, at 30x the steps."""
@@ -392,51 +412,10 @@ def test_step_plan_starts_a_graded_segment_at_each_discontinuity():
 
 def test_step_rule_is_fourth_root_of_the_tolerance():
     assert cont.step_for_tolerance(0.005, "folqi") == pytest.approx(0.125)
-    assert cont.step_for_tolerance(0.005, "folqi", damping=0.3) == pytest.approx(0.25)
-    assert cont.step_for_tolerance(0.005, "folqi", damping=0.01) == pytest.approx(0.125)
-    assert cont.step_for_tolerance(0.005, "ladr", damping=0.9) == pytest.approx(0.05)
     assert cont.step_for_tolerance(0.005 * 16, "folqi") == pytest.approx(0.25)
     assert cont.step_for_tolerance(0.005, "ladr") == pytest.approx(0.05)
     assert cont.step_for_tolerance(0.005) == pytest.approx(0.05)  # unknown type: the smallest
     assert cont.step_for_tolerance(1e9, "folqi") == cont.MAX_STEP
-
-
-def test_damping_ratio_of_the_slow_oscillatory_modes():
-    wr = np.array([-300.0, -0.5, -0.5, -0.01, -0.01, -2.0])
-    wi = np.array([0.0, 2.0, -2.0, 1.0, -1.0, 0.0])
-    assert cont.damping_ratio(wr, wi) == pytest.approx(0.01 / math.hypot(0.01, 1.0))
-    assert cont.damping_ratio(np.array([-1.0, -50.0]), np.array([0.0, 40.0])) == 1.0  # none slow and oscillatory
-    loop = ClosedLoop(preset("min"), "folqi")
-    assert loop.damping(loop.controller(WEAK)) < cont.WELL_DAMPED < loop.damping(loop.controller(THESIS_MIN))
-
-
-def test_the_per_candidate_step_rule_meets_the_tolerance_on_random_candidates():
-    """The rule's step (0.25 s for a well-damped loop, 0.125 s otherwise) against the same loop
-    at 0.02 s (itself 1e-7 cm from Radau, fourth order) on random stable candidates of the
-    thesis bounds and the least damped among many: every one within the tolerance."""
-    import heurtune
-
-    rng = np.random.default_rng(2026)
-    worst = {}
-    for name, case in (("cs_folqi_qtp", "min"), ("cs_folqi_qtp", "nmp"), ("cs_iolqi_qtp", "min"), ("cs_lqi_qtp", "min")):
-        prob = heurtune.load_experiment(name).problem(case)
-        loop = prob.loop
-        found = []
-        while len(found) < 40:
-            x = prob.lower + rng.random(prob.dim) * (prob.upper - prob.lower)
-            try:
-                ctrl = loop.controller(dict(zip(prob.names, x)))
-            except Exception:
-                continue
-            if loop.stability_margin(ctrl) < 0:
-                found.append((loop.damping(ctrl), ctrl))
-        found.sort(key=lambda item: item[0])
-        for damping, ctrl in found[:6] + found[-2:]:  # the least damped, and two of the best
-            fine = loop.run(ctrl, Scenario(step=0.02, output_dt=0.5))
-            sim = loop.run(ctrl, Scenario(tolerance=TOL, output_dt=0.5))
-            err = np.abs(sim.h - fine.h).max()
-            worst[(name, case)] = max(worst.get((name, case), 0.0), err)
-    assert max(worst.values()) <= TOL, worst
 
 
 def test_recorded_and_unrecorded_runs_have_the_same_metrics():
