@@ -30,7 +30,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import json  # noqa: E402
-import platform  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -46,6 +45,7 @@ from heurtune.objectives.qtp.model import preset  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import reference_qtp as ref  # noqa: E402
+from bench_batch import cpu_name  # noqa: E402  (this folder is on the path of a script run)
 
 CASES = {
     "min (thesis)": ("min", dict(Q11=0.4431, Q22=0.3027, Q33=0.4434, Q44=1.5722, R11=4.2253, R22=2.5994,
@@ -61,16 +61,6 @@ TOLERANCES = (0.08, 0.02, 0.005, 0.00125, 0.0003)
 SAMPLE_STEPS = (0.05, 0.02, 0.01, 0.005, 0.0025, 0.00125)
 RTOLS = (1e-3, 1e-5, 1e-7)
 GRID = 0.1
-
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def best_ms(fn, repeats):

@@ -258,6 +258,23 @@ def _add_pump(x, c, v0, v1, out):
     out[3] = x[3] + c[9] * v0
 
 
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _half_stage(x, nx_in, w_in, e0, e1, G, half, hh, c, pm0, pm1, s, d1, d2, h_op, v1, v2, Dn, acc, x_out, w_out,
+                nx_out):
+    """A half-step stage of ETDRK4, ``E(h/2) Y_n + (h/2) phi_1(h/2 L) N_in`` (plant rows), from
+    the N and measured signals ``nx_in``, ``w_in`` of the stage before: writes its plant state
+    ``x_out``, measured signals ``w_out`` and plant rows of N ``nx_out``. ``e0``, ``e1`` are the
+    pumps' push ``(h/2) C phi_1(h/2) z`` and ``G`` the coupling ``C phi_2(h/2) B``."""
+    acc[0] = e0
+    acc[1] = e1
+    _gw(G, w_in, hh, acc)
+    for i in range(4):
+        x_out[i] = x[i] + half * nx_in[i]
+    _add_pump(x_out, c, pm0 * acc[0], pm1 * acc[1], x_out)
+    _measure(x_out, s, d1, d2, h_op, w_out)
+    _plant_n(x_out, w_out, c, v1, v2, Dn, nx_out)
+
+
 @njit(cache=True, fastmath=_FAST)
 def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2, v1, v2, h_op, Dc, Dn, pm0, pm1,
                  scr, wst, r, acc, x_new, z_new, x_mid, du_mid, du_end):
@@ -298,28 +315,12 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     # E(h/2) Y_n, plant rows: x + (h/2) Bp C phi_1(h/2) z
     e0 = half * r[_R_C1]
     e1 = half * r[_R_C1 + 1]
-    # a = E(h/2) Y_n + (h/2) phi_1(h/2 L) N_n
-    acc[0] = e0
-    acc[1] = e1
-    _gw(coup[_G_C2], w_n, hh, acc)
-    for i in range(4):
-        xa[i] = x[i] + half * nx_n[i]
-    _add_pump(xa, c, pm0 * acc[0], pm1 * acc[1], xa)
-    _measure(xa, s, d1, d2, h_op, w)
-    _plant_n(xa, w, c, v1, v2, Dn, nx_a)
-    for i in range(4):
-        p2w[i] = w[i]  # w_a, kept in the P2 slot until P2 is formed
-    # b = E(h/2) Y_n + (h/2) phi_1(h/2 L) N_a
-    acc[0] = e0
-    acc[1] = e1
-    _gw(coup[_G_C2], w, hh, acc)
-    for i in range(4):
-        xb[i] = x[i] + half * nx_a[i]
-    _add_pump(xb, c, pm0 * acc[0], pm1 * acc[1], xb)
-    _measure(xb, s, d1, d2, h_op, w)
-    _plant_n(xb, w, c, v1, v2, Dn, nx_b)
-    for i in range(4):
-        p3w[i] = w[i]  # w_b, kept in the P3 slot
+    # a = E(h/2) Y_n + (h/2) phi_1(h/2 L) N_n, b = the same with N_a; their measured signals
+    # w_a, w_b are kept in the P2 and P3 slots until P2 and P3 are formed
+    _half_stage(x, nx_n, w_n, e0, e1, coup[_G_C2], half, hh, c, pm0, pm1, s, d1, d2, h_op, v1, v2, Dn, acc,
+                xa, p2w, nx_a)
+    _half_stage(x, nx_a, p2w, e0, e1, coup[_G_C2], half, hh, c, pm0, pm1, s, d1, d2, h_op, v1, v2, Dn, acc,
+                xb, p3w, nx_b)
     # c = E(h/2) a + (h/2) phi_1(h/2 L) (2 N_b - N_n); the plant rows of E(h/2) a read
     # C phi_1(h/2) a_z with a_z = phi_0(h/2) z + (h/2) phi_1(h/2) B w_n
     acc[0] = half * r[_R_C10]
@@ -540,18 +541,15 @@ def _crossing(t0, f0, t1, f1, t2, f2, band, has_prev):
     q = s1 - curv * (t2 - t1)
     if curv == 0.0:
         return lin
-    # solve curv r^2 + q r + (f1 - band) = 0 for r = t - t1 in [0, t2 - t1]
+    # solve curv r^2 + q r + (f1 - band) = 0 for r = t - t1 in [0, t2 - t1]: the smaller root there
     disc = q * q - 4.0 * curv * (f1 - band)
     if disc < 0.0:
         return lin
     sq = math.sqrt(disc)
-    best = lin
-    found = False
     for r in ((-q - sq) / (2.0 * curv), (-q + sq) / (2.0 * curv)):
-        if 0.0 <= r <= t2 - t1 and not found:
-            best = t1 + r
-            found = True
-    return best
+        if 0.0 <= r <= t2 - t1:
+            return t1 + r
+    return lin
 
 
 # Switching: a pump is free (0) or saturated at its upper (+1) or lower (-1) limit; a tank is
@@ -621,10 +619,10 @@ def _tank_slope(i, x, u1, u2, c):
 
 
 @njit(cache=True, fastmath=_FAST)
-def _event_values(x, du, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c, g):
+def _event_values(x, du, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c, g, ua):
     """Switching functions at a point (plant state ``x``, controller output ``du``): ``g[k] > 0``
     when event k has happened (a free pump outside its range, a saturated one back inside, a
-    free tank past a limit, a held tank whose slope points back in)."""
+    free tank past a limit, a held tank whose slope points back in). ``ua`` (2,) is scratch."""
     for j in range(N_EVENTS):
         g[j] = -1.0
     uc1 = u_op[0] + du[0]
@@ -639,11 +637,9 @@ def _event_values(x, du, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c
             else:
                 g[j] = uc - u_min
     if clip:
-        u1 = min(max(uc1, u_min), u_max) if saturate else uc1
-        u2 = min(max(uc2, u_min), u_max) if saturate else uc2
-        if saturate:
-            u1 = u_max if sat[0] > 0 else (u_min if sat[0] < 0 else u1)
-            u2 = u_max if sat[1] > 0 else (u_min if sat[1] < 0 else u2)
+        _applied(du, u_op, sat, saturate, u_min, u_max, ua)
+        u1 = u_op[0] + ua[0]
+        u2 = u_op[1] + ua[1]
         for i in range(4):
             if held[i] == 0:
                 g[2 + i] = max(x[i] - h_max[i], -x[i])
@@ -729,6 +725,7 @@ def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm,
     v = np.empty(2)
     pm = np.ones(2)
     gm = np.empty(N_EVENTS)
+    ue = np.empty(2)
     g1 = np.empty(N_EVENTS)
     ga = np.empty(N_EVENTS)
     switching = saturate or clip
@@ -830,8 +827,8 @@ def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm,
                 break
             fired = -1
             if switching:
-                _event_values(x_mid, u_mid, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c, gm)
-                _event_values(x_new, u_end, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c, g1)
+                _event_values(x_mid, u_mid, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c, gm, ue)
+                _event_values(x_new, u_end, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c, g1, ue)
                 th_lo = 1.0
                 for k in range(N_EVENTS):
                     if k < 2 and sliding[k] and sat[k] != 0:
@@ -844,7 +841,7 @@ def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm,
                                 mid = 0.5 * (a_ + b_)
                                 _dense_at(mid, hs, x, z, lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, c_e, s, d1, d2, h_op,
                                           Dc, pm[0], pm[1], scr, wst, w, xr, dur)
-                                _event_values(xr, dur, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c, ga)
+                                _event_values(xr, dur, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c, ga, ue)
                                 if ga[k] > 0.0:
                                     b_ = mid
                                 else:
