@@ -614,8 +614,9 @@ def simulate_scenarios(c, level_per_state, h_init, h_op, u_op, ad, bd, state_inp
     ``u_op`` (S, 2), ``i_out_dist``, ``i_in_dist`` (S,) int64, ``out_dist``, ``in_dist`` (S, 2),
     ``noise`` (S, n_steps + 1, 4) or (S, 0, 4), ``saturate``, ``clip_levels`` (S,) bool,
     ``u_min``, ``u_max`` (S,), ``h_max`` (S, 4); the controller, ``h_init``, ``h_op``, ``dt``,
-    ``n_steps`` and ``band_pct`` are shared (one plant step per sample). Writes ``metrics`` (S, N_METRICS) and ``status``
-    (S,), each row exactly what :func:`simulate_loop` gives for that scenario.
+    ``n_steps`` and ``band_pct`` are shared (one plant step per sample). Writes ``metrics``
+    (S, N_METRICS) and ``status`` (S,), each row exactly what :func:`simulate_loop` gives for
+    that scenario.
     """
     y_rec = np.empty((0, 2))
     u_rec = np.empty((0, 2))
