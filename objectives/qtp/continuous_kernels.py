@@ -71,19 +71,43 @@ def phi_scalar(z, out):
         out[k + 1] = (out[k] - _INV_FACT[k]) / z
 
 
-@njit(cache=True)
-def phi_matrix_levels(A, h, out):
-    """``out[l, k] = phi_k(h 2^-l A)`` for l = 0 .. N_LEVELS - 1, k = 0 .. 4 (scaling and squaring).
+@njit(cache=True, fastmath=_FAST)
+def _matmul(A, B, out):
+    """``out = A B`` for ``A`` (n, m), ``B`` (m, p); ``out`` must not alias either."""
+    for i in range(A.shape[0]):
+        for j in range(B.shape[1]):
+            acc = 0.0
+            for k in range(A.shape[1]):
+                acc += A[i, k] * B[k, j]
+            out[i, j] = acc
 
-    ``A`` (n, n); ``out`` (N_LEVELS, N_PHI, n, n). The argument is scaled by 2^-s until its
-    1-norm is at most 1/2 (and at least to the finest level), the functions are summed as
-    Taylor series there (``phi_4`` by Horner, then ``phi_k = I / k! + X phi_{k+1}``), and then
-    doubled back with ``phi_k(2X) = 2^-k (phi_0(X) phi_k(X) + sum_{j=1..k} phi_j(X) / (k-j)!)``;
-    the last N_LEVELS doublings are the levels.
+
+@njit(cache=True, fastmath=_FAST)
+def _add_c_m_b(Cq, M, Bq, tmp, out):
+    """``out += Cq (M Bq)`` for ``Cq`` (2, n), ``M`` (n, n), ``Bq`` (n, 4); ``tmp`` (n, 4) scratch."""
+    _matmul(M, Bq, tmp)
+    for r in range(2):
+        for j in range(4):
+            acc = 0.0
+            for i in range(Cq.shape[1]):
+                acc += Cq[r, i] * tmp[i, j]
+            out[r, j] += acc
+
+
+# Horner terms of the phi_4 series at a scaled argument of 1-norm at most 1/2: the first
+# neglected term is below 0.5^14 / 18! (2e-21).
+_HORNER_TERMS = 14
+
+
+@njit(cache=True, fastmath=_FAST)
+def _phi_scaled(A, h, min_power, phi, X, T):
+    """``phi[k] = phi_k(h 2^-s A)`` (k = 0 .. 4) for the least ``s >= min_power`` at which the
+    argument's 1-norm is at most 1/2; returns ``s``. ``phi`` (N_PHI, n, n); ``X``, ``T`` (n, n)
+    scratch.
+
+    The series is summed as ``phi_4`` by Horner, then ``phi_k = I / k! + X phi_{k+1}``.
     """
     n = A.shape[0]
-    if n == 0:
-        return
     norm = 0.0
     for j in range(n):
         col = 0.0
@@ -91,33 +115,85 @@ def phi_matrix_levels(A, h, out):
             col += abs(A[i, j])
         norm = max(norm, col)
     norm *= h
-    s = N_LEVELS - 1
+    s = min_power
     while norm / 2.0 ** s > 0.5:
         s += 1
-    X = A * (h / 2.0 ** s)
-    eye = np.eye(n)
-    phi = np.empty((N_PHI, n, n))
-    # phi_4(X) = sum_j X^j / (j + 4)!: Horner from the highest term.
-    terms = 14
-    P = eye / _fact(terms + 4)
-    for j in range(terms - 1, -1, -1):
-        P = X @ P + eye / _fact(j + 4)
-    phi[4] = P
+    scale = h / 2.0 ** s
+    for i in range(n):
+        for j in range(n):
+            X[i, j] = A[i, j] * scale
+    P = phi[4]
+    for i in range(n):
+        for j in range(n):
+            P[i, j] = 0.0
+        P[i, i] = 1.0 / _fact(_HORNER_TERMS + 4)
+    for term in range(_HORNER_TERMS - 1, -1, -1):
+        _matmul(X, P, T)
+        f = 1.0 / _fact(term + 4)
+        for i in range(n):
+            for j in range(n):
+                P[i, j] = T[i, j]
+            P[i, i] += f
     for k in range(3, -1, -1):
-        phi[k] = eye * _INV_FACT[k] + X @ phi[k + 1]
-    level = s  # phi now holds h 2^-s A
+        _matmul(X, phi[k + 1], phi[k])
+        for i in range(n):
+            phi[k, i, i] += _INV_FACT[k]
+    return s
+
+
+@njit(cache=True, fastmath=_FAST)
+def _phi_double(phi, new):
+    """``new[k] = phi_k(2X)`` from ``phi[k] = phi_k(X)``:
+    ``phi_k(2X) = 2^-k (phi_0(X) phi_k(X) + sum_{j=1..k} phi_j(X) / (k-j)!)``."""
+    n = phi.shape[1]
+    for k in range(N_PHI):
+        _matmul(phi[0], phi[k], new[k])
+        scale = 1.0 / 2.0 ** k
+        for a in range(n):
+            for b in range(n):
+                acc = new[k, a, b]
+                for j in range(1, k + 1):
+                    acc += phi[j, a, b] * _INV_FACT[k - j]
+                new[k, a, b] = acc * scale
+
+
+@njit(cache=True, fastmath=_FAST)
+def _phi_at(A, h, phw, sqw):
+    """``phi_k(h A)`` by scaling and squaring in the buffers ``phw`` (2, N_PHI, n, n); returns
+    the index of the buffer that holds it. ``sqw`` (2, n, n) scratch."""
+    level = _phi_scaled(A, h, 0, phw[0], sqw[0], sqw[1])
+    cur = 0
+    while level > 0:
+        _phi_double(phw[cur], phw[1 - cur])
+        cur = 1 - cur
+        level -= 1
+    return cur
+
+
+def phi_matrix_levels(A, h, out):
+    """``out[l, k] = phi_k(h 2^-l A)`` for l = 0 .. N_LEVELS - 1, k = 0 .. 4 (scaling and squaring).
+
+    ``A`` (n, n); ``out`` (N_LEVELS, N_PHI, n, n). The argument is scaled by 2^-s until its
+    1-norm is at most 1/2 (and at least to the finest level), the functions are summed as
+    Taylor series there, and then doubled back with
+    ``phi_k(2X) = 2^-k (phi_0(X) phi_k(X) + sum_{j=1..k} phi_j(X) / (k-j)!)``; the last
+    N_LEVELS doublings are the levels. (The kernels run the same functions,
+    :func:`_phi_scaled` and :func:`_phi_double`, level by level in their own buffers.)
+    """
+    n = A.shape[0]
+    if n == 0:
+        return
+    phw = np.empty((2, N_PHI, n, n))
+    sqw = np.empty((2, n, n))
+    level = _phi_scaled(np.ascontiguousarray(A, dtype=np.float64), float(h), N_LEVELS - 1, phw[0], sqw[0], sqw[1])
+    cur = 0
     while True:
         if level < N_LEVELS:
-            out[level] = phi
+            out[level] = phw[cur]
         if level == 0:
             break
-        new = np.empty_like(phi)
-        for k in range(N_PHI):
-            acc = phi[0] @ phi[k]
-            for j in range(1, k + 1):
-                acc = acc + phi[j] * (1.0 / _fact(k - j))
-            new[k] = acc / 2.0 ** k
-        phi = new
+        _phi_double(phw[cur], phw[1 - cur])
+        cur = 1 - cur
         level -= 1
 
 
@@ -141,8 +217,8 @@ N_COUPLINGS = 9
 N_STEP_LEVELS = N_LEVELS - 1
 
 
-@njit(cache=True)
-def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, rows, coup, prop_m, prop_q, prop_qb):
+@njit(cache=True, fastmath=_FAST)
+def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, rows, coup, prop_m, prop_q, prop_qb, pmc, pmh, phw, sqw, rw, bw):
     """Everything an ETDRK4 step of the segment needs from the controller, per step level.
 
     For each step level ``l`` (step ``H = h 2^-l``, half step ``c = H / 2``; Lambda the modal
@@ -155,11 +231,14 @@ def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, rows, coup, prop_m, prop_q, prop
     - ``prop_m[l]`` (4, nd): ``phi_0(H)`` and ``phi_k(H) b`` (k = 1..3) of the modal states;
     - ``prop_q[l]`` (nq, nq) ``phi_0(H)`` and ``prop_qb[l]`` (3, nq, 4) ``phi_k(H) Bq`` of the dense
       part.
+
+    Scratch: ``pmc``, ``pmh`` (N_PHI,); for the dense part ``phw`` (2, N_PHI, nq, nq), ``sqw``
+    (2, nq, nq), ``rw`` (3, 2, nq) and ``bw`` (nq, 4). The dense blocks' phi functions come
+    level by level from one scaling-and-squaring sequence at ``h 2^-m``, m from the finest
+    level up: the one at ``h 2^-m`` is the half step of level m - 1 and the step of level m.
     """
     nd = lam.size
     nq = Aq.shape[0]
-    pmc = np.empty(N_PHI)
-    pmh = np.empty(N_PHI)
     for l in range(N_STEP_LEVELS):
         H = h / 2.0 ** l
         c = 0.5 * H
@@ -191,30 +270,43 @@ def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, rows, coup, prop_m, prop_q, prop
                 prop_m[l, k, i] = pmh[k] * bm[i]
     if nq == 0:
         return
-    tc = np.empty((N_LEVELS, N_PHI, nq, nq))
-    phi_matrix_levels(Aq, h / 2.0, tc)  # level l of this table is c of step level l
-    th = np.empty((N_LEVELS, N_PHI, nq, nq))
-    phi_matrix_levels(Aq, h, th)
-    for l in range(N_STEP_LEVELS):
-        C1c = Cq @ tc[l, 1]
-        C10c = C1c @ tc[l, 0]
-        C0c = Cq @ tc[l, 0]
-        C1h = Cq @ th[l, 1]
-        C0h = Cq @ th[l, 0]
-        for r in range(2):
+    m = _phi_scaled(Aq, h, N_STEP_LEVELS, phw[0], sqw[0], sqw[1])
+    cur = 0
+    while True:
+        ph = phw[cur]  # phi_k(h 2^-m Aq)
+        if 1 <= m <= N_STEP_LEVELS:  # the half step of step level m - 1
+            l = m - 1
+            _matmul(Cq, ph[1], rw[0])  # C phi_1(c)
+            _matmul(rw[0], ph[0], rw[1])  # C phi_1(c) phi_0(c)
+            _matmul(Cq, ph[0], rw[2])  # C phi_0(c)
+            for r in range(2):
+                for i in range(nq):
+                    rows[l, _R_C1 + r, nd + i] = rw[0, r, i]
+                    rows[l, _R_C10 + r, nd + i] = rw[1, r, i]
+                    rows[l, _R_C0 + r, nd + i] = rw[2, r, i]
+            for k in range(1, 5):
+                _add_c_m_b(Cq, ph[k], Bq, bw, coup[l, _G_C1 + k - 1])
+            _add_c_m_b(rw[0], ph[1], Bq, bw, coup[l, _G_C11])
+        if m <= N_STEP_LEVELS - 1:  # the full step of step level m
+            l = m
+            _matmul(Cq, ph[1], rw[0])
+            _matmul(Cq, ph[0], rw[2])
+            for r in range(2):
+                for i in range(nq):
+                    rows[l, _R_H1 + r, nd + i] = rw[0, r, i]
+                    rows[l, _R_H0 + r, nd + i] = rw[2, r, i]
+            for k in range(1, 5):
+                _add_c_m_b(Cq, ph[k], Bq, bw, coup[l, _G_H1 + k - 1])
             for i in range(nq):
-                rows[l, _R_C1 + r, nd + i] = C1c[r, i]
-                rows[l, _R_C10 + r, nd + i] = C10c[r, i]
-                rows[l, _R_C0 + r, nd + i] = C0c[r, i]
-                rows[l, _R_H1 + r, nd + i] = C1h[r, i]
-                rows[l, _R_H0 + r, nd + i] = C0h[r, i]
-        for k in range(1, 5):
-            coup[l, _G_C1 + k - 1] += Cq @ (tc[l, k] @ Bq)
-            coup[l, _G_H1 + k - 1] += Cq @ (th[l, k] @ Bq)
-        coup[l, _G_C11] += C1c @ (tc[l, 1] @ Bq)
-        prop_q[l] = th[l, 0]
-        for k in range(1, 4):
-            prop_qb[l, k - 1] = th[l, k] @ Bq
+                for j in range(nq):
+                    prop_q[l, i, j] = ph[0, i, j]
+            for k in range(1, 4):
+                _matmul(ph[k], Bq, prop_qb[l, k - 1])
+        if m == 0:
+            break
+        _phi_double(phw[cur], phw[1 - cur])
+        cur = 1 - cur
+        m -= 1
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")
@@ -404,7 +496,7 @@ def _pump_voltages(x, z, Cm, Cq, s, d1, d2, h_op, Dc, w, du):
 
 @njit(cache=True, fastmath=_FAST)
 def _dense_at(theta, h, x, z, lam, bm, mi, Cm, Aq, Bq, Cq, c, s, d1, d2, h_op, Dc, pm0, pm1, scr, wst, w, x_out,
-              du_out):
+              du_out, ph, phw, sqw, vq):
     """Dense output at ``t_n + theta h`` of the step just taken from (x, z) by
     :func:`_etdrk4_step` (whose stage combinations are still in ``scr`` and ``wst``)::
 
@@ -414,14 +506,14 @@ def _dense_at(theta, h, x, z, lam, bm, mi, Cm, Aq, Bq, Cq, c, s, d1, d2, h_op, D
 
     ``tau = theta h``, the phi functions of ``tau Lambda`` computed here (this serves the
     recorded trajectory, not the metrics). Writes the plant state ``x_out`` and the controller
-    output ``du_out``.
+    output ``du_out``. Scratch: ``ph`` (N_PHI,), and for the dense blocks ``phw``, ``sqw`` (as
+    :func:`step_tables`) and ``vq`` (3, nq).
     """
     tau = theta * h
     nd = lam.size
     nq = Aq.shape[0]
     nx_n, p2x, p3x = scr[0], scr[8], scr[9]
     w_n, p2w, p3w = wst[0], wst[1], wst[2]
-    ph = np.empty(N_PHI)
     g0 = 0.0
     g1 = 0.0  # C (tau phi_1 z + tau^2 (phi_2 B w_n + ...)): the controller's push on the levels
     cz0 = 0.0
@@ -439,20 +531,32 @@ def _dense_at(theta, h, x, z, lam, bm, mi, Cm, Aq, Bq, Cq, c, s, d1, d2, h_op, D
         cz0 += Cm[0, i] * zi
         cz1 += Cm[1, i] * zi
     if nq > 0:
-        tab = np.empty((N_LEVELS, N_PHI, nq, nq))
-        phi_matrix_levels(Aq, tau, tab)
-        zq = z[nd:]
-        bw = Bq @ w_n
-        b2 = Bq @ p2w
-        b3 = Bq @ p3w
-        push = tau * (tab[0, 1] @ zq) + tau * tau * (tab[0, 2] @ bw + theta * (tab[0, 3] @ b2)
-                                                      + t2 * (tab[0, 4] @ b3))
-        zt = tab[0, 0] @ zq + tau * (tab[0, 1] @ bw + theta * (tab[0, 2] @ b2) + t2 * (tab[0, 3] @ b3))
+        tab = phw[_phi_at(Aq, tau, phw, sqw)]  # phi_k(tau Aq)
+        bw, b2, b3 = vq[0], vq[1], vq[2]  # Bq w_n, Bq P2w, Bq P3w
         for i in range(nq):
-            g0 += Cq[0, i] * push[i]
-            g1 += Cq[1, i] * push[i]
-            cz0 += Cq[0, i] * zt[i]
-            cz1 += Cq[1, i] * zt[i]
+            a0 = 0.0
+            a2 = 0.0
+            a3 = 0.0
+            for j in range(4):
+                a0 += Bq[i, j] * w_n[j]
+                a2 += Bq[i, j] * p2w[j]
+                a3 += Bq[i, j] * p3w[j]
+            bw[i] = a0
+            b2[i] = a2
+            b3[i] = a3
+        for i in range(nq):
+            push = 0.0
+            zt = 0.0
+            for j in range(nq):
+                zj = z[nd + j]
+                push += tau * tab[1, i, j] * zj + tau * tau * (tab[2, i, j] * bw[j] + theta * tab[3, i, j] * b2[j]
+                                                               + t2 * tab[4, i, j] * b3[j])
+                zt += tab[0, i, j] * zj + tau * (tab[1, i, j] * bw[j] + theta * tab[2, i, j] * b2[j]
+                                                 + t2 * tab[3, i, j] * b3[j])
+            g0 += Cq[0, i] * push
+            g1 += Cq[1, i] * push
+            cz0 += Cq[0, i] * zt
+            cz1 += Cq[1, i] * zt
     for i in range(4):
         x_out[i] = x[i] + tau * (nx_n[i] + 0.5 * theta * p2x[i] + t2 * p3x[i] / 6.0)
     _add_pump(x_out, c, pm0 * g0, pm1 * g1, x_out)
@@ -558,10 +662,16 @@ N_EVENTS = 6
 # Rows of the plant coefficients that a held tank's equation uses (outflow, inflow from above,
 # pump gain), masked while it is held.
 _TANK_COEFS = ((0, 4, 6), (1, 5, 7), (2, 8, -1), (3, 9, -1))
-# Conditional integration can chatter: a released pump whose free controller drives it straight
-# back into saturation (the continuous analogue of a sliding mode). A pump that re-enters
-# saturation within SLIDING_WINDOW steps of its release is sliding: its next releases are taken
-# at step ends (it stays saturated to the end of the step) until a whole step passes with it free.
+# Conditional integration can slide: a released pump whose free controller drives it straight
+# back into saturation while its held controller would drift back inside (Filippov's sliding
+# mode: the exact solution stays on the limit, its controller states moving at a fraction of
+# their free rate). A pump that re-enters saturation within SLIDING_WINDOW steps of its release
+# is sliding: its voltage is pinned at the limit, the loop is stepped at h/16, and at each step
+# end its controller states are held (output beyond the limit) or integrate (output inside), so
+# that their mean rate approximates Filippov's, to first order in the step. Its switches are
+# not located (a located switch starts the next step on the limit, where every later decision
+# would hang on rounding). It stops sliding when a held step moves its output further out (plain
+# saturation) or a free step moves it further in (the pump leaves the limit).
 SLIDING_WINDOW = 0.125
 # Beyond this many located switches in one run, switches are taken at step ends without location.
 MAX_LOCATED_EVENTS = 500
@@ -570,11 +680,12 @@ _LOCATE_ITERATIONS = 40
 
 
 @njit(cache=True, fastmath=_FAST)
-def _mode_arrays(sat, held, lam, bm, Aq, Bq, channel, c, Dc, u_op, uin, u_min, u_max,
+def _mode_arrays(sat, pin, asat, held, lam, bm, Aq, Bq, channel, c, Dc, u_op, uin, u_min, u_max,
                  lam_e, bm_e, Aq_e, Bq_e, c_e, Dn, v, pm):
     """The effective loop of a switching mode: the saturated pumps' controller states frozen
-    (conditional integration: their eigenvalues and input gains 0), their voltage the limit and
-    their feedback and push 0; the held tanks' equations masked."""
+    (conditional integration: their eigenvalues and input gains 0); the saturated and the pinned
+    (sliding) pumps' voltage the limit and their feedback and push 0; the held tanks' equations
+    masked. Writes ``asat``, the limit each pump's voltage is at (0: none)."""
     nd = lam.size
     for i in range(nd):
         frozen = sat[channel[i]] != 0
@@ -594,11 +705,12 @@ def _mode_arrays(sat, held, lam, bm, Aq, Bq, channel, c, Dc, u_op, uin, u_min, u
                 if k >= 0:
                     c_e[k] = 0.0
     for j in range(2):
-        free = sat[j] == 0
+        asat[j] = sat[j] if sat[j] != 0 else pin[j]
+        free = asat[j] == 0
         for k in range(4):
             Dn[j, k] = Dc[j, k] if free else 0.0
         pm[j] = 1.0 if free else 0.0
-        lim = u_max if sat[j] > 0 else u_min
+        lim = u_max if asat[j] > 0 else u_min
         v[j] = (u_op[j] if free else lim) + uin[j]
 
 
@@ -619,10 +731,11 @@ def _tank_slope(i, x, u1, u2, c):
 
 
 @njit(cache=True, fastmath=_FAST)
-def _event_values(x, du, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c, g, ua):
+def _event_values(x, du, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua):
     """Switching functions at a point (plant state ``x``, controller output ``du``): ``g[k] > 0``
     when event k has happened (a free pump outside its range, a saturated one back inside, a
-    free tank past a limit, a held tank whose slope points back in). ``ua`` (2,) is scratch."""
+    free tank past a limit, a held tank whose slope points back in; the voltages at the limits
+    ``asat``). ``ua`` (2,) is scratch."""
     for j in range(N_EVENTS):
         g[j] = -1.0
     uc1 = u_op[0] + du[0]
@@ -637,7 +750,7 @@ def _event_values(x, du, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c
             else:
                 g[j] = uc - u_min
     if clip:
-        _applied(du, u_op, sat, saturate, u_min, u_max, ua)
+        _applied(du, u_op, asat, saturate, u_min, u_max, ua)
         u1 = u_op[0] + ua[0]
         u2 = u_op[1] + ua[1]
         for i in range(4):
@@ -650,6 +763,383 @@ def _event_values(x, du, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c
 
 
 @njit(cache=True, fastmath=_FAST)
+def continuous_lane(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel,
+                    seg_t0, seg_h, seg_steps, seg_graded, seg_dist, seg_uin, seg_post, n_seg,
+                    t_dist, horizon, saturate, u_min, u_max, clip, h_max, band_pct, metrics, out_dt,
+                    y_rec, u_rec, h_rec, n_rec,
+                    rows, coup, prop_m, prop_q, prop_qb, wz, wm, wq, wqb, w4, w2, w10, wi, wb, phw, sqw, rw, bw, vq):
+    """The continuous-time closed loop of one lane (one controller under one scenario), by
+    ETDRK4 on a planned grid, with its metrics: the step that every driver runs.
+
+    :func:`simulate_continuous` (one candidate), :func:`simulate_continuous_lanes` (many, on the
+    CPU) and the CUDA kernel of :mod:`heurtune.objectives.qtp.gpu` (one thread a lane, this
+    function compiled from its Python source as a device function) call it. It allocates
+    nothing and calls only functions of this module and ``math``: its working arrays come in
+    (shapes from :func:`workspace_shapes`) and are initialised here, so one set serves lane
+    after lane.
+
+    Parameters
+    ----------
+    As :func:`simulate_continuous`, and ``n_seg`` (segments used of the ``seg_*`` arrays),
+    ``n_rec`` (rows of the records to write); then the working arrays in the order of
+    :func:`workspace_shapes`.
+
+    Returns
+    -------
+    status : int, STATUS_OK or STATUS_DIVERGED (metrics NaN, records NaN from there)
+    n_steps : int, steps taken
+    """
+    nd = lam.size
+    nq = Aq.shape[0]
+    nz = nd + nq
+    s = level_per_state
+    state_limit = LEVEL_LIMIT / s
+    # the working arrays by name (rows of w4, w2, w10; see workspace_shapes)
+    x, x_new, x_mid, w, xr = w4[0], w4[1], w4[2], w4[3], w4[4]
+    scr, wst, Dn = w4[5:15], w4[15:18], w4[18:20]
+    u_mid, u_end, du0, acc, dur, v, pm = w2[0], w2[1], w2[2], w2[3], w2[4], w2[5], w2[6]
+    ue, ua, u_prev, t_release, band = w2[7], w2[8], w2[9], w2[10], w2[11]
+    iae, ise, itae, jj, jdev, tv, mp = w2[12], w2[13], w2[14], w2[15], w2[16], w2[17], w2[18]
+    ex_prev, ex_out, ex_in = w2[19:21], w2[21:23], w2[23:25]
+    excess = w2[25]  # a sliding pump's output beyond its limit at the last step end
+    f0, fm, f1, lo, hi, win_v = w10[0], w10[1], w10[2], w10[3], w10[4], w10[5:8]
+    c_e, rbuf, gm, g1, ga = w10[8], w10[9], w10[10], w10[11], w10[12]
+    win_t, pmc, pmh = w10[13], w10[14], w10[15]
+    z, z_new = wz[0], wz[1]
+    lam_e, bm_e = wm[0], wm[1]
+    Aq_e, Bq_e = wq, wqb
+    sat, held, pin, asat = wi[0:2], wi[2:6], wi[6:8], wi[8:10]
+    sliding, ex_has_prev, pending = wb[0], wb[1], wb[2]
+    for i in range(4):
+        x[i] = x_init[i]
+    for i in range(nz):
+        z[i] = 0.0
+    for i in range(nd):
+        lam_e[i] = lam[i]
+        bm_e[i] = bm[i]
+    for i in range(nq):
+        for j in range(nq):
+            Aq_e[i, j] = Aq[i, j]
+        for j in range(4):
+            Bq_e[i, j] = Bq[i, j]
+    for i in range(10):
+        c_e[i] = c[i]
+    for r in range(2):
+        for j in range(4):
+            Dn[r, j] = Dc[r, j]
+    for j in range(2):
+        pm[j] = 1.0
+        sat[j] = 0
+        pin[j] = 0
+        asat[j] = 0
+        t_release[j] = -math.inf
+        band[j] = band_pct / 100.0 * h_op[j]
+        iae[j] = 0.0
+        ise[j] = 0.0
+        itae[j] = 0.0
+        jj[j] = 0.0
+        jdev[j] = 0.0
+        tv[j] = 0.0
+        mp[j] = 0.0
+        for r in range(2):
+            ex_prev[j, r] = 0.0
+            ex_out[j, r] = -1.0
+            ex_in[j, r] = 0.0
+        sliding[j] = False
+        ex_has_prev[j] = False
+        pending[j] = False
+    for i in range(4):
+        held[i] = 0
+    for i in range(_N_SIG):
+        lo[i] = math.inf
+        hi[i] = -math.inf
+        for r in range(3):
+            win_v[r, i] = 0.0
+    for r in range(3):
+        win_t[r] = 0.0
+    switching = saturate or clip
+    n_events = 0
+    rec = n_rec
+    k_rec = 0
+    n_taken = 0
+    diverged = False
+    first_node = True
+    for sg in range(n_seg):
+        d1 = seg_dist[sg, 0]
+        d2 = seg_dist[sg, 1]
+        post = seg_post[sg]
+        t = seg_t0[sg]
+        t_end = seg_t0[sg] + seg_h[sg] * seg_steps[sg]
+        if sg == n_seg - 1:
+            t_end = horizon
+        h_target = seg_h[sg]
+        graded = seg_graded[sg]
+        # the mode at the segment start: a jump of the measurement may push a pump across a limit
+        _pump_voltages(x, z, Cm, Cq, s, d1, d2, h_op, Dc, w, du0)
+        if saturate:
+            for j in range(2):
+                uc = u_op[j] + du0[j]
+                sat[j] = 1 if uc > u_max else (-1 if uc < u_min else 0)
+                sliding[j] = False  # a discontinuity ends a slide
+                pin[j] = 0
+        _mode_arrays(sat, pin, asat, held, lam, bm, Aq, Bq, channel, c, Dc, u_op, seg_uin[sg], u_min, u_max,
+                     lam_e, bm_e, Aq_e, Bq_e, c_e, Dn, v, pm)
+        _applied(du0, u_op, asat, saturate, u_min, u_max, ua)
+        _signals(w, x, s, u_op, ua, f0)
+        n_win = _visit(t, f0, post, band, 0, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
+                       ex_has_prev, pending, tv, u_prev, first_node)
+        first_node = False
+        # Positions within a span count in units of h/16: the graded steps (1, 1, 2, 4, 8 units),
+        # a sliding pump's steps (1 unit) and the plain steps (16 units, or the largest step that
+        # keeps the position aligned) all land on the span's grid and end on its end exactly.
+        pos = 0
+        units = 0
+        gi = 0
+        h = h_target
+        replan = True
+        while t < t_end - 1e-12 * max(1.0, t_end):
+            if replan:
+                n_span = max(1, int(math.ceil((t_end - t) / h_target - 1e-9)))
+                h = (t_end - t) / n_span
+                units = 16 * n_span
+                pos = 0
+                gi = 0
+                step_tables(lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, h, rows, coup, prop_m, prop_q, prop_qb, pmc,
+                            pmh, phw, sqw, rw, bw)
+                replan = False
+            if graded and gi < 5:
+                level = GRADED_LEVELS[gi]
+                gi += 1
+            elif sliding[0] or sliding[1]:
+                level = 4
+            else:
+                level = 0
+                while pos % (16 >> level) != 0:
+                    level += 1
+            hs = h / 2.0 ** level
+            pos += 16 >> level
+            if pos >= units:
+                hs = t_end - t  # the last step ends on the segment's end exactly
+            _etdrk4_step(x, z, hs, rows[level], coup[level], prop_m[level], prop_q[level], prop_qb[level], mi, c_e,
+                         s, d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x_new, z_new,
+                         x_mid, u_mid, u_end)
+            n_taken += 1
+            if not (abs(x_new[0]) + abs(x_new[1]) + abs(x_new[2]) + abs(x_new[3]) < state_limit):
+                diverged = True
+                break
+            fired = -1
+            if switching:
+                _event_values(x_mid, u_mid, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, gm, ue)
+                _event_values(x_new, u_end, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g1, ue)
+                th_lo = 1.0
+                for k in range(N_EVENTS):
+                    if k < 2 and sliding[k]:
+                        continue  # a sliding pump switches at step ends (below)
+                    if gm[k] > 0.0 or g1[k] > 0.0:
+                        # bisection on the dense output, in the half where the sign changes
+                        a_, b_ = (0.0, 0.5) if gm[k] > 0.0 else (0.5, 1.0)
+                        if n_events < MAX_LOCATED_EVENTS:
+                            for _ in range(_LOCATE_ITERATIONS):
+                                mid = 0.5 * (a_ + b_)
+                                _dense_at(mid, hs, x, z, lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, c_e, s, d1, d2, h_op,
+                                          Dc, pm[0], pm[1], scr, wst, w, xr, dur, pmc, phw, sqw, vq)
+                                _event_values(xr, dur, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, ga,
+                                              ue)
+                                if ga[k] > 0.0:
+                                    b_ = mid
+                                else:
+                                    a_ = mid
+                        if b_ < th_lo:
+                            th_lo = b_
+                            fired = k
+                if fired >= 0 and th_lo < 1.0 and n_events < MAX_LOCATED_EVENTS:
+                    # cut the step at the switch and take it again
+                    hs = th_lo * hs
+                    step_tables(lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, hs, rows, coup, prop_m, prop_q, prop_qb, pmc,
+                                pmh, phw, sqw, rw, bw)
+                    _etdrk4_step(x, z, hs, rows[0], coup[0], prop_m[0], prop_q[0], prop_qb[0], mi, c_e, s, d1, d2,
+                                 v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x_new, z_new, x_mid,
+                                 u_mid, u_end)
+                    n_events += 1
+                elif fired >= 0:
+                    n_events += 1
+            # recorded grid points in [t, t + hs)
+            while k_rec < rec and k_rec * out_dt < t + hs - 1e-9 * hs:
+                theta = (k_rec * out_dt - t) / hs
+                _dense_at(max(theta, 0.0), hs, x, z, lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, c_e, s, d1, d2, h_op, Dc,
+                          pm[0], pm[1], scr, wst, w, xr, dur, pmc, phw, sqw, vq)
+                _measure(xr, s, d1, d2, h_op, w)
+                _applied(dur, u_op, asat, saturate, u_min, u_max, ua)
+                y_rec[k_rec, 0] = w[0] + h_op[0]
+                y_rec[k_rec, 1] = w[1] + h_op[1]
+                u_rec[k_rec, 0] = u_op[0] + ua[0]
+                u_rec[k_rec, 1] = u_op[1] + ua[1]
+                for i in range(4):
+                    h_rec[k_rec, i] = xr[i]
+                k_rec += 1
+            # midpoint and end nodes
+            _measure(x_mid, s, d1, d2, h_op, w)
+            _applied(u_mid, u_op, asat, saturate, u_min, u_max, ua)
+            _signals(w, x_mid, s, u_op, ua, fm)
+            n_win = _visit(t + 0.5 * hs, fm, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
+                           ex_has_prev, pending, tv, u_prev, False)
+            _measure(x_new, s, d1, d2, h_op, w)
+            _applied(u_end, u_op, asat, saturate, u_min, u_max, ua)
+            _signals(w, x_new, s, u_op, ua, f1)
+            n_win = _visit(t + hs, f1, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
+                           ex_has_prev, pending, tv, u_prev, False)
+            # Simpson's rule over the step (IAE and ITAE split at the error's zero crossings)
+            wq = hs / 6.0
+            te = t + hs
+            for i in range(2):
+                m0, m1 = _abs_moments(f0[8 + i], fm[8 + i], f1[8 + i])
+                iae[i] += hs * m0
+                ise[i] += wq * (f0[i] * f0[i] + 4.0 * fm[i] * fm[i] + f1[i] * f1[i])
+                itae[i] += hs * (t * m0 + hs * m1)
+                a0 = f0[6 + i]
+                am = fm[6 + i]
+                a1 = f1[6 + i]
+                jj[i] += wq * (a0 * a0 + 4.0 * am * am + a1 * a1)
+                b0 = a0 - u_op[i]
+                bmm = am - u_op[i]
+                b1 = a1 - u_op[i]
+                jdev[i] += wq * (b0 * b0 + 4.0 * bmm * bmm + b1 * b1)
+            for i in range(_N_SIG):
+                f0[i] = f1[i]
+            t = te
+            x, x_new = x_new, x
+            z, z_new = z_new, z
+            du0[0] = u_end[0]
+            du0[1] = u_end[1]
+            changed = fired >= 0
+            if fired >= 0:
+                # the new mode: the switching element changes state, a new graded span starts
+                if fired < 2:
+                    uc = u_op[fired] + u_end[fired]
+                    if sat[fired] == 0:  # the limit it crossed
+                        sat[fired] = 1 if abs(uc - u_max) <= abs(uc - u_min) else -1
+                        if t - t_release[fired] < SLIDING_WINDOW * h_target:
+                            sliding[fired] = True
+                            pin[fired] = sat[fired]
+                            excess[fired] = 0.0  # located on the limit
+                    else:
+                        sat[fired] = 0
+                        t_release[fired] = t
+                else:
+                    i = fired - 2
+                    if held[i] == 0:  # held exactly on the limit it reached
+                        held[i] = 1 if abs(x[i] - h_max[i]) <= abs(x[i]) else -1
+                        x[i] = h_max[i] if held[i] > 0 else 0.0
+                    else:
+                        held[i] = 0
+            for k in range(2):
+                if k == fired or not sliding[k]:
+                    continue
+                # a sliding pump at a step end: its output beyond the pinned limit decides
+                uc = u_op[k] + u_end[k]
+                ex = uc - u_max if pin[k] > 0 else u_min - uc
+                if sat[k] != 0:  # held over this step
+                    if ex <= 0.0:
+                        sat[k] = 0  # back inside: its states integrate, its voltage stays pinned
+                        changed = True
+                    elif ex > excess[k]:
+                        sliding[k] = False  # pushed further out while held: plain saturation
+                        pin[k] = 0
+                        changed = True
+                elif ex > 0.0:
+                    sat[k] = pin[k]  # driven out again: held
+                    changed = True
+                elif ex < excess[k]:
+                    sliding[k] = False  # drawn further in while free: it leaves the limit
+                    pin[k] = 0
+                    t_release[k] = t
+                    changed = True
+                excess[k] = ex
+            if changed:
+                _mode_arrays(sat, pin, asat, held, lam, bm, Aq, Bq, channel, c, Dc, u_op, seg_uin[sg], u_min, u_max,
+                             lam_e, bm_e, Aq_e, Bq_e, c_e, Dn, v, pm)
+                n_win = 0
+                graded = True
+                replan = True
+        if diverged:
+            break
+    if diverged:
+        for kk in range(k_rec, rec):
+            for i in range(2):
+                y_rec[kk, i] = math.nan
+                u_rec[kk, i] = math.nan
+            for i in range(4):
+                h_rec[kk, i] = math.nan
+        for i in range(N_METRICS):
+            metrics[i] = math.nan
+        return STATUS_DIVERGED, n_taken
+    # the end point T
+    while k_rec < rec:
+        y_rec[k_rec, 0] = s * x[0] + seg_dist[n_seg - 1, 0]
+        y_rec[k_rec, 1] = s * x[1] + seg_dist[n_seg - 1, 1]
+        u_rec[k_rec, 0] = f1[6]
+        u_rec[k_rec, 1] = f1[7]
+        for i in range(4):
+            h_rec[k_rec, i] = x[i]
+        k_rec += 1
+    for i in range(2):
+        y0 = h_op[i]
+        if ex_out[i, 0] < 0.0:
+            ts = 0.0
+        elif pending[i]:
+            ts = horizon - t_dist
+        else:
+            ts = _crossing(ex_prev[i, 0], ex_prev[i, 1], ex_out[i, 0], ex_out[i, 1], ex_in[i, 0], ex_in[i, 1],
+                           band[i], ex_has_prev[i]) - t_dist
+        metrics[i] = mp[i] / y0 * 100.0
+        metrics[2 + i] = ts
+        metrics[4 + i] = f1[i] / y0 * 100.0
+        metrics[6 + i] = iae[i]
+        metrics[8 + i] = ise[i]
+        metrics[10 + i] = itae[i]
+        metrics[12 + i] = jj[i]
+        metrics[14 + i] = jdev[i]
+        metrics[16 + i] = tv[i]
+    metrics[18] = min(min(lo[2], lo[3]), min(lo[4], lo[5]))
+    metrics[19] = max(max(hi[2], hi[3]), max(hi[4], hi[5]))
+    metrics[20] = min(lo[6], lo[7])
+    metrics[21] = max(hi[6], hi[7])
+    # a parabola through a kink at a limit must not refine past it
+    if saturate:
+        metrics[20] = max(metrics[20], u_min)
+        metrics[21] = min(metrics[21], u_max)
+    if clip:
+        metrics[18] = max(metrics[18], 0.0)
+        metrics[19] = min(metrics[19], s * max(max(h_max[0], h_max[1]), max(h_max[2], h_max[3])))
+    return STATUS_OK, n_taken
+
+
+
+
+# Rows of the working arrays of continuous_lane (float64 unless stated): see its first lines.
+_W4_ROWS = 20
+_W2_ROWS = 26
+_W10_ROWS = 16
+
+
+def workspace_shapes(nd: int, nq: int) -> list:
+    """Shapes and dtypes of the working arrays of :func:`continuous_lane`, in its order, for
+    ``nd`` modal and ``nq`` dense controller states (exact: the lane reads its sizes from them)."""
+    nz, d, q = nd + nq, nd, nq
+    f, i8, b1 = np.float64, np.int64, np.bool_
+    return [((N_STEP_LEVELS, N_ROWS, nz), f), ((N_STEP_LEVELS, N_COUPLINGS, 2, 4), f),
+            ((N_STEP_LEVELS, 4, d), f), ((N_STEP_LEVELS, q, q), f), ((N_STEP_LEVELS, 3, q, 4), f),
+            ((2, nz), f), ((2, d), f), ((q, q), f), ((q, 4), f),
+            ((_W4_ROWS, 4), f), ((_W2_ROWS, 2), f), ((_W10_ROWS, 10), f), ((10,), i8), ((3, 2), b1),
+            ((2, N_PHI, q, q), f), ((2, q, q), f), ((3, 2, q), f), ((q, 4), f), ((3, q), f)]
+
+
+def _workspace(nd, nq, lanes=None):
+    """The working arrays of :func:`continuous_lane` (with a leading lane axis when ``lanes``)."""
+    lead = () if lanes is None else (lanes,)
+    return tuple(np.empty(lead + shape, dtype=dt) for shape, dt in workspace_shapes(nd, nq))
+
+
 def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel,
                         seg_t0, seg_h, seg_steps, seg_graded, seg_dist, seg_uin, seg_post,
                         t_dist, horizon, saturate, u_min, u_max, clip, h_max, band_pct, metrics, out_dt,
@@ -687,313 +1177,65 @@ def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm,
     -------
     status : int, STATUS_OK or STATUS_DIVERGED (metrics NaN, records NaN from there)
     n_steps : int, steps taken
+
+    The step is :func:`continuous_lane`'s, with working arrays allocated here.
     """
-    nd = lam.size
-    nq = Aq.shape[0]
-    nz = nd + nq
-    s = level_per_state
-    state_limit = LEVEL_LIMIT / s
-    rows = np.empty((N_STEP_LEVELS, N_ROWS, nz))
-    coup = np.empty((N_STEP_LEVELS, N_COUPLINGS, 2, 4))
-    prop_m = np.empty((N_STEP_LEVELS, 4, nd))
-    prop_q = np.zeros((N_STEP_LEVELS, nq, nq))
-    prop_qb = np.zeros((N_STEP_LEVELS, 3, nq, 4))
-    x = x_init.copy()
-    z = np.zeros(nz)
-    x_new = np.empty(4)
-    z_new = np.empty(nz)
-    x_mid = np.empty(4)
-    u_mid = np.empty(2)
-    u_end = np.empty(2)
-    du0 = np.empty(2)
-    w = np.empty(4)
-    scr = np.empty((10, 4))
-    wst = np.empty((3, 4))
-    rbuf = np.empty(N_ROWS)
-    acc = np.empty(2)
-    xr = np.empty(4)
-    dur = np.empty(2)
-    # the switching mode and its effective loop
-    sat = np.zeros(2, dtype=np.int64)
-    held = np.zeros(4, dtype=np.int64)
-    lam_e = lam.copy()
-    bm_e = bm.copy()
-    Aq_e = Aq.copy()
-    Bq_e = Bq.copy()
-    c_e = c.copy()
-    Dn = Dc.copy()
-    v = np.empty(2)
-    pm = np.ones(2)
-    gm = np.empty(N_EVENTS)
-    ue = np.empty(2)
-    g1 = np.empty(N_EVENTS)
-    ga = np.empty(N_EVENTS)
-    switching = saturate or clip
-    n_events = 0
-    t_release = np.full(2, -np.inf)
-    sliding = np.zeros(2, dtype=np.bool_)
-    free_at_start = np.zeros(2, dtype=np.bool_)
-    band = np.array([band_pct / 100.0 * h_op[0], band_pct / 100.0 * h_op[1]])
-    # Simpson sums: IAE, ISE, ITAE per output; J, Jdev per input
-    iae = np.zeros(2)
-    ise = np.zeros(2)
-    itae = np.zeros(2)
-    jj = np.zeros(2)
-    jdev = np.zeros(2)
-    tv = np.zeros(2)
-    mp = np.zeros(2)
-    # last exit from the band: (t, value) of the node before, of the exit node, of the node after
-    ex_prev = np.zeros((2, 2))
-    ex_out = np.full((2, 2), -1.0)
-    ex_in = np.zeros((2, 2))
-    ex_has_prev = np.zeros(2, dtype=np.bool_)
-    pending = np.zeros(2, dtype=np.bool_)
-    lo = np.full(_N_SIG, np.inf)
-    hi = np.full(_N_SIG, -np.inf)
-    # Window of the last three nodes of the span (for the parabolic refinement).
-    win_t = np.zeros(3)
-    win_v = np.zeros((3, _N_SIG))
-    f0 = np.empty(_N_SIG)
-    fm = np.empty(_N_SIG)
-    f1 = np.empty(_N_SIG)
-    u_prev = np.empty(2)
-    ua = np.empty(2)
-    rec = y_rec.shape[0]
-    k_rec = 0
-    n_taken = 0
-    diverged = False
-    first_node = True
-    for sg in range(seg_t0.size):
-        d1 = seg_dist[sg, 0]
-        d2 = seg_dist[sg, 1]
-        post = seg_post[sg]
-        t = seg_t0[sg]
-        t_end = seg_t0[sg] + seg_h[sg] * seg_steps[sg]
-        if sg == seg_t0.size - 1:
-            t_end = horizon
-        h_target = seg_h[sg]
-        graded = seg_graded[sg]
-        # the mode at the segment start: a jump of the measurement may push a pump across a limit
-        _pump_voltages(x, z, Cm, Cq, s, d1, d2, h_op, Dc, w, du0)
-        if saturate:
-            for j in range(2):
-                uc = u_op[j] + du0[j]
-                sat[j] = 1 if uc > u_max else (-1 if uc < u_min else 0)
-        _mode_arrays(sat, held, lam, bm, Aq, Bq, channel, c, Dc, u_op, seg_uin[sg], u_min, u_max,
-                     lam_e, bm_e, Aq_e, Bq_e, c_e, Dn, v, pm)
-        _applied(du0, u_op, sat, saturate, u_min, u_max, ua)
-        _signals(w, x, s, u_op, ua, f0)
-        n_win = _visit(t, f0, post, band, 0, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
-                       ex_has_prev, pending, tv, u_prev, first_node)
-        first_node = False
-        # Positions within a span count in units of h/16: the graded steps (1, 1, 2, 4, 8 units),
-        # a sliding pump's steps (1 unit) and the plain steps (16 units, or the largest step that
-        # keeps the position aligned) all land on the span's grid and end on its end exactly.
-        pos = 0
-        units = 0
-        gi = 0
-        h = h_target
-        replan = True
-        while t < t_end - 1e-12 * max(1.0, t_end):
-            if replan:
-                n_span = max(1, int(math.ceil((t_end - t) / h_target - 1e-9)))
-                h = (t_end - t) / n_span
-                units = 16 * n_span
-                pos = 0
-                gi = 0
-                step_tables(lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, h, rows, coup, prop_m, prop_q, prop_qb)
-                replan = False
-            if graded and gi < 5:
-                level = GRADED_LEVELS[gi]
-                gi += 1
-            elif sliding[0] or sliding[1]:
-                level = 4
-            else:
-                level = 0
-                while pos % (16 >> level) != 0:
-                    level += 1
-            hs = h / 2.0 ** level
-            pos += 16 >> level
-            free_at_start[0] = sat[0] == 0
-            free_at_start[1] = sat[1] == 0
-            if pos >= units:
-                hs = t_end - t  # the last step ends on the segment's end exactly
-            _etdrk4_step(x, z, hs, rows[level], coup[level], prop_m[level], prop_q[level], prop_qb[level], mi, c_e,
-                         s, d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x_new, z_new,
-                         x_mid, u_mid, u_end)
-            n_taken += 1
-            if not (abs(x_new[0]) + abs(x_new[1]) + abs(x_new[2]) + abs(x_new[3]) < state_limit):
-                diverged = True
-                break
-            fired = -1
-            if switching:
-                _event_values(x_mid, u_mid, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c, gm, ue)
-                _event_values(x_new, u_end, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c, g1, ue)
-                th_lo = 1.0
-                for k in range(N_EVENTS):
-                    if k < 2 and sliding[k] and sat[k] != 0:
-                        continue  # a sliding pump is released at the step's end (below)
-                    if gm[k] > 0.0 or g1[k] > 0.0:
-                        # bisection on the dense output, in the half where the sign changes
-                        a_, b_ = (0.0, 0.5) if gm[k] > 0.0 else (0.5, 1.0)
-                        if n_events < MAX_LOCATED_EVENTS:
-                            for _ in range(_LOCATE_ITERATIONS):
-                                mid = 0.5 * (a_ + b_)
-                                _dense_at(mid, hs, x, z, lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, c_e, s, d1, d2, h_op,
-                                          Dc, pm[0], pm[1], scr, wst, w, xr, dur)
-                                _event_values(xr, dur, u_op, sat, held, saturate, clip, u_min, u_max, h_max, c, ga, ue)
-                                if ga[k] > 0.0:
-                                    b_ = mid
-                                else:
-                                    a_ = mid
-                        if b_ < th_lo:
-                            th_lo = b_
-                            fired = k
-                if fired >= 0 and th_lo < 1.0 and n_events < MAX_LOCATED_EVENTS:
-                    # cut the step at the switch and take it again
-                    hs = th_lo * hs
-                    step_tables(lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, hs, rows, coup, prop_m, prop_q, prop_qb)
-                    _etdrk4_step(x, z, hs, rows[0], coup[0], prop_m[0], prop_q[0], prop_qb[0], mi, c_e, s, d1, d2,
-                                 v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x_new, z_new, x_mid,
-                                 u_mid, u_end)
-                    n_events += 1
-                elif fired >= 0:
-                    n_events += 1
-            # recorded grid points in [t, t + hs)
-            while k_rec < rec and k_rec * out_dt < t + hs - 1e-9 * hs:
-                theta = (k_rec * out_dt - t) / hs
-                _dense_at(max(theta, 0.0), hs, x, z, lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, c_e, s, d1, d2, h_op, Dc,
-                          pm[0], pm[1], scr, wst, w, xr, dur)
-                _measure(xr, s, d1, d2, h_op, w)
-                _applied(dur, u_op, sat, saturate, u_min, u_max, ua)
-                y_rec[k_rec, 0] = w[0] + h_op[0]
-                y_rec[k_rec, 1] = w[1] + h_op[1]
-                u_rec[k_rec, 0] = u_op[0] + ua[0]
-                u_rec[k_rec, 1] = u_op[1] + ua[1]
-                for i in range(4):
-                    h_rec[k_rec, i] = xr[i]
-                k_rec += 1
-            # midpoint and end nodes
-            _measure(x_mid, s, d1, d2, h_op, w)
-            _applied(u_mid, u_op, sat, saturate, u_min, u_max, ua)
-            _signals(w, x_mid, s, u_op, ua, fm)
-            n_win = _visit(t + 0.5 * hs, fm, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
-                           ex_has_prev, pending, tv, u_prev, False)
-            _measure(x_new, s, d1, d2, h_op, w)
-            _applied(u_end, u_op, sat, saturate, u_min, u_max, ua)
-            _signals(w, x_new, s, u_op, ua, f1)
-            n_win = _visit(t + hs, f1, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
-                           ex_has_prev, pending, tv, u_prev, False)
-            # Simpson's rule over the step (IAE and ITAE split at the error's zero crossings)
-            wq = hs / 6.0
-            te = t + hs
-            for i in range(2):
-                m0, m1 = _abs_moments(f0[8 + i], fm[8 + i], f1[8 + i])
-                iae[i] += hs * m0
-                ise[i] += wq * (f0[i] * f0[i] + 4.0 * fm[i] * fm[i] + f1[i] * f1[i])
-                itae[i] += hs * (t * m0 + hs * m1)
-                a0 = f0[6 + i]
-                am = fm[6 + i]
-                a1 = f1[6 + i]
-                jj[i] += wq * (a0 * a0 + 4.0 * am * am + a1 * a1)
-                b0 = a0 - u_op[i]
-                bmm = am - u_op[i]
-                b1 = a1 - u_op[i]
-                jdev[i] += wq * (b0 * b0 + 4.0 * bmm * bmm + b1 * b1)
-            for i in range(_N_SIG):
-                f0[i] = f1[i]
-            t = te
-            x, x_new = x_new, x
-            z, z_new = z_new, z
-            du0[0] = u_end[0]
-            du0[1] = u_end[1]
-            changed = fired >= 0
-            if fired >= 0:
-                # the new mode: the switching element changes state, a new graded span starts
-                if fired < 2:
-                    uc = u_op[fired] + u_end[fired]
-                    if sat[fired] == 0:  # the limit it crossed
-                        sat[fired] = 1 if abs(uc - u_max) <= abs(uc - u_min) else -1
-                        if t - t_release[fired] < SLIDING_WINDOW * h_target:
-                            sliding[fired] = True
-                    else:
-                        sat[fired] = 0
-                        t_release[fired] = t
-                else:
-                    i = fired - 2
-                    if held[i] == 0:  # held exactly on the limit it reached
-                        held[i] = 1 if abs(x[i] - h_max[i]) <= abs(x[i]) else -1
-                        x[i] = h_max[i] if held[i] > 0 else 0.0
-                    else:
-                        held[i] = 0
-            if saturate:
-                for k in range(2):
-                    if k == fired:
-                        continue
-                    uc = u_op[k] + u_end[k]
-                    if sliding[k] and sat[k] != 0 and u_min < uc < u_max:
-                        sat[k] = 0  # a sliding pump is released at the end of its step
-                        t_release[k] = t
-                        changed = True
-                    elif sliding[k] and sat[k] == 0 and free_at_start[k]:
-                        sliding[k] = False  # a whole step free: it no longer slides
-            if changed:
-                _mode_arrays(sat, held, lam, bm, Aq, Bq, channel, c, Dc, u_op, seg_uin[sg], u_min, u_max,
-                             lam_e, bm_e, Aq_e, Bq_e, c_e, Dn, v, pm)
-                n_win = 0
-                graded = True
-                replan = True
-        if diverged:
-            break
-    if diverged:
-        for kk in range(k_rec, rec):
-            for i in range(2):
-                y_rec[kk, i] = np.nan
-                u_rec[kk, i] = np.nan
-            for i in range(4):
-                h_rec[kk, i] = np.nan
-        for i in range(N_METRICS):
-            metrics[i] = np.nan
-        return STATUS_DIVERGED, n_taken
-    # the end point T
-    while k_rec < rec:
-        y_rec[k_rec, 0] = s * x[0] + seg_dist[seg_t0.size - 1, 0]
-        y_rec[k_rec, 1] = s * x[1] + seg_dist[seg_t0.size - 1, 1]
-        u_rec[k_rec, 0] = f1[6]
-        u_rec[k_rec, 1] = f1[7]
-        for i in range(4):
-            h_rec[k_rec, i] = x[i]
-        k_rec += 1
-    for i in range(2):
-        y0 = h_op[i]
-        if ex_out[i, 0] < 0.0:
-            ts = 0.0
-        elif pending[i]:
-            ts = horizon - t_dist
-        else:
-            ts = _crossing(ex_prev[i, 0], ex_prev[i, 1], ex_out[i, 0], ex_out[i, 1], ex_in[i, 0], ex_in[i, 1],
-                           band[i], ex_has_prev[i]) - t_dist
-        metrics[i] = mp[i] / y0 * 100.0
-        metrics[2 + i] = ts
-        metrics[4 + i] = f1[i] / y0 * 100.0
-        metrics[6 + i] = iae[i]
-        metrics[8 + i] = ise[i]
-        metrics[10 + i] = itae[i]
-        metrics[12 + i] = jj[i]
-        metrics[14 + i] = jdev[i]
-        metrics[16 + i] = tv[i]
-    metrics[18] = min(min(lo[2], lo[3]), min(lo[4], lo[5]))
-    metrics[19] = max(max(hi[2], hi[3]), max(hi[4], hi[5]))
-    metrics[20] = min(lo[6], lo[7])
-    metrics[21] = max(hi[6], hi[7])
-    # a parabola through a kink at a limit must not refine past it
-    if saturate:
-        metrics[20] = max(metrics[20], u_min)
-        metrics[21] = min(metrics[21], u_max)
-    if clip:
-        metrics[18] = max(metrics[18], 0.0)
-        metrics[19] = min(metrics[19], s * max(max(h_max[0], h_max[1]), max(h_max[2], h_max[3])))
-    return STATUS_OK, n_taken
+    work = _workspace(lam.size, Aq.shape[0])
+    status, n_taken = continuous_lane(
+        c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel,
+        seg_t0, seg_h, seg_steps, seg_graded, seg_dist, seg_uin, seg_post, seg_t0.size,
+        t_dist, horizon, saturate, u_min, u_max, clip, h_max, band_pct, metrics, out_dt,
+        y_rec, u_rec, h_rec, y_rec.shape[0], *work)
+    return int(status), int(n_taken)
+
+
+# The per-lane inputs of continuous_lane, in its order, as simulate_continuous_lanes takes them.
+LANE_FIELDS = ("c", "u_op", "lam", "bm", "mi", "Cm", "Aq", "Bq", "Cq", "Dc", "channel", "seg_t0", "seg_h",
+               "seg_steps", "seg_graded", "seg_dist", "seg_uin", "seg_post", "n_seg", "t_dist", "horizon",
+               "saturate", "u_min", "u_max", "clip", "h_max")
+
+
+@njit(cache=True, fastmath=_FAST)
+def _lanes_loop(level_per_state, x_init, h_op, band_pct,
+                c, u_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel, seg_t0, seg_h, seg_steps, seg_graded, seg_dist,
+                seg_uin, seg_post, n_seg, t_dist, horizon, saturate, u_min, u_max, clip, h_max,
+                metrics, status, n_taken, rec2, rec4,
+                rows, coup, prop_m, prop_q, prop_qb, wz, wm, wq, wqb, w4, w2, w10, wi, wb, phw, sqw, rw, bw, vq):
+    """The lanes one after another through :func:`continuous_lane`, on one set of working arrays."""
+    for k in range(c.shape[0]):
+        st, n = continuous_lane(
+            c[k], level_per_state, x_init, h_op, u_op[k], lam[k], bm[k], mi[k], Cm[k], Aq[k], Bq[k], Cq[k], Dc[k],
+            channel[k], seg_t0[k], seg_h[k], seg_steps[k], seg_graded[k], seg_dist[k], seg_uin[k], seg_post[k],
+            n_seg[k], t_dist[k], horizon[k], saturate[k], u_min[k], u_max[k], clip[k], h_max[k], band_pct,
+            metrics[k], 1.0, rec2, rec2, rec4, 0,
+            rows, coup, prop_m, prop_q, prop_qb, wz, wm, wq, wqb, w4, w2, w10, wi, wb, phw, sqw, rw, bw, vq)
+        status[k] = st
+        n_taken[k] = n
+
+
+def simulate_continuous_lanes(lanes, level_per_state, x_init, h_op, band_pct):
+    """:func:`simulate_continuous` of many lanes (metrics only), one after another in one call.
+
+    Parameters
+    ----------
+    lanes : dict
+        The lanes' inputs by the names of :data:`LANE_FIELDS`, each with a leading lane axis
+        (:func:`heurtune.objectives.qtp.continuous.pack_lanes`); all lanes have the same numbers
+        of modal and dense controller states.
+    level_per_state, x_init, h_op, band_pct : as :func:`simulate_continuous`, shared.
+
+    Returns
+    -------
+    status : (L,) int64; metrics : (L, N_METRICS); n_taken : (L,) int64
+    """
+    L = lanes["c"].shape[0]
+    metrics = np.empty((L, N_METRICS))
+    status = np.empty(L, dtype=np.int64)
+    n_taken = np.empty(L, dtype=np.int64)
+    work = _workspace(lanes["lam"].shape[1], lanes["Aq"].shape[1])
+    _lanes_loop(float(level_per_state), x_init, h_op, float(band_pct), *[lanes[k] for k in LANE_FIELDS],
+                metrics, status, n_taken, np.empty((1, 2)), np.empty((1, 4)), *work)
+    return status, metrics, n_taken
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")

@@ -1,6 +1,10 @@
-"""CUDA kernel of the QTP closed loop: one GPU thread per lane (one candidate under one scenario).
+"""CUDA kernels of the QTP closed loop: one GPU thread per lane (one candidate under one scenario).
 
-The thread runs the loop of :func:`heurtune.objectives.qtp.kernels.simulate_loop` (metrics only)
+Two kernels. The continuous-time loop's (:func:`simulate_continuous_lanes`) calls
+:func:`heurtune.objectives.qtp.continuous_kernels.continuous_lane`, the per-lane step of the
+one-candidate and the batched CPU paths, compiled from its Python source as a device function
+together with every kernel function it reaches; its working arrays live in global memory, one
+set per lane. The sampled loop's (:func:`simulate_lanes`) runs the loop of :func:`heurtune.objectives.qtp.kernels.simulate_loop` (metrics only)
 on the lane-last arrays of :func:`heurtune.objectives.qtp.batch_kernels.simulate_batch`, so that
 neighbouring threads read neighbouring addresses. The plant step, the metric folds and their
 finishing come from the CPU kernels' own Python source, compiled a second time as CUDA device
@@ -20,9 +24,10 @@ import numpy as np
 
 from heurtune.core.errors import ConfigError
 from heurtune.objectives.qtp import batch_kernels as _batch
+from heurtune.objectives.qtp import continuous_kernels as _ck
 from heurtune.objectives.qtp import kernels as _kernels
 
-__all__ = ["available", "require", "simulate_lanes", "MAX_STATES", "THREADS_PER_BLOCK"]
+__all__ = ["available", "require", "simulate_lanes", "simulate_continuous_lanes", "MAX_STATES", "THREADS_PER_BLOCK"]
 
 # Controller states a thread holds (in local memory); FOLQI of Oustaloup order N has 2 (2N + 1).
 MAX_STATES = 64
@@ -35,6 +40,7 @@ _SHARED = {
     _batch: ("_rk4_fast",),
 }
 _KERNEL = None
+_CONTINUOUS_KERNEL = None
 
 
 try:  # the kernel names the module as a global (the CUDA simulator swaps that one)
@@ -60,16 +66,31 @@ def require() -> None:
                           "(pip install 'heurtune[gpu]'); none found here: use device 'cpu' or 'cpu-batch'")
 
 
-def _device_functions() -> dict:
-    """CUDA device versions of the functions in ``_SHARED``, compiled from their Python source.
+def _reachable(module, root: str) -> tuple:
+    """Names of the jitted functions of ``module`` that ``root`` calls, directly or not (with it)."""
+    found, todo = [], [root]
+    while todo:
+        name = todo.pop()
+        if name in found:
+            continue
+        found.append(name)
+        code = getattr(module, name).py_func.__code__
+        todo += [n for n in code.co_names if hasattr(getattr(module, n, None), "py_func")]
+    return tuple(found)
+
+
+def _device_functions(shared=None) -> dict:
+    """CUDA device versions of the functions in ``shared`` (module to names; default
+    ``_SHARED``), compiled from their Python source.
 
     Each function is rebuilt on one shared namespace in which the names of the others point to
     their device versions, so that calls between them stay on the GPU.
     """
+    shared = _SHARED if shared is None else shared
     namespace = {"math": math, "np": np}
-    for module in _SHARED:
+    for module in shared:
         namespace.update({k: v for k, v in vars(module).items() if k.isupper()})
-    for module, names in _SHARED.items():
+    for module, names in shared.items():
         for name in names:
             source = getattr(module, name).py_func
             fn = types.FunctionType(source.__code__, namespace, name, source.__defaults__, source.__closure__)
@@ -258,4 +279,61 @@ def simulate_lanes(*, P, level_per_state, h_init, h_op, ad, bd, state_input, Ad,
              metrics, status]
     blocks = (L + THREADS_PER_BLOCK - 1) // THREADS_PER_BLOCK
     _KERNEL[blocks, THREADS_PER_BLOCK](*args)
+    return status.copy_to_host(), metrics.copy_to_host()
+
+
+def _make_continuous_kernel():
+    lane = _device_functions({_ck: _reachable(_ck, "continuous_lane")})["continuous_lane"]
+
+    @cuda.jit
+    def kernel(level_per_state, x_init, h_op, band_pct,
+               c, u_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel, seg_t0, seg_h, seg_steps, seg_graded, seg_dist,
+               seg_uin, seg_post, n_seg, t_dist, horizon, saturate, u_min, u_max, clip, h_max,
+               metrics, status, n_taken, rec2, rec4,
+               rows, coup, prop_m, prop_q, prop_qb, wz, wm, wq, wqb, w4, w2, w10, wi, wb, phw, sqw, rw, bw, vq):
+        k = cuda.grid(1)
+        if k >= c.shape[0]:
+            return
+        st, n = lane(c[k], level_per_state, x_init, h_op, u_op[k], lam[k], bm[k], mi[k], Cm[k], Aq[k], Bq[k], Cq[k],
+                     Dc[k], channel[k], seg_t0[k], seg_h[k], seg_steps[k], seg_graded[k], seg_dist[k], seg_uin[k],
+                     seg_post[k], n_seg[k], t_dist[k], horizon[k], saturate[k], u_min[k], u_max[k], clip[k],
+                     h_max[k], band_pct, metrics[k], 1.0, rec2, rec2, rec4, 0,
+                     rows[k], coup[k], prop_m[k], prop_q[k], prop_qb[k], wz[k], wm[k], wq[k], wqb[k], w4[k], w2[k],
+                     w10[k], wi[k], wb[k], phw[k], sqw[k], rw[k], bw[k], vq[k])
+        status[k] = st
+        n_taken[k] = n
+
+    return kernel
+
+
+def simulate_continuous_lanes(lanes, level_per_state, x_init, h_op, band_pct):
+    """:func:`heurtune.objectives.qtp.continuous_kernels.simulate_continuous_lanes` on the GPU,
+    one thread a lane (same arguments).
+
+    Returns
+    -------
+    status : (L,) int64 ndarray
+    metrics : (L, N_METRICS) ndarray
+
+    Raises
+    ------
+    ConfigError
+        Without a GPU.
+    """
+    global _CONTINUOUS_KERNEL
+    require()
+    if _CONTINUOUS_KERNEL is None:
+        _CONTINUOUS_KERNEL = _make_continuous_kernel()
+    L = lanes["c"].shape[0]
+    metrics = cuda.device_array((L, _kernels.N_METRICS), dtype=np.float64)
+    status = cuda.device_array(L, dtype=np.int64)
+    n_taken = cuda.device_array(L, dtype=np.int64)
+    work = [cuda.device_array((L,) + shape, dtype=dtype)
+            for shape, dtype in _ck.workspace_shapes(lanes["lam"].shape[1], lanes["Aq"].shape[1])]
+    args = [float(level_per_state), cuda.to_device(np.ascontiguousarray(x_init, dtype=np.float64)),
+            cuda.to_device(np.ascontiguousarray(h_op, dtype=np.float64)), float(band_pct)]
+    args += [cuda.to_device(np.ascontiguousarray(lanes[name])) for name in _ck.LANE_FIELDS]
+    args += [metrics, status, n_taken, cuda.to_device(np.zeros((1, 2))), cuda.to_device(np.zeros((1, 4)))] + work
+    blocks = (L + THREADS_PER_BLOCK - 1) // THREADS_PER_BLOCK
+    _CONTINUOUS_KERNEL[blocks, THREADS_PER_BLOCK](*args)
     return status.copy_to_host(), metrics.copy_to_host()

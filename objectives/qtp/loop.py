@@ -560,7 +560,11 @@ class ClosedLoop:
         discrete controllers share their structure run as the lanes of one call of the batched
         kernel
         (:func:`heurtune.objectives.qtp.batch_kernels.simulate_batch` on the CPU, or
-        :func:`heurtune.objectives.qtp.gpu.simulate_lanes` with ``device="gpu"``).
+        :func:`heurtune.objectives.qtp.gpu.simulate_lanes` with ``device="gpu"``). The pairs
+        of continuous-time scenarios run as the lanes of
+        :func:`~heurtune.objectives.qtp.continuous_kernels.simulate_continuous_lanes` (or
+        :func:`heurtune.objectives.qtp.gpu.simulate_continuous_lanes`), whose per-lane step is
+        the one-candidate kernel's own (:func:`~heurtune.objectives.qtp.continuous_kernels.continuous_lane`).
 
         Parameters
         ----------
@@ -582,14 +586,18 @@ class ClosedLoop:
         metrics = np.full((n, S, _kernels.N_METRICS), np.nan)
         if n == 0 or S == 0:
             return diverged, metrics
-        steps = {}
+        steps, continuous = {}, []
         for s, sc in enumerate(scenarios):
-            if sc.continuous or sc.plant_substeps > 1:  # not batched (yet): one candidate at a time
+            if sc.continuous:
+                continuous.append(s)
+            elif sc.plant_substeps > 1:  # not batched (yet): one candidate at a time
                 for i, ctrl in enumerate(ctrls):
                     sim = self.run(ctrl, sc, settling_band=settling_band, record=False)
                     diverged[i, s], metrics[i, s] = sim.diverged, sim.metrics
-                continue
-            steps.setdefault((sc.dt, sc.n_steps), []).append(s)
+            else:
+                steps.setdefault((sc.dt, sc.n_steps), []).append(s)
+        if continuous:
+            self._run_continuous_lanes(ctrls, scenarios, continuous, float(settling_band), device, diverged, metrics)
         for (dt, n_steps), members in steps.items():
             groups = {}
             for i, dc in enumerate(discretise_many(ctrls, dt)):
@@ -606,6 +614,37 @@ class ClosedLoop:
                         diverged[i, s] = st != _kernels.STATUS_OK
                         metrics[i, s] = row
         return diverged, metrics
+
+    def _run_continuous_lanes(self, ctrls, scenarios, members, band, device, diverged, metrics):
+        """The continuous-time scenarios ``members`` of :meth:`run_batch`: every (controller,
+        scenario) pair is a lane of :func:`continuous_kernels.simulate_continuous_lanes` (or the
+        CUDA kernel with ``device="gpu"``), lanes of one controller structure per call; fills
+        ``diverged`` and ``metrics`` in place."""
+        forms = [_continuous.ContinuousController.from_linear(c) for c in ctrls]
+        plans = {s: scenarios[s].step_plan(self.kind) for s in members}
+        inputs = {}
+        for s in members:
+            coef, u_op, (saturate, u_lo, u_hi), clip, h_max = self._kernel_inputs(scenarios[s])
+            inputs[s] = (coef, u_op, float(scenarios[s].disturbance_time), float(scenarios[s].horizon),
+                         bool(saturate), float(u_lo), float(u_hi), bool(clip), np.asarray(h_max, dtype=np.float64))
+        groups = {}
+        for i, cc in enumerate(forms):
+            groups.setdefault((cc.lam.size, cc.Aq.shape[0]), []).append(i)
+        x_op = self.op.h * self._rho_g if self.plant_model == "qtp_bond_graph" else self.op.h
+        for members_i in groups.values():
+            pairs = [(i, s) for i in members_i for s in members]
+            lanes = _continuous.pack_lanes([forms[i] for i, _ in pairs], [plans[s] for _, s in pairs],
+                                           [inputs[s] for _, s in pairs])
+            if device == "gpu":
+                from heurtune.objectives.qtp import gpu
+
+                status, values = gpu.simulate_continuous_lanes(lanes, self._level_per_state, x_op, self.op.h, band)
+            else:
+                status, values, _ = _continuous_kernels.simulate_continuous_lanes(
+                    lanes, self._level_per_state, x_op, self.op.h, band)
+            for (i, s), st, row in zip(pairs, status, values):
+                diverged[i, s] = st != _kernels.STATUS_OK
+                metrics[i, s] = row
 
     def _simulate_lanes(self, pairs, by_scenario, dt, n_steps, band, device):
         """Pack ``pairs`` of (candidate, discrete controller, scenario index) of one structure,
