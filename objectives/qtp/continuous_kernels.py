@@ -675,8 +675,9 @@ _TANK_COEFS = ((0, 4, 6), (1, 5, 7), (2, 8, -1), (3, 9, -1))
 SLIDING_WINDOW = 0.125
 # Beyond this many located switches in one run, switches are taken at step ends without location.
 MAX_LOCATED_EVENTS = 500
-# Bisection steps of an event's location (2^-40 of a step).
-_LOCATE_ITERATIONS = 40
+# Bisection steps of an event's location: 2^-52 of a step, below the rounding of t, so that
+# runs whose states differ by rounding locate their switches within rounding of each other.
+_LOCATE_ITERATIONS = 52
 
 
 @njit(cache=True, fastmath=_FAST)
@@ -1033,9 +1034,10 @@ def continuous_lane(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm, Aq,
                     else:
                         held[i] = 0
             for k in range(2):
-                if k == fired or not sliding[k]:
+                if fired >= 0 or not sliding[k]:
                     continue
-                # a sliding pump at a step end: its output beyond the pinned limit decides
+                # a sliding pump at the end of a whole step (not one cut at another switch, whose
+                # length may be down to rounding): its output beyond the pinned limit decides
                 uc = u_op[k] + u_end[k]
                 ex = uc - u_max if pin[k] > 0 else u_min - uc
                 if sat[k] != 0:  # held over this step

@@ -24,18 +24,11 @@ import pytest
 
 from heurtune.core.errors import ConfigError
 from heurtune.objectives.qtp import gpu
-from heurtune.objectives.qtp.controllers import ControllerDesignError, LinearController
+from heurtune.objectives.qtp.controllers import LinearController
 from heurtune.objectives.qtp.kernels import METRIC_NAMES
 from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
 from heurtune.objectives.qtp.model import preset
-
-RTOL = 1e-12
-ESS_ATOL = 1e-10
-ESS = [METRIC_NAMES.index("ess1"), METRIC_NAMES.index("ess2")]
-JDEV = [METRIC_NAMES.index("Jdev1"), METRIC_NAMES.index("Jdev2")]
-J = [METRIC_NAMES.index("J1"), METRIC_NAMES.index("J2")]
-TV = [METRIC_NAMES.index("TV1"), METRIC_NAMES.index("TV2")]
-TV_RTOL = 1e-10
+from qtp_cases import RTOL, assert_metrics_close, stable_controllers
 
 SCENARIOS = {
     "nominal": Scenario(horizon=120.0, disturbance_time=20.0),
@@ -47,36 +40,6 @@ SCENARIOS = {
                                 limits="physical"),
     "coarse_step": Scenario(horizon=60.0, dt=0.05, disturbance_time=10.0),
 }
-
-
-def stable_controllers(loop, n, seed):
-    """n designable controllers with a stable linearised loop, drawn in the thesis bounds."""
-    from heurtune.objectives.qtp.controllers import decision_names, default_bounds
-
-    names = decision_names(loop.kind)
-    bounds = np.array([default_bounds(loop.kind)[k] for k in names])
-    rng = np.random.default_rng(seed)
-    out = []
-    while len(out) < n:
-        x = bounds[:, 0] + rng.random(len(names)) * (bounds[:, 1] - bounds[:, 0])
-        try:
-            ctrl = loop.controller(dict(zip(names, x)))
-        except ControllerDesignError:
-            continue
-        if loop.stability_margin(ctrl) < 0.0:
-            out.append(ctrl)
-    return out
-
-
-def assert_metrics_close(got, ref):
-    got, ref = np.asarray(got), np.asarray(ref)
-    assert np.array_equal(np.isnan(got), np.isnan(ref))
-    other = [j for j in range(len(METRIC_NAMES)) if j not in ESS + JDEV + TV]
-    np.testing.assert_allclose(got[..., other], ref[..., other], rtol=RTOL, atol=0.0)
-    np.testing.assert_allclose(got[..., TV], ref[..., TV], rtol=TV_RTOL, atol=0.0)
-    np.testing.assert_allclose(got[..., ESS], ref[..., ESS], rtol=0.0, atol=ESS_ATOL)
-    both = ~np.isnan(ref[..., JDEV])
-    assert np.all(np.abs(got[..., JDEV] - ref[..., JDEV])[both] <= RTOL * ref[..., J][both])
 
 
 @pytest.fixture(scope="module")
@@ -183,8 +146,9 @@ def test_runner_rejects_a_device_without_a_gpu(tmp_path, capsys, monkeypatch):
 _SIMULATED_GPU = r"""
 import json, sys
 import numpy as np
-sys.path.insert(0, sys.argv[1])
-from test_batch_kernels import SCENARIOS, stable_controllers
+sys.path[:0] = sys.argv[1:3]
+from test_batch_kernels import SCENARIOS
+from qtp_cases import stable_controllers
 from heurtune.objectives.qtp import gpu
 from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
 from heurtune.objectives.qtp.model import preset
@@ -212,7 +176,8 @@ def test_gpu_kernel_under_the_cuda_simulator():
     scenarios (saturation with noise and an input disturbance, physical limits), 300 steps."""
     env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1")
     here = os.path.dirname(__file__)
-    out = subprocess.run([sys.executable, "-c", _SIMULATED_GPU, here], env=env, capture_output=True, text=True,
+    tests = os.path.dirname(os.path.dirname(here))
+    out = subprocess.run([sys.executable, "-c", _SIMULATED_GPU, here, tests], env=env, capture_output=True, text=True,
                          timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
     res = json.loads(out.stdout.strip().splitlines()[-1])

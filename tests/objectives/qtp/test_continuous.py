@@ -27,14 +27,7 @@ from heurtune.objectives.qtp import continuous as cont
 from heurtune.objectives.qtp import continuous_kernels as ck
 from heurtune.objectives.qtp.loop import METRIC_NAMES, ClosedLoop, Scenario
 from heurtune.objectives.qtp.model import preset
-
-THESIS_MIN = dict(Q11=0.4431, Q22=0.3027, Q33=0.4434, Q44=1.5722, R11=4.2253, R22=2.5994,
-                  Ki1=1.7411, Ki2=7.1716, alpha1=0.9814, alpha2=0.8437)
-THESIS_NMP = dict(Q11=1.0788, Q22=1.0036, Q33=0.1676, Q44=1.7933, R11=3.6276, R22=3.7317,
-                  Ki1=6.9248, Ki2=2.6781, alpha1=0.8020, alpha2=0.8700)
-# Weakly damped (closed-loop poles -0.005 +- 1.14j) inside the thesis bounds: the issue's example.
-WEAK = dict(Q11=2.5, Q22=2.5, Q33=2.5, Q44=2.5, R11=0.1, R22=0.1, Ki1=8.0, Ki2=8.0, alpha1=1.8, alpha2=1.8)
-IOLQI_NMP = dict(Q11=2.4266, Q22=1.1754, Q33=0.1141, Q44=2.3565, R11=4.9639, R22=3.8190, Ki1=1.0003, Ki2=1.0205)
+from qtp_cases import IOLQI_NMP, THESIS_MIN, THESIS_NMP, WEAK
 
 T = 350.0
 TOL = 0.005
@@ -382,16 +375,18 @@ def test_saturation_and_overflow_located_inside_steps_match_an_independent_model
 def test_anti_windup_converges_to_the_sampled_loop_at_a_fine_step(case, gains, keys):
     """Conditional integration (a saturated pump's controller states held) in continuous time
     slides along the limit, a Filippov solution that no ODE solver resolves; the sampled loop
-    chatters towards the same solution as dt -> 0. Against the sampled loop at dt = 0.0005 s the
-    continuous loop at tolerance 0.005 is within the tolerance (measured 0.9e-3, 0.7e-3 and
-    1.1e-3 cm; the sampled loop at dt = 0.01 s: 1.8e-3, 0.8e-3 and 2.4e-3 cm), and J within
-    0.05 %. Sliding phases are simulated at h/16 and are first order (docs/model.md)."""
+    chatters towards the same solution as dt -> 0. Against the sampled loop at dt = 0.0005 s
+    (itself about 1e-4 cm off: first order, 1.8e-3 cm at dt = 0.01 s) the continuous loop at
+    tolerance 0.005 is within a fifth of the tolerance (measured 1.0e-4, 2.8e-5 and 5.6e-4 cm,
+    with the sliding pump pinned at its limit; the sampled loop at dt = 0.01 s: 1.8e-3, 0.8e-3
+    and 2.4e-3 cm), and J within 0.05 % (measured 4e-7). Sliding phases are simulated at h/16
+    and are first order in the controller states (docs/model.md)."""
     loop = ClosedLoop(preset(case), "folqi")
     ctrl = loop.controller(gains)
     fine = loop.run(ctrl, Scenario(dt=0.0005, **keys))
     sim = loop.run(ctrl, Scenario(tolerance=TOL, output_dt=0.1, **keys))
     assert not sim.diverged
-    assert np.abs(sim.h - fine.h[::200]).max() <= TOL
+    assert np.abs(sim.h - fine.h[::200]).max() <= 0.2 * TOL
     m, mf = dict(zip(METRIC_NAMES, sim.metrics)), dict(zip(METRIC_NAMES, fine.metrics))
     assert m["J1"] + m["J2"] == pytest.approx(mf["J1"] + mf["J2"], rel=5e-4)
     lo, hi = keys.get("saturation", (0.0, 10.0))
