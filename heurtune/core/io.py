@@ -39,7 +39,16 @@ def _umask() -> int:
     return mask
 
 
-def write_parquet(df, path) -> None:
-    """Write a DataFrame to parquet atomically."""
+def write_parquet(df, path, metadata: dict | None = None) -> None:
+    """Write a DataFrame to parquet atomically; ``metadata`` (bytes to bytes) joins the file's
+    schema metadata (the results folder keeps each part's fingerprint there)."""
     with atomic_path(path) as tmp:
-        df.to_parquet(tmp, index=False)
+        if metadata:
+            import pyarrow as pa
+            import pyarrow.parquet as pq
+
+            table = pa.Table.from_pandas(df, preserve_index=False)
+            table = table.replace_schema_metadata({**(table.schema.metadata or {}), **metadata})
+            pq.write_table(table, tmp)
+        else:
+            df.to_parquet(tmp, index=False)

@@ -3,7 +3,9 @@
 A schema maps keys to specs: a dict is a table with fixed keys; ``("map", spec)`` a table with
 free keys whose values follow spec; ``("list", spec)`` a list; ``("pair", NUMBER)`` two numbers;
 ``("choices", values)`` one of the values or a list of distinct ones; ``("oneof", specs)`` the
-first spec that fits; a tuple of strings the allowed values; ``None`` anything (checked
+first spec that fits; ``("range", spec, lo, hi, strict)`` a number of ``spec`` within [lo, hi]
+(``strict``: above lo), either end None for none (:func:`at_least`, :func:`positive`); a tuple
+of strings the allowed values; ``None`` anything (checked
 elsewhere); python types (``str``, ``int``, ``bool``) and ``NUMBER`` leaves.
 
 Every family's schema starts from :data:`COMMON_SCHEMA`, the keys the runner reads.
@@ -15,17 +17,34 @@ import math
 
 from heurtune.core.errors import ConfigError
 
-__all__ = ["NUMBER", "PAIR", "OPTIMISERS", "COMMON_SCHEMA", "MULTI_OBJECTIVE_SCHEMA", "check"]
+__all__ = ["NUMBER", "PAIR", "OPTIMISERS", "COMMON_SCHEMA", "MULTI_OBJECTIVE_SCHEMA", "check", "at_least",
+           "positive", "within"]
 
 NUMBER = (int, float)
 PAIR = ("pair", NUMBER)
 
+
+def at_least(spec, lo):
+    """A value of ``spec`` (``int`` or ``NUMBER``) that is at least ``lo``."""
+    return ("range", spec, lo, None, False)
+
+
+def positive(spec=NUMBER):
+    """A value of ``spec`` above 0."""
+    return ("range", spec, 0, None, True)
+
+
+def within(spec, lo, hi):
+    """A value of ``spec`` in [lo, hi]."""
+    return ("range", spec, lo, hi, False)
+
+
 # Each optimiser's settings are validated by the registry (they differ per optimiser); `cases`
 # restricts an optimiser to some of the experiment's cases (default: all).
 OPTIMISERS = ("list", {
-    "name": str, "settings": ("map", None), "max_epochs": int, "max_evals": int,
-    "max_time": NUMBER, "tol": NUMBER, "tol_window": int,
-    "constraint_handling": ("deb", "penalty"), "penalty": NUMBER, "bound_handling": ("clip", "reflect"),
+    "name": str, "settings": ("map", None), "max_epochs": at_least(int, 0), "max_evals": at_least(int, 1),
+    "max_time": positive(), "tol": at_least(NUMBER, 0), "tol_window": at_least(int, 1),
+    "constraint_handling": ("deb", "penalty"), "penalty": positive(), "bound_handling": ("clip", "reflect"),
     "cases": ("list", str),
 })
 
@@ -34,8 +53,8 @@ OPTIMISERS = ("list", {
 COMMON_SCHEMA = {
     "description": str,
     "extends": str,
-    "runs": int,
-    "seed": int,
+    "runs": at_least(int, 1),
+    "seed": at_least(int, 0),
     # Plugins (optimisers, plant families): .py paths (relative ones from the config's folder)
     # or importable module names.
     "plugins": ("list", str),
@@ -48,6 +67,8 @@ MULTI_OBJECTIVE_SCHEMA = {"objectives": ("list", str), "reference_point": ("list
 
 
 def _describe(spec) -> str:
+    if isinstance(spec, tuple) and spec and spec[0] == "range":
+        return _describe(spec[1])
     if isinstance(spec, tuple) and spec and spec[0] in ("list", "map", "pair", "oneof"):
         return {"list": "a list", "map": "a table", "pair": "two numbers [a, b]", "oneof": "one of several forms"}[spec[0]]
     if isinstance(spec, tuple):
@@ -105,6 +126,14 @@ def check(value, spec, where: str, src: str):
                 fail(f"got {v!r}; allowed: {', '.join(spec[1])}")
         if not values or len(set(values)) != len(values):
             fail(f"give one or more distinct values, got {value!r}")
+        return
+    if isinstance(spec, tuple) and spec and spec[0] == "range":
+        _, base, lo, hi, strict = spec
+        check(value, base, where, src)
+        if lo is not None and (value <= lo if strict else value < lo):
+            fail(f"must be {'>' if strict else '>='} {lo}, got {value!r}")
+        if hi is not None and value > hi:
+            fail(f"must be <= {hi}, got {value!r}")
         return
     if isinstance(spec, tuple) and spec and spec[0] == "pair":
         if not (isinstance(value, list) and len(value) == 2 and all(_is_number(v) for v in value)):

@@ -41,7 +41,6 @@ import hashlib
 import json
 import math
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -67,12 +66,22 @@ from heurtune.core.plugins import load_plugins
 from heurtune.core.problem import StructureWarning, problem_fingerprint
 from heurtune.runner.config import list_experiments, load_config
 from heurtune.runner.progress import HEARTBEAT_SUFFIX, Heartbeat, Progress, clear_heartbeats
+from heurtune.runner.resultdir import METADATA_KEY, FolderLock, check_parts, clear_folder, differing_keys, \
+    fingerprint_of, read_part, run_fingerprint, set_aside_file
 from heurtune.runner.workplan import borrow_step_cost, calibrate, check_evaluation_time, estimate_line, \
     planned_evaluations
 
 __all__ = ["RunSpec", "plan", "execute", "problem_id", "run_status", "RUN_STATUSES", "run_experiment", "summary_table",
            "status_table",
            "main"]
+
+# The most runs one command may plan (each costs a few kB of bookkeeping before it starts).
+MAX_PLANNED_RUNS = 1_000_000
+# An optimiser's population may use at most this share of the machine's memory (estimated).
+MEMORY_SHARE = 0.5
+# Bytes per candidate of a population, estimated: its vector, constraints and objectives, a
+# few working copies, and the evaluation's arrays.
+_BYTES_PER_VALUE = 8 * 16
 
 # Budgets of --smoke: the same problem, a quick check.
 SMOKE_RUNS = 2
@@ -124,8 +133,15 @@ def plan(exp, *, runs=None, max_epochs=None, seed=None, smoke=False) -> list:
         raise ConfigError(f"{exp.name}: no [[optimisers]] to run")
     n_runs = runs if runs is not None else exp.config.get("runs", 10)
     root = seed if seed is not None else exp.config.get("seed", 0)
+    if n_runs < 1 or root < 0:
+        raise ConfigError(f"{exp.name}: runs must be >= 1 and seed >= 0, got runs = {n_runs}, seed = {root}")
     if smoke:
         n_runs = min(n_runs, SMOKE_RUNS)
+    n_planned = n_runs * sum(len(exp.optimisers_of(c)) for c in exp.cases)
+    if n_planned > MAX_PLANNED_RUNS:
+        raise ConfigError(f"{exp.name}: {n_planned:,} runs planned (runs = {n_runs:,}); at most "
+                          f"{MAX_PLANNED_RUNS:,} in one command: lower runs or split the experiment")
+    _check_population_memory(exp)
     specs = []
     for ci, case in enumerate(exp.cases):
         for oi, opt in exp.optimisers_of(case):
@@ -148,6 +164,34 @@ def plan(exp, *, runs=None, max_epochs=None, seed=None, smoke=False) -> list:
         for bi, name in enumerate(exp.baseline_names(case)):
             specs.append(RunSpec(case, ci, name, len(exp.optimisers) + bi, 0, {}, {}, root, baseline=True))
     return specs
+
+
+def _physical_memory() -> int | None:
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _check_population_memory(exp) -> None:
+    """Refuse an optimiser whose population cannot fit in memory (estimated from its sizes:
+    ``n``, ``n_offspring``, ``batch``, ``starts``), before anything is written."""
+    total = _physical_memory()
+    if total is None:
+        return
+    for i, opt in enumerate(exp.optimisers):
+        settings = dataclasses.asdict(opt["settings"]) if dataclasses.is_dataclass(opt["settings"]) else {}
+        sizes = {k: v for k, v in settings.items() if k in ("n", "n_offspring", "batch", "starts")
+                 and isinstance(v, int) and not isinstance(v, bool)}
+        if not sizes:
+            continue
+        key, size = max(sizes.items(), key=lambda kv: kv[1])
+        width = max(len(exp.problem(c).names) + 16 for c in opt.get("cases", exp.cases))
+        need = size * width * _BYTES_PER_VALUE
+        if need > MEMORY_SHARE * total:
+            raise ConfigError(f"{exp.name}: optimisers[{i}].settings.{key} = {size:,} needs about "
+                              f"{need / 2**30:,.0f} GiB for its population; this machine has "
+                              f"{total / 2**30:,.0f} GiB: lower it")
 
 
 # Per-process cache: workers rebuild each case's problem once.
@@ -314,7 +358,13 @@ class StartsFile(Checkpoint):
         """The saved solves (a list of records); none when the file does not exist."""
         if not self.path.exists():
             return []
-        df = pd.read_parquet(self.path)
+        try:
+            df = pd.read_parquet(self.path)
+            if len(df) and "run_key" not in df.columns:
+                raise ValueError("no run_key column")
+        except Exception as exc:  # truncated, empty or not parquet: its solves are redone
+            set_aside_file(self.path, f"unreadable ({type(exc).__name__})")
+            return []
         if len(df) and (df["run_key"] != self.key).any():
             raise ConfigError(f"{self.path} holds local solves of another configuration of this run; "
                               "use --fresh or another --out")
@@ -463,6 +513,28 @@ def _versions() -> dict:
 PLANNED_FILE = "planned.json"
 
 
+def _digest(fingerprint: dict) -> str:
+    """A short hash of a run's fingerprint (``planned.json`` keeps these for ``--status``)."""
+    return hashlib.sha256(json.dumps(fingerprint, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _counted(parts: Path, names, digests: dict | None) -> set:
+    """The runs among ``names`` whose run part reads and, where ``digests`` says what the plan
+    expects, carries that fingerprint."""
+    out = set()
+    for name in names:
+        path = parts / f"{name}.run.parquet"
+        if not path.exists():
+            continue
+        try:
+            found = fingerprint_of(path)
+        except Exception:  # damaged: not counted (the next run sets it aside)
+            continue
+        if digests is None or (found is not None and _digest(found) == digests.get(name)):
+            out.add(name)
+    return out
+
+
 def status_table(root, name: str | None = None) -> pd.DataFrame:
     """The result folders under ``root`` (those with a ``parts/`` folder; only ``root/name``
     when a name is given): runs done, runs planned by the last command that ran there, and
@@ -481,12 +553,17 @@ def status_table(root, name: str | None = None) -> pd.DataFrame:
     for folder in folders:
         if not (folder / "parts").is_dir():
             raise ConfigError(f"{folder} holds no experiment results (no parts/ folder)")
-        done = _finished(folder / "parts")
         planned_file = folder / PLANNED_FILE
-        planned = json.loads(planned_file.read_text()) if planned_file.exists() else None
-        runs = None if planned is None else planned["runs"]
+        try:
+            planned = json.loads(planned_file.read_text()) if planned_file.exists() else None
+            runs = None if planned is None else list(planned["runs"])
+        except (ValueError, KeyError, TypeError):
+            print(f"warning: {planned_file} is damaged; counting the run parts alone", file=sys.stderr)
+            planned, runs = None, None
+        names = sorted(_finished(folder / "parts")) if runs is None else runs
+        done = _counted(folder / "parts", names, None if planned is None else planned.get("fingerprints"))
         rows.append(dict(folder=str(folder), experiment=planned["experiment"] if planned else folder.name,
-                         done=len(done) if runs is None else len(done & set(runs)),
+                         done=len(done),
                          planned=None if runs is None else len(runs),
                          complete=runs is not None and set(runs) <= done and (folder / "runs.parquet").exists()))
     return pd.DataFrame(rows, columns=["folder", "experiment", "done", "planned", "complete"])
@@ -506,10 +583,11 @@ def _finished(parts: Path) -> set:
     return {p.name[:-len(".run.parquet")] for p in parts.glob("*.run.parquet")}
 
 
-def _persist(parts: Path, spec: RunSpec, row: dict, hist: pd.DataFrame):
-    # History first; the run file marks the run finished.
-    write_parquet(hist, parts / f"{spec.part_name}.history.parquet")
-    write_parquet(pd.DataFrame([row]), parts / f"{spec.part_name}.run.parquet")
+def _persist(parts: Path, spec: RunSpec, row: dict, hist: pd.DataFrame, fingerprint: dict):
+    # History first; the run file marks the run finished. Both carry what made them.
+    meta = {METADATA_KEY: json.dumps(fingerprint, sort_keys=True).encode()}
+    write_parquet(hist, parts / f"{spec.part_name}.history.parquet", meta)
+    write_parquet(pd.DataFrame([row]), parts / f"{spec.part_name}.run.parquet", meta)
     (parts / f"{spec.part_name}{HEARTBEAT_SUFFIX}").unlink(missing_ok=True)
 
 
@@ -546,31 +624,65 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     out_dir = Path(out) if out else Path("results") / exp.name
     parts = out_dir / "parts"
     specs = plan(exp, runs=runs, max_epochs=max_epochs, seed=seed, smoke=smoke)
-    done = set() if fresh or not parts.is_dir() else _finished(parts)
-    pending = [s for s in specs if s.part_name not in done]
+    ids = {case: problem_id(exp, case) for case in exp.cases}
+    identities = {case: exp.problem(case).identity() for case in exp.cases}
+    fingerprints = {s.part_name: run_fingerprint(s, identities[s.case]) for s in specs}
+    if out_dir.exists() and not out_dir.is_dir():
+        raise ConfigError(f"--out {out_dir} is a file, not a folder")
+    # A first look, writing nothing: parts of another config are refused here.
+    if not fresh and parts.is_dir():
+        check_parts(parts, specs, fingerprints, dry=True).refuse_mismatch(out_dir)
+    done = set() if fresh or not parts.is_dir() else {s.part_name for s in specs} & _finished(parts)
     # Measured before anything is written: a config too costly to evaluate is refused here.
-    calibrations, shapes = _calibrate(exp, config, pending, force=force)
-    if fresh and out_dir.exists():
-        shutil.rmtree(out_dir)
+    calibrations, shapes = _calibrate(exp, config, [s for s in specs if s.part_name not in done], force=force)
+    _make_folder(out_dir)
+    lock = FolderLock(out_dir)
+    lock.acquire()
+    try:
+        return _run_locked(exp, config, specs, fingerprints, ids, out_dir, parts, fresh=fresh, jobs=jobs,
+                           backend=backend, scheduler=scheduler, executor=executor, device=device,
+                           lockstep=lockstep, progress_stream=progress_stream, figures=figures,
+                           calibrations=calibrations, shapes=shapes,
+                           plan_key=dict(max_epochs=max_epochs, seed=seed, smoke=smoke))
+    finally:
+        lock.release()
+
+
+def _make_folder(out_dir: Path) -> None:
+    """Create the output folder, or say in one line why it cannot be."""
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        probe = out_dir / f".heurtune-write-test-{os.getpid()}"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        raise ConfigError(f"cannot write in {out_dir}: {exc.strerror or exc}") from None
+
+
+def _run_locked(exp, config, specs, fingerprints, ids, out_dir, parts, *, fresh, jobs, backend, scheduler,
+                executor, device, lockstep, progress_stream, figures, calibrations, shapes, plan_key):
+    """:func:`run_experiment` once it holds the folder's lock: check the parts, run what is
+    missing, gather."""
+    if fresh:
+        clear_folder(out_dir)
     parts.mkdir(parents=True, exist_ok=True)
-    # What makes earlier runs reusable (a different --runs only adds or leaves out runs).
-    plan_key = dict(max_epochs=max_epochs, seed=seed, smoke=smoke)
-    meta_path = out_dir / "plan.json"
-    if meta_path.exists():
-        old = json.loads(meta_path.read_text())
-        if old != plan_key:
-            raise ConfigError(f"{out_dir} holds runs of a different plan ({old}); use --fresh or another --out")
-    else:
-        with atomic_path(meta_path) as tmp:
-            tmp.write_text(json.dumps(plan_key))
+    check = check_parts(parts, specs, fingerprints)
+    check.refuse_mismatch(out_dir)  # written meanwhile by another config
+    done = check.reusable
+    pending = [s for s in specs if s.part_name not in done]
+    if any(s.case not in calibrations and not s.baseline for s in pending):  # parts set aside
+        more, more_shapes = _calibrate(exp, config, [s for s in pending if s.case not in calibrations], force=True)
+        calibrations, shapes = {**calibrations, **more}, {**shapes, **more_shapes}
+    with atomic_path(out_dir / "plan.json") as tmp:
+        tmp.write_text(json.dumps(plan_key))
     with atomic_path(out_dir / PLANNED_FILE) as tmp:  # what --status compares the parts with
-        tmp.write_text(json.dumps(dict(experiment=exp.name, runs=[s.part_name for s in specs])))
+        tmp.write_text(json.dumps(dict(experiment=exp.name, runs=[s.part_name for s in specs],
+                                       fingerprints={s.part_name: _digest(fingerprints[s.part_name]) for s in specs})))
     structure_warnings = exp.structure_warnings()
     for case, msg in structure_warnings.items():
         print(f"warning: {case}: {msg}", file=sys.stderr)
     clear_heartbeats(parts)
     kept = [pd.read_parquet(parts / f"{s.part_name}.run.parquet").iloc[0] for s in specs if s.part_name in done]
-    ids = {case: problem_id(exp, case) for case in exp.cases}
     on_pool = backend != "dask" and executor is None
     workers = (jobs if on_pool or not pending else  # a Dask cluster is asked only when there is work
                _dask_workers(scheduler) if executor is None else getattr(executor, "_max_workers", jobs))
@@ -591,10 +703,10 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
             if plan_line:
                 print(plan_line, file=progress_stream)
             bar.start()
-            _run_pending(config, pending, parts, bar, jobs=jobs, backend=backend, scheduler=scheduler,
+            _run_pending(config, pending, parts, bar, fingerprints, jobs=jobs, backend=backend, scheduler=scheduler,
                          executor=executor, lockstep=lockstep)
         bar.close()  # the line ends before the summary
-        _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, figures=figures)
+        _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, fingerprints, figures=figures)
     except (KeyboardInterrupt, Terminated) as exc:
         kill_workers()
         kept = len(_finished(parts) & {s.part_name for s in specs})
@@ -645,16 +757,18 @@ def _dask_workers(scheduler) -> int:
         return pool.workers
 
 
-def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler, executor=None, lockstep=False):
+def _run_pending(config, pending, parts, bar, fingerprints, *, jobs, backend, scheduler, executor=None,
+                 lockstep=False):
     for spec in [s for s in pending if s.baseline]:  # analytic designs: one evaluation each
         row, hist = execute(config, spec)
-        _persist(parts, spec, row, hist)
+        _persist(parts, spec, row, hist, fingerprints[spec.part_name])
         bar.update(row, spec.part_name)
     pending = [s for s in pending if not s.baseline]
     if not pending:
         return
     if lockstep:
-        _run_lockstep(config, pending, parts, bar, jobs=jobs, backend=backend, scheduler=scheduler, executor=executor)
+        _run_lockstep(config, pending, parts, bar, fingerprints, jobs=jobs, backend=backend, scheduler=scheduler,
+                      executor=executor)
         return
     whole_runs = backend == "dask" or executor is not None or (jobs > 1 and len(pending) >= jobs)
     if not whole_runs:
@@ -663,7 +777,7 @@ def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler, execu
             prob = _problem(config, spec.case)
             with Evaluator(prob, n_jobs=jobs) as ev:
                 row, hist = execute(config, spec, ev, parts=parts)
-            _persist(parts, spec, row, hist)
+            _persist(parts, spec, row, hist, fingerprints[spec.part_name])
             bar.update(row, spec.part_name)
         return
     # Whole runs on the workers (each evaluating in its own process); the kernels are warmed
@@ -673,14 +787,14 @@ def _run_pending(config, pending, parts, bar, *, jobs, backend, scheduler, execu
     try:
         with pool:
             for i, (row, hist) in pool.imap_unordered(functools.partial(execute, config, parts=parts), pending):
-                _persist(parts, pending[i], row, hist)
+                _persist(parts, pending[i], row, hist, fingerprints[pending[i].part_name])
                 bar.update(row, pending[i].part_name)
     except BaseException:
         pool.abort()
         raise
 
 
-def _run_lockstep(config, pending, parts, bar, *, jobs, backend, scheduler, executor=None):
+def _run_lockstep(config, pending, parts, bar, fingerprints, *, jobs, backend, scheduler, executor=None):
     """All pending runs in lockstep (:class:`heurtune.core.lockstep.Lockstep`): each generation,
     the candidates of every run of a case are evaluated as one batch, spread over the workers
     of one pool that holds every case's problem."""
@@ -699,20 +813,31 @@ def _run_lockstep(config, pending, parts, bar, *, jobs, backend, scheduler, exec
             for i, (res, wall) in hub.run(targets):
                 spec = pending[i]
                 row, hist = run_record(_problem(config, spec.case), spec, res, wall, parts=parts)
-                _persist(parts, spec, row, hist)
+                _persist(parts, spec, row, hist, fingerprints[spec.part_name])
                 bar.update(row, spec.part_name)
     except BaseException:
         pool.abort()
         raise
 
 
-def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, *, figures):
+def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, fingerprints, *, figures):
     rows, hists = [], []
     for spec in specs:
         run_file = parts / f"{spec.part_name}.run.parquet"
-        if run_file.exists():
-            rows.append(pd.read_parquet(run_file))
-            hists.append(pd.read_parquet(parts / f"{spec.part_name}.history.parquet"))
+        if not run_file.exists():
+            continue
+        try:  # each part against its file name and the run the config plans under it
+            row, found = read_part(run_file, spec)
+            hist, hist_found = read_part(parts / f"{spec.part_name}.history.parquet")
+        except (ValueError, FileNotFoundError) as exc:
+            raise ConfigError(f"{run_file} changed while the experiment ran ({exc}); run the same command "
+                              "again to redo it") from None
+        keys = differing_keys(found or {}, fingerprints[spec.part_name])
+        if keys or hist_found != found:
+            raise ConfigError(f"{run_file} was written by another config while the experiment ran "
+                              f"(differing: {', '.join(keys) or 'history'}); run the same command again")
+        rows.append(row)
+        hists.append(hist)
     runs = pd.concat(rows, ignore_index=True)
     runs.insert(0, "experiment", exp.name)
     runs.insert(3, "controller", [exp.controller_of(c) for c in runs["case"]])
@@ -739,7 +864,12 @@ def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warning
     tables = []
     for _, r in best.iterrows():
         prob = exp.problem(r["case"])
-        m = prob.margins(np.array([r[n] for n in prob.names]))
+        try:
+            m = prob.margins(np.array([r[n] for n in prob.names]))
+        except Exception as exc:  # a best candidate whose design fails: recorded, not raised
+            print(f"warning: {r['case']}: no margins for the best {r['algorithm']} run ({type(exc).__name__}: "
+                  f"{exc})", file=sys.stderr)
+            m = pd.DataFrame([dict(failure=f"{type(exc).__name__}: {exc}")])
         if m is not None:
             tables.append(m.assign(experiment=exp.name, case=r["case"], algorithm=r["algorithm"], run=r["run"]))
     if tables:
@@ -921,10 +1051,11 @@ def run(argv=None) -> int:
             return 0
         if not args.name:
             raise ConfigError("name an experiment (--list shows them)")
-        for key in ("runs", "max_epochs", "jobs"):
+        for key in ("runs", "max_epochs", "jobs", "seed"):
             value = getattr(args, key)
-            if value is not None and value < (0 if key == "max_epochs" else 1):
-                raise ConfigError(f"--{key.replace('_', '-')} must be {'>= 0' if key == 'max_epochs' else '>= 1'}, got {value}")
+            if value is not None and value < (0 if key in ("max_epochs", "seed") else 1):
+                least = ">= 0" if key in ("max_epochs", "seed") else ">= 1"
+                raise ConfigError(f"--{key.replace('_', '-')} must be {least}, got {value}")
         if args.backend not in BACKENDS:
             raise ConfigError(f"unknown backend {args.backend!r}; allowed: {', '.join(BACKENDS)}")
         if args.backend == "dask" and not args.scheduler:

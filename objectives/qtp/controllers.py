@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import math
+
 import numpy as np
 import scipy.linalg
 import scipy.linalg.lapack
@@ -39,6 +41,7 @@ __all__ = [
     "CONTROLLER_TYPES",
     "decision_names",
     "default_bounds",
+    "variable_domain",
     "build_controller",
     "PAIRINGS",
     "dc_gain",
@@ -348,6 +351,18 @@ def decision_names(kind: str) -> tuple:
 # Bounds of the LQI's weights on the integrated errors (see docs/model.md, "Integral action"
 # for the sweep they come from).
 LQI_INTEGRAL_WEIGHT_BOUNDS = (1e-4, 10.0)
+
+
+def variable_domain(name: str) -> tuple:
+    """Where a tuning variable is meaningful: ``(low, strict)``, the variable at least ``low``
+    (above it when ``strict``). LQR state weights (Q, Qi) and LADR's observer and gain
+    parameters (beta, b, r) cannot be negative; input weights (R), integral gains (Ki) and
+    fractional orders (alpha) must be positive."""
+    if name.startswith(("R", "Ki", "alpha")):
+        return 0.0, True
+    if name.startswith(("Q", "beta", "b", "r")):
+        return 0.0, False
+    return -math.inf, False
 
 
 def default_bounds(kind: str) -> dict:

@@ -16,10 +16,12 @@ from heurtune.core.errors import ConfigError
 from heurtune.core.families import register_family
 from heurtune.core.problem import ExperimentBase
 from heurtune.core.robust import ROBUST_SCHEMA, robust_tuning
-from heurtune.core.schema import COMMON_SCHEMA, MULTI_OBJECTIVE_SCHEMA, NUMBER, PAIR
+from heurtune.core.schema import COMMON_SCHEMA, MULTI_OBJECTIVE_SCHEMA, NUMBER, PAIR, within
 from heurtune.objectives.qtp.controllers import (
     CONTROLLER_TYPES, PAIRED_TYPES, dc_gain, decision_names, default_bounds, integral_action_obstruction,
+    variable_domain,
 )
+from heurtune.objectives.qtp.oustaloup import MAX_OUSTALOUP_ORDER
 from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
 from heurtune.objectives.qtp.model import QTPParams, linearise, preset
 from heurtune.objectives.qtp.problem import OBJECTIVES, WEIGHTED_METRICS, Problem
@@ -47,7 +49,7 @@ SCHEMA = dict(COMMON_SCHEMA, **{
     },
     "controller": {
         "type": ("choices", ("folqi", "iolqi", "ladr", "lqi")),  # one, or a list (one case per type)
-        "oustaloup_order": int,
+        "oustaloup_order": within(int, 1, MAX_OUSTALOUP_ORDER),
         "band": PAIR,
         "realisation": ("direct", "integer_split"),
         # a digital controller: sampled with zero-order hold every sample_time s (the sampled loop)
@@ -110,6 +112,9 @@ class Experiment(ExperimentBase):
         plant_cases = tuple(plant.get("cases", ["min", "nmp"]))
         if not plant_cases:
             raise ConfigError(f"{self.name}: plant.cases must name at least one case")
+        repeated = sorted({c for c in plant_cases if plant_cases.count(c) > 1})
+        if repeated:
+            raise ConfigError(f"{self.name}: plant.cases names {repeated[0]!r} more than once")
         self._custom = plant.get("custom", {})
         for case in plant_cases:
             self._plant(case)  # validate early
@@ -120,6 +125,10 @@ class Experiment(ExperimentBase):
             band=tuple(ctrl.get("band", (1e-3, 1e3))),
             realisation=ctrl.get("realisation", "direct"),
         )
+        lo, hi = self.controller_options["band"]
+        if not (0.0 < lo < hi < math.inf):
+            raise ConfigError(f"{self.name}: controller.band must be [low, high] rad/s with 0 < low < high, "
+                              f"both finite, got {[lo, hi]}")
         self.pairing = ctrl.get("pairing", "diagonal")
         if isinstance(self.pairing, dict):
             unknown = [c for c in self.pairing if c not in plant_cases]
@@ -178,6 +187,12 @@ class Experiment(ExperimentBase):
         # config extending a FOLQI one) are ignored; a name no controller knows is an error.
         known = {n for kind in CONTROLLER_TYPES for n in decision_names(kind)}
         self.bounds = self._override_bounds(bounds, prob.get("bounds", {}), known, names)
+        for name, (lo, _) in self.bounds.items():
+            low, strict = variable_domain(name)
+            if lo < low or (strict and lo == low):
+                raise ConfigError(f"{self.name}: problem.bounds.{name}: the lower bound must be "
+                                  f"{'>' if strict else '>='} {low:g}, got {lo} (R, Ki and alpha are positive; "
+                                  "Q, Qi, beta, b and r are not negative)")
         self._load_optimisers(config)
         self._check_multi_objective_optimisers()
         self.baselines = self._fixed_controllers(config.get("baselines", []))

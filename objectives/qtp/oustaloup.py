@@ -30,6 +30,9 @@ from heurtune.core.errors import ConfigError
 __all__ = ["oustaloup_zpk", "FractionalIntegrator", "fractional_integrator", "REALISATIONS"]
 
 REALISATIONS = ("direct", "integer_split")
+# The largest Oustaloup order a config may ask for: 2N + 1 states per fractional integrator,
+# 2 (2N + 1) per FOLQI (82 at 20, beyond the GPU kernel's 64); the thesis uses 5.
+MAX_OUSTALOUP_ORDER = 20
 _INTEGER_TOL = 1e-12
 
 

@@ -117,7 +117,8 @@ def test_command_errors_are_one_line(args, message, capsys):
 
 def test_plan_change_is_refused(smoke, capsys):
     assert run(["cs_folqi_qtp", "--out", str(smoke), "--max-epochs", "1"]) == 2
-    assert "different plan" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "different config" in err and "budget.max_epochs" in err and err.count("\n") == 1
 
 
 def test_all_shipped_experiments_plan(tmp_path):

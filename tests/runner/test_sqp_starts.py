@@ -86,11 +86,12 @@ def test_interrupted_run_resumes_without_resolving_finished_starts(reference, mo
     assert list(saved["start"]) == [0, 1, 2, 3]
     assert not (out / "parts" / "nmp__0-sqp_multistart__0000.run.parquet").exists()
 
-    # The same run under other settings refuses the saved solves, in one line.
+    # The same runs under other settings are refused, in one line: the finished min run by
+    # its part's fingerprint, before anything runs.
     changed = _config(tmp / "changed", max_iter=4)
     assert run([str(changed), "--out", str(out), "--no-figures"]) == 2
     errors = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error:")]
-    assert len(errors) == 1 and "another configuration of this run" in errors[0]
+    assert len(errors) == 1 and "different config" in errors[0] and "settings.max_iter" in errors[0]
 
     calls.clear()
 

@@ -1,0 +1,262 @@
+"""Fault injection on a results folder: parts of another config, damaged or misplaced parts,
+two writers, unwritable folders, a best run whose design fails.
+
+Each test checks the one-line outcome and, where the folder recovers, that the result equals
+an uninterrupted run exactly (wall times aside). Nothing here depends on timing.
+"""
+
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+
+import pandas as pd
+import pytest
+
+from heurtune.runner.experiment import run, status_table
+from heurtune.runner.resultdir import LOCK_FILE
+
+BASE = '''extends = "cs_folqi_qtp"
+runs = 2
+[[optimisers]]
+name = "cs"
+settings = { n = 6, pa = 0.25 }
+max_epochs = 2
+'''
+
+
+def write_config(folder, extra="", base=BASE):
+    path = folder / "exp.toml"
+    path.write_text(base + extra)
+    return path
+
+
+def results(out):
+    """The gathered runs without their wall times (the one column a rerun may change)."""
+    return pd.read_parquet(out / "runs.parquet").drop(columns=["wall_time_s"])
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory):
+    """An uninterrupted run of the base config: what every recovery must reproduce."""
+    folder = tmp_path_factory.mktemp("clean")
+    cfg = write_config(folder)
+    assert run([str(cfg), "--out", str(folder / "out"), "--no-figures"]) == 0
+    return cfg, folder / "out"
+
+
+@pytest.fixture
+def copy(clean, tmp_path):
+    """A copy of the clean folder to break."""
+    cfg, out = clean
+    target = tmp_path / "out"
+    shutil.copytree(out, target)
+    return cfg, target
+
+
+def one_error_line(capsys, *needles):
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1, err
+    for needle in needles:
+        assert needle in err, err
+    return err
+
+
+def test_another_experiment_into_the_folder_is_refused_and_changes_nothing(copy, capsys):
+    cfg, out = copy
+    before = (out / "runs.parquet").read_bytes()
+    capsys.readouterr()
+    assert run(["cs_iolqi_qtp", "--smoke", "--out", str(out), "--no-figures"]) == 2
+    one_error_line(capsys, "holds 4 run(s) of a different config", "problem.controller", "--fresh")
+    assert (out / "runs.parquet").read_bytes() == before
+    assert not (out / LOCK_FILE).exists()
+
+
+@pytest.mark.parametrize("prefix, suffix, key", [
+    ("", "[problem.bounds]\nQ11 = [2.0, 2.5]\n", "problem.bounds.Q11"),
+    ("", "[problem.constraints]\nMp = 1.0\n", "problem.constraints.Mp"),
+    ("seed = 99\n", "", "seed"),
+])
+def test_an_edited_config_is_refused_naming_the_key(copy, tmp_path, capsys, prefix, suffix, key):
+    _, out = copy
+    capsys.readouterr()
+    edited = write_config(tmp_path, base=prefix + BASE + suffix)
+    assert run([str(edited), "--out", str(out), "--no-figures"]) == 2
+    one_error_line(capsys, "different config", key)
+
+
+def test_an_edited_setting_is_refused_naming_it(copy, tmp_path, capsys):
+    _, out = copy
+    capsys.readouterr()
+    edited = write_config(tmp_path, base=BASE.replace("pa = 0.25", "pa = 0.9"))
+    assert run([str(edited), "--out", str(out), "--no-figures"]) == 2
+    one_error_line(capsys, "different config", "settings.pa")
+
+
+def test_fresh_discards_the_other_config(copy, tmp_path, capsys):
+    _, out = copy
+    edited = write_config(tmp_path, base=BASE.replace("pa = 0.25", "pa = 0.9"))
+    assert run([str(edited), "--out", str(out), "--no-figures", "--fresh"]) == 0
+    assert (out / "runs.parquet").exists() and not (out / LOCK_FILE).exists()
+
+
+def damage_truncate(path):
+    data = path.read_bytes()
+    path.write_bytes(data[:len(data) // 2])
+
+
+def damage_empty(path):
+    path.write_bytes(b"")
+
+
+def damage_garbage(path):
+    path.write_bytes(b"not a parquet file\n" * 20)
+
+
+@pytest.mark.parametrize("kind", ["truncated", "empty", "garbage", "missing history", "damaged history",
+                                  "another run's part"])
+def test_a_damaged_part_is_set_aside_and_its_run_computed_again(clean, copy, capsys, kind):
+    _, expected = clean
+    cfg, out = copy
+    parts = out / "parts"
+    runs = sorted(parts.glob("*.run.parquet"))
+    victim = runs[0]
+    name = victim.name[:-len(".run.parquet")]
+    history = parts / f"{name}.history.parquet"
+    if kind == "truncated":
+        damage_truncate(victim)
+    elif kind == "empty":
+        damage_empty(victim)
+    elif kind == "garbage":
+        damage_garbage(victim)
+    elif kind == "missing history":
+        history.unlink()
+    elif kind == "damaged history":
+        damage_truncate(history)
+    else:  # the nmp run's part copied over the min run's
+        shutil.copy(runs[-1], victim)
+    (out / "runs.parquet").unlink()
+    assert status_table(out.parent, out.name)["done"].iloc[0] == (4 if kind in ("missing history", "damaged history")
+                                                                  else 3)
+    capsys.readouterr()
+    assert run([str(cfg), "--out", str(out), "--no-figures"]) == 0
+    err = capsys.readouterr().err
+    warnings = [line for line in err.splitlines() if "set aside" in line]
+    assert len(warnings) == 1 and name in warnings[0] and "set aside" in warnings[0], err
+    assert (parts / "corrupt" / victim.name).exists() or (parts / "corrupt" / history.name).exists()
+    pd.testing.assert_frame_equal(results(out), results(expected))
+
+
+def test_a_damaged_plan_file_is_rewritten(clean, copy, capsys):
+    _, expected = clean
+    cfg, out = copy
+    (out / "plan.json").write_text("{not json")
+    (out / "planned.json").write_text("[")
+    assert run(["--status", "--out", str(out)]) == 0
+    assert run([str(cfg), "--out", str(out), "--no-figures"]) == 0
+    pd.testing.assert_frame_equal(results(out), results(expected))
+    assert json.loads((out / "planned.json").read_text())["experiment"] == "exp"
+
+
+def test_a_second_writer_is_refused_naming_the_holder(copy, capsys):
+    cfg, out = copy
+    holder = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        (out / LOCK_FILE).write_text(json.dumps(dict(pid=holder.pid, host=socket.gethostname(), since="now")))
+        capsys.readouterr()
+        assert run([str(cfg), "--out", str(out), "--no-figures"]) == 2
+        one_error_line(capsys, f"is being written by pid {holder.pid}")
+        assert (out / LOCK_FILE).exists()  # the holder's lock stays
+    finally:
+        holder.kill()
+        holder.wait()
+
+
+def test_a_stale_lock_is_taken_over_with_a_warning(clean, copy, capsys):
+    _, expected = clean
+    cfg, out = copy
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    (out / LOCK_FILE).write_text(json.dumps(dict(pid=int(gone.stdout), host=socket.gethostname(), since="then")))
+    (out / "runs.parquet").unlink()
+    capsys.readouterr()
+    assert run([str(cfg), "--out", str(out), "--no-figures"]) == 0
+    assert "taking over" in capsys.readouterr().err
+    assert not (out / LOCK_FILE).exists()
+    pd.testing.assert_frame_equal(results(out), results(expected))
+
+
+def test_two_processes_at_once_one_refused(clean, tmp_path):
+    """Two writers started together: one runs, the other stops with one line (whichever
+    comes second); the folder ends complete and equal to the clean run."""
+    cfg, expected = clean
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "heurtune.experiment", str(cfg), "--out", str(out), "--no-figures"]
+    procs = [subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    codes, errs = zip(*[(p.wait(timeout=600), p.stderr.read()) for p in procs])
+    for p in procs:
+        p.stderr.close()
+    if sorted(codes) == [0, 2]:  # they overlapped: the second was refused
+        err = errs[codes.index(2)]
+        assert err.startswith("error: ") and "is being written by pid" in err and err.count("\n") == 1
+    else:  # the first had finished before the second looked: both complete
+        assert codes == (0, 0)
+    pd.testing.assert_frame_equal(results(out), results(expected))
+
+
+def test_an_unwritable_output_is_one_line(tmp_path, capsys):
+    cfg = write_config(tmp_path)
+    a_file = tmp_path / "a_file"
+    a_file.write_text("")
+    assert run([str(cfg), "--out", str(a_file), "--no-figures"]) == 2
+    one_error_line(capsys, "is a file, not a folder")
+    assert run([str(cfg), "--out", str(a_file / "sub"), "--no-figures"]) == 2
+    one_error_line(capsys, "cannot write in")
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_a_read_only_output_is_one_line(copy, capsys):
+    cfg, out = copy
+    os.chmod(out, 0o555)
+    try:
+        assert run([str(cfg), "--out", str(out), "--no-figures"]) == 2
+        one_error_line(capsys, "cannot write in")
+    finally:
+        os.chmod(out, 0o755)
+
+
+def test_a_best_run_whose_design_fails_still_gathers(tmp_path, capsys):
+    """Bounds so wide that the best gains fail the design when the margins are computed: the
+    margins record the failure, and the summary and every other file are written."""
+    cfg = write_config(tmp_path, base=BASE.replace("runs = 2", "runs = 1") + "[problem.bounds]\nQ11 = [1e-300, 1e300]\n")
+    out = tmp_path / "out"
+    capsys.readouterr()
+    assert run([str(cfg), "--out", str(out), "--no-figures"]) == 0
+    assert "no margins for the best cs run (ControllerDesignError" in capsys.readouterr().err
+    for name in ("runs.parquet", "summary.parquet", "meta.json", "margins.parquet"):
+        assert (out / name).exists(), name
+    margins = pd.read_parquet(out / "margins.parquet")
+    assert margins["failure"].str.startswith("ControllerDesignError").all()
+
+
+def test_saved_solves_of_another_config_are_refused_and_damaged_ones_set_aside(tmp_path, capsys):
+    """A multistart's ``.starts.parquet``: its run key must match; a damaged one is redone."""
+    import numpy as np
+
+    from heurtune.core.errors import ConfigError
+    from heurtune.runner.experiment import StartsFile
+
+    names = ["a", "b"]
+    solve = dict(start=0, round=0, cap=None, x0=np.zeros(2), x=np.ones(2), f=1.0, violation=0.0, g=np.zeros(1),
+                 nfev=3, nit=2, success=True, message="ok")
+    path = tmp_path / "parts" / "r.starts.parquet"
+    path.parent.mkdir()
+    StartsFile(path, names, "key1").save([solve])
+    assert len(StartsFile(path, names, "key1").load()) == 1
+    with pytest.raises(ConfigError, match="another configuration of this run"):
+        StartsFile(path, names, "key2").load()
+    damage_truncate(path)
+    capsys.readouterr()
+    assert StartsFile(path, names, "key1").load() == []
+    assert (path.parent / "corrupt" / path.name).exists() and "set aside" in capsys.readouterr().err
