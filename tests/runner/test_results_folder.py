@@ -260,3 +260,42 @@ def test_saved_solves_of_another_config_are_refused_and_damaged_ones_set_aside(t
     capsys.readouterr()
     assert StartsFile(path, names, "key1").load() == []
     assert (path.parent / "corrupt" / path.name).exists() and "set aside" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[controller]\noustaloup_order = 5000\n", "controller.oustaloup_order: must be <= 20, got 5000"),
+    ("[controller]\noustaloup_order = 0\n", "controller.oustaloup_order: must be >= 1, got 0"),
+    ("[controller]\nband = [1e3, 1e-3]\n", "controller.band must be [low, high] rad/s with 0 < low < high"),
+    ("[controller]\nband = [0, 1e3]\n", "controller.band must be"),
+    ("[controller]\nband = [1e-3, inf]\n", "both finite"),
+    ("runs = 0\n", "runs: must be >= 1, got 0"),
+    ("seed = -1\n", "seed: must be >= 0, got -1"),
+    ("runs = 10000000\n", "20,000,000 runs planned"),
+    ('[[optimisers]]\nname = "cs"\nsettings = { n = 1000000000 }\n', "settings.n = 1,000,000,000 needs about"),
+    ('[plant]\ncases = ["min", "min"]\n', "plant.cases names 'min' more than once"),
+    ('plugins = ["json"]\n', "plugin 'json' registers no optimiser and no plant family"),
+    ("[problem.bounds]\nR11 = [-5, 5]\n", "problem.bounds.R11: the lower bound must be > 0, got -5.0"),
+    ("[problem.bounds]\nQ11 = [-1, 2]\n", "problem.bounds.Q11: the lower bound must be >= 0"),
+    ('[[optimisers]]\nname = "cs"\ntol_window = 0\n', "optimisers[0].tol_window: must be >= 1, got 0"),
+    ('[[optimisers]]\nname = "cs"\nmax_epochs = -1\n', "optimisers[0].max_epochs: must be >= 0"),
+    ('[[optimisers]]\nname = "cs"\nmax_time = -1\n', "optimisers[0].max_time: must be > 0"),
+    ('[[optimisers]]\nname = "cs"\ntol = -1\n', "optimisers[0].tol: must be >= 0"),
+    ('[[optimisers]]\nname = "cs"\nconstraint_handling = "penalty"\npenalty = -1\n', "penalty: must be > 0"),
+])
+def test_a_config_that_would_fail_later_is_refused_before_anything_is_written(tmp_path, capsys, text, message):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text('extends = "cs_folqi_qtp"\n' + text)
+    out = tmp_path / "out"
+    assert run([str(cfg), "--out", str(out)]) == 2
+    one_error_line(capsys, message)
+    assert not out.exists()
+
+
+def test_a_config_that_is_not_utf8_and_a_negative_seed_option_are_one_line(tmp_path, capsys):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_bytes(b'extends = "cs_folqi_qtp"\n# \xff\xfe\n')
+    assert run([str(cfg), "--out", str(tmp_path / "out")]) == 2
+    one_error_line(capsys, "not UTF-8 text")
+    assert run(["cs_folqi_qtp", "--seed", "-1", "--out", str(tmp_path / "out")]) == 2
+    one_error_line(capsys, "--seed must be >= 0, got -1")
+    assert not (tmp_path / "out").exists()
