@@ -67,7 +67,7 @@ import pandas as pd
 from scipy import stats
 
 from heurtune.core.errors import ConfigError
-from heurtune.core.io import atomic_path
+from heurtune.core.io import atomic_path, check_output_file
 from heurtune.core.problem import FAILED_OBJECTIVE
 
 __all__ = [
@@ -1523,11 +1523,15 @@ def run(argv=None) -> int:
         return 2
     if args.out:
         try:
+            check_output_file(args.out, "--out")
             with atomic_path(args.out) as tmp:
                 tmp.write_text(text, encoding="utf-8")
+        except ConfigError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
         except OSError as exc:
             print(f"error: cannot write {args.out}: {exc.strerror or exc}", file=sys.stderr)
-            return 1
+            return 2
         print(f"report written to {args.out}")
     else:
         sys.stdout.write(text)

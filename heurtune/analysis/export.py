@@ -46,7 +46,7 @@ from heurtune.analysis.anytime import feasible_best
 from heurtune.analysis.compare import best_runs
 from heurtune.core.errors import ConfigError
 from heurtune.core.families import make_experiment
-from heurtune.core.io import atomic_path
+from heurtune.core.io import atomic_path, check_output_folder
 from heurtune.core.problem import FAILED_OBJECTIVE
 
 __all__ = ["load_results", "ioh_lines", "write_ioh", "export_ioh", "matlab_name", "write_mat", "export_mat",
@@ -359,7 +359,7 @@ def run(argv=None) -> int:
     try:
         if args.format not in FORMATS:
             raise ConfigError(f"unknown format {args.format!r}; allowed: {', '.join(FORMATS)}")
-        out = Path(args.out) if args.out else Path(args.dir) / args.format
+        out = check_output_folder(args.out, "--out") if args.out else Path(args.dir) / args.format
         files = (export_ioh if args.format == "ioh" else export_mat)(args.dir, out)
     except (ConfigError, FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)

@@ -13,6 +13,7 @@ Examples
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import matplotlib
 
@@ -52,10 +53,14 @@ def _panel_grid(n: int, width: float = 5.2, height: float = 3.8, max_cols: int =
 
 
 def _save(fig, path) -> None:
+    """Write ``fig`` atomically in the format its name says (PNG for any other name)."""
     fig.tight_layout()
+    fmt = Path(path).suffix.lower().lstrip(".")
+    if fmt not in fig.canvas.get_supported_filetypes():
+        fmt = "png"
     try:
         with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=DPI, format="png")
+            fig.savefig(tmp, dpi=DPI, format=fmt)
     finally:
         plt.close(fig)
 

@@ -7,7 +7,49 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["atomic_path", "write_parquet"]
+__all__ = ["atomic_path", "write_parquet", "check_output_file", "check_output_folder"]
+
+# The figure formats matplotlib writes (a --plot name must end in one).
+FIGURE_SUFFIXES = (".png", ".pdf", ".svg", ".eps", ".ps", ".jpg", ".jpeg", ".tif", ".tiff", ".webp")
+
+
+def _blocking_file(path: Path):
+    """The first existing non-folder above ``path`` (so that ``path`` cannot be created), or None."""
+    for parent in path.parents:
+        if parent.exists():
+            return None if parent.is_dir() else parent
+    return None
+
+
+def check_output_file(path, option: str, suffixes=None) -> Path:
+    """Check that ``path`` can be written as a file; a one-line ConfigError naming ``option``
+    when it is a folder, lies under a file, or (``suffixes`` given) has another extension."""
+    from heurtune.core.errors import ConfigError
+
+    path = Path(path)
+    if path.is_dir():
+        raise ConfigError(f"{option} {path} is a folder; give a file name")
+    blocking = _blocking_file(path)
+    if blocking is not None:
+        raise ConfigError(f"{option} {path}: {blocking} is a file, not a folder")
+    if suffixes is not None and path.suffix.lower() not in suffixes:
+        raise ConfigError(f"{option} {path}: unknown extension {path.suffix or '(none)'!r}; "
+                          f"allowed: {', '.join(suffixes)}")
+    return path
+
+
+def check_output_folder(path, option: str) -> Path:
+    """Check that ``path`` can be a folder; a one-line ConfigError naming ``option`` when it is
+    a file or lies under one."""
+    from heurtune.core.errors import ConfigError
+
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ConfigError(f"{option} {path} is a file; give a folder")
+    blocking = _blocking_file(path)
+    if blocking is not None:
+        raise ConfigError(f"{option} {path}: {blocking} is a file, not a folder")
+    return path
 
 
 @contextlib.contextmanager

@@ -276,6 +276,8 @@ class TuningProblem:
             key = key.strip()
             if not sep:
                 raise ConfigError(f"expected NAME=VALUE, got {item!r}")
+            if key in values:
+                raise ConfigError(f"{key} is given twice ({values[key]:g} and {val.strip()})")
             try:
                 values[key] = float(val)
             except ValueError:

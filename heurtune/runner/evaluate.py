@@ -28,7 +28,7 @@ import pandas as pd
 
 from heurtune.analysis.figures import plot_responses
 from heurtune.core.errors import ConfigError, DesignError
-from heurtune.core.io import write_parquet
+from heurtune.core.io import FIGURE_SUFFIXES, check_output_file, write_parquet
 from heurtune.core.plugins import load_plugins
 from heurtune.core.problem import StructureWarning
 from heurtune.runner.config import load_experiment
@@ -74,6 +74,10 @@ def run(argv=None) -> int:
     args = _parser().parse_args(argv)
     try:
         load_plugins(args.plugin)
+        if args.out:
+            check_output_file(args.out, "--out")
+        if args.plot:
+            check_output_file(args.plot, "--plot", FIGURE_SUFFIXES)
         exp = load_experiment(args.experiment)
         prob = exp.problem(args.case)
         x = prob.parse(args.x, check_bounds=False)

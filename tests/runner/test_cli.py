@@ -40,6 +40,11 @@ def test_one_scenario(capsys):
     (["cs_folqi_qtp", "--case", "min", "--x", X.replace("Ki1=1.7411", "Ki1=12")], "Ki1=12 is outside its bounds [0.1, 10]"),
     (["cs_folqi_qtp", "--case", "min", "--x", X.replace("Ki1=1.7411", "Ki1=abc")], "Ki1: 'abc' is not a number"),
     (["cs_folqi_qtp", "--case", "min", "--x", X, "--scenario", "worst"], "unknown scenario 'worst'"),
+    (["cs_folqi_qtp", "--case", "min", "--x", X + ",Q11=1.0"], "Q11 is given twice (0.4431 and 1.0)"),
+    (["cs_folqi_qtp", "--case", "min", "--x", X, "--plot", "p.xyz"], "--plot p.xyz: unknown extension '.xyz'"),
+    (["cs_folqi_qtp", "--case", "min", "--x", X, "--out", "."], "--out . is a folder; give a file name"),
+    (["cs_folqi_qtp", "--case", "min", "--x", X, "--out", "pyproject.toml/x.parquet"],
+     "pyproject.toml is a file, not a folder"),
 ])
 def test_errors_are_one_line_with_exit_code_2(args, message, capsys):
     assert run(args) == 2
@@ -91,3 +96,26 @@ def test_outside_bounds_flag_evaluates_the_given_values(capsys):
 def test_outside_bounds_flag_is_harmless_inside_the_bounds(capsys):
     assert run(["cs_folqi_qtp", "--case", "min", "--x", X, "--scenario", "nominal", "--outside-bounds"]) == 0
     assert capsys.readouterr().err == ""
+
+
+def test_a_figure_is_written_in_the_format_its_name_says(tmp_path, capsys):
+    pdf = tmp_path / "resp.pdf"
+    assert run(["cs_folqi_qtp", "--case", "min", "--x", X, "--scenario", "nominal", "--plot", str(pdf)]) == 0
+    assert pdf.read_bytes()[:5] == b"%PDF-"
+
+
+def test_export_and_compare_refuse_wrong_outputs_in_one_line(tmp_path, capsys):
+    from heurtune.analysis import compare, export
+    from heurtune.runner.experiment import run as run_experiment
+
+    out = tmp_path / "cs"
+    assert run_experiment(["cs_folqi_qtp", "--smoke", "--out", str(out), "--no-figures"]) == 0
+    a_file = tmp_path / "a_file"
+    a_file.write_text("")
+    capsys.readouterr()
+    assert export.run([str(out), "--format", "mat", "--out", str(a_file)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "is a file; give a folder" in err
+    assert compare.run([str(out), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and err.count("\n") == 1 and "is a folder; give a file name" in err
