@@ -12,14 +12,18 @@ problem contract), ``heurtune.runner`` (configs, experiments, the evaluate comma
 ``heurtune.objectives.<family>`` and optimisers in ``heurtune.algorithms`` (docs/architecture.md).
 """
 
-from heurtune.core.engine import Result, minimize
-from heurtune.core.errors import ConfigError
-from heurtune.core.families import register_family
-from heurtune.core.problem import Evaluation, ExperimentBase, TuningProblem
-from heurtune.core.registry import register
-from heurtune.objectives.qtp.family import Experiment
-from heurtune.objectives.qtp.problem import Problem
-from heurtune.runner.config import load_experiment
+from heurtune import _startup
+
+_startup.guard()  # python -m heurtune.<command>: Ctrl-C during the imports is one line, exit 130
+
+from heurtune.core.engine import Result, minimize  # noqa: E402
+from heurtune.core.errors import ConfigError  # noqa: E402
+from heurtune.core.families import register_family  # noqa: E402
+from heurtune.core.problem import Evaluation, ExperimentBase, TuningProblem  # noqa: E402
+from heurtune.core.registry import register  # noqa: E402
+from heurtune.objectives.qtp.family import Experiment  # noqa: E402
+from heurtune.objectives.qtp.problem import Problem  # noqa: E402
+from heurtune.runner.config import load_experiment  # noqa: E402
 
 __version__ = "0.1.0"
 __all__ = ["ConfigError", "Evaluation", "Experiment", "ExperimentBase", "Problem", "Result", "TuningProblem",

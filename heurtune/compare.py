@@ -4,4 +4,7 @@
 from heurtune.analysis.compare import main
 
 if __name__ == "__main__":
+    from heurtune import _startup
+
+    _startup.release()  # the imports are done: the command's own interrupt handling takes over
     main()

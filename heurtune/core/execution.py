@@ -19,6 +19,8 @@ import hashlib
 import os
 import pickle
 import signal
+import threading
+import time
 
 import cloudpickle
 
@@ -92,10 +94,39 @@ def _install(plugins, key, payload):
     return _SHARED["value"]
 
 
+class WorkerDied(Exception):
+    """A worker process died (killed, out of memory) while it ran item ``index`` of
+    :meth:`Pool.imap_unordered` (None when it is not known which)."""
+
+    def __init__(self, index, cause):
+        super().__init__(f"a worker process died ({type(cause).__name__})")
+        self.index = index
+
+
+def is_worker_death(exc: BaseException) -> bool:
+    """Whether ``exc`` says that a worker process of the pool died (loky, concurrent.futures)."""
+    return type(exc).__name__ in ("TerminatedWorkerError", "BrokenProcessPool", "BrokenExecutor")
+
+
+# How often a worker checks that the process that started it still runs (s).
+PARENT_CHECK_S = 0.5
+
+
+def _watch_parent(parent: int) -> None:
+    """Exit this worker once its parent is gone (killed by SIGKILL, which no handler sees; the
+    worker is then adopted by another process), instead of finishing its run for no one."""
+    while True:
+        time.sleep(PARENT_CHECK_S)
+        if os.getppid() != parent:
+            os._exit(1)
+
+
 def _init_worker(plugins, key, payload):
-    """Loky worker initialiser: pin BLAS to one thread, install the shared object, warm it."""
+    """Loky worker initialiser: watch the parent, pin BLAS to one thread, install the shared
+    object, warm it."""
     from threadpoolctl import threadpool_limits
 
+    threading.Thread(target=_watch_parent, args=(os.getppid(),), daemon=True, name="heurtune-parent-watch").start()
     _SHARED["limits"] = threadpool_limits(1)
     value = _install(plugins, key, payload)
     warm = getattr(value, "warm_up", None)  # an objective's jitted kernels, compiled once per worker
@@ -278,7 +309,14 @@ class Pool:
             done = concurrent.futures.as_completed(futures)
         try:
             for fut in done:
-                yield index[fut.key if self._client is not None else fut], fut.result()
+                i = index[fut.key if self._client is not None else fut]
+                try:
+                    result = fut.result()
+                except Exception as exc:
+                    if is_worker_death(exc):
+                        raise WorkerDied(i, exc) from exc
+                    raise
+                yield i, result
         finally:
             for fut in futures:
                 fut.cancel()

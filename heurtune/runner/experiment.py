@@ -58,7 +58,7 @@ from heurtune.core import registry
 from heurtune.core.engine import Checkpoint, SearchSpace, run as run_optimiser
 from heurtune.core.errors import ConfigError
 from heurtune.core.evaluator import CHUNKS_PER_WORKER, Evaluator, Objective, Objectives, evaluate_groups
-from heurtune.core.execution import BACKENDS, Pool, kill_workers
+from heurtune.core.execution import BACKENDS, Pool, WorkerDied, is_worker_death, kill_workers
 from heurtune.core.families import make_experiment
 from heurtune.core.io import atomic_path, write_parquet
 from heurtune.core.lockstep import Lockstep
@@ -193,6 +193,9 @@ def _check_population_memory(exp) -> None:
                               f"{need / 2**30:,.0f} GiB for its population; this machine has "
                               f"{total / 2**30:,.0f} GiB: lower it")
 
+
+# The run this process is running one batch at a time (named when a worker dies).
+_RUNNING = []
 
 # Per-process cache: workers rebuild each case's problem once.
 _PROBLEMS = {}
@@ -703,8 +706,21 @@ def _run_locked(exp, config, specs, fingerprints, ids, out_dir, parts, *, fresh,
             if plan_line:
                 print(plan_line, file=progress_stream)
             bar.start()
-            _run_pending(config, pending, parts, bar, fingerprints, jobs=jobs, backend=backend, scheduler=scheduler,
-                         executor=executor, lockstep=lockstep)
+            pending_runs = [s for s in pending if not s.baseline]  # the items of the whole-runs pool
+            try:
+                _run_pending(config, pending, parts, bar, fingerprints, jobs=jobs, backend=backend,
+                             scheduler=scheduler, executor=executor, lockstep=lockstep)
+            except Exception as exc:
+                if not (isinstance(exc, WorkerDied) or is_worker_death(exc)):
+                    raise
+                kill_workers()
+                kept = len(_finished(parts) & {s.part_name for s in specs})
+                index = getattr(exc, "index", None)
+                which = (f"run {pending_runs[index].part_name}" if index is not None and pending_runs
+                         else f"run {_RUNNING[0]}" if _RUNNING else "one of the runs")
+                raise ConfigError(f"a worker process died (killed, or out of memory?) during {which}; "
+                                  f"the {kept} finished run(s) are kept in {out_dir}: run the same command "
+                                  "again to resume") from None
         bar.close()  # the line ends before the summary
         _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, fingerprints, figures=figures)
     except (KeyboardInterrupt, Terminated) as exc:
@@ -774,6 +790,7 @@ def _run_pending(config, pending, parts, bar, fingerprints, *, jobs, backend, sc
     if not whole_runs:
         # Few runs: one after the other, each spreading its batches over the workers.
         for spec in pending:
+            _RUNNING[:] = [spec.part_name]
             prob = _problem(config, spec.case)
             with Evaluator(prob, n_jobs=jobs) as ev:
                 row, hist = execute(config, spec, ev, parts=parts)
@@ -1066,6 +1083,12 @@ def run(argv=None) -> int:
                        device=args.device, lockstep=args.lockstep, force=args.force)
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # a full or read-only disk, a folder removed under the run
+        kill_workers()
+        where = exc.filename or args.out or "the output folder"
+        print(f"error: {where}: {exc.strerror or exc}; the finished runs are kept: fix that and run the same "
+              "command again", file=sys.stderr)
         return 2
     except Interrupted as exc:
         print(f"\ninterrupted: {exc.kept} of {exc.planned} runs kept in {exc.out_dir}; "

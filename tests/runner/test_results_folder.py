@@ -57,11 +57,14 @@ def copy(clean, tmp_path):
 
 
 def one_error_line(capsys, *needles):
+    """The one ``error:`` line on stderr (warnings about the config may come before it)."""
     err = capsys.readouterr().err
-    assert err.startswith("error: ") and err.count("\n") == 1, err
+    errors = [line for line in err.splitlines() if line.startswith("error: ")]
+    others = [line for line in err.splitlines() if not line.startswith(("error: ", "warning: "))]
+    assert len(errors) == 1 and not others, err
     for needle in needles:
-        assert needle in err, err
-    return err
+        assert needle in errors[0], err
+    return errors[0]
 
 
 def test_another_experiment_into_the_folder_is_refused_and_changes_nothing(copy, capsys):
@@ -299,3 +302,59 @@ def test_a_config_that_is_not_utf8_and_a_negative_seed_option_are_one_line(tmp_p
     assert run(["cs_folqi_qtp", "--seed", "-1", "--out", str(tmp_path / "out")]) == 2
     one_error_line(capsys, "--seed must be >= 0, got -1")
     assert not (tmp_path / "out").exists()
+
+
+def test_a_full_disk_is_one_line_and_the_finished_runs_are_kept(clean, tmp_path, monkeypatch, capsys):
+    import errno
+
+    import heurtune.runner.experiment as experiment
+
+    cfg, expected = clean
+    out = tmp_path / "out"
+    real = experiment.write_parquet
+    calls = []
+
+    def full_after_two_runs(df, path, metadata=None):
+        calls.append(path)
+        if len(calls) > 4:  # a run is two parts: history, then the run
+            raise OSError(errno.ENOSPC, "No space left on device", str(path))
+        real(df, path, metadata)
+
+    monkeypatch.setattr(experiment, "write_parquet", full_after_two_runs)
+    capsys.readouterr()
+    assert run([str(cfg), "--out", str(out), "--no-figures"]) == 2
+    one_error_line(capsys, "No space left on device", "the finished runs are kept")
+    assert len(list((out / "parts").glob("*.run.parquet"))) == 2
+    monkeypatch.setattr(experiment, "write_parquet", real)
+    assert run([str(cfg), "--out", str(out), "--no-figures"]) == 0
+    pd.testing.assert_frame_equal(results(out), results(expected))
+
+
+def test_a_killed_worker_names_the_run_and_the_folder_resumes(tmp_path, capsys):
+    """An optimiser plugin that kills its worker process (as the OOM killer would)."""
+    (tmp_path / "die_opt.py").write_text(
+        "import dataclasses, multiprocessing, os, signal\n"
+        "from heurtune.core.engine import Optimizer\n"
+        "from heurtune.core.registry import register\n"
+        "@dataclasses.dataclass(frozen=True)\n"
+        "class S:\n    n: int = 4\n"
+        "@register('die_in_worker', settings=S, description='test: kills its worker process')\n"
+        "class Die(Optimizer):\n"
+        "    def ask(self):\n"
+        "        if os.environ.get('DIE_IN_WORKERS') and 'Loky' in multiprocessing.current_process().name:\n"
+        "            os.kill(os.getpid(), signal.SIGKILL)\n"
+        "        return self.space.uniform(self.rng, self.settings.n)\n"
+        "    def tell(self, X, f, v):\n        self.X, self.f, self.v = X, f, v\n        return True\n")
+    cfg = tmp_path / "die.toml"
+    cfg.write_text('extends = "cs_folqi_qtp"\nplugins = ["die_opt.py"]\nruns = 2\n'
+                   '[[optimisers]]\nname = "die_in_worker"\nmax_epochs = 2\n')
+    cmd = [sys.executable, "-m", "heurtune.experiment", str(cfg), "--out", str(tmp_path / "out"), "--jobs", "2",
+           "--no-figures"]
+    died = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=dict(os.environ, DIE_IN_WORKERS="1"))
+    assert died.returncode == 2, died.stderr
+    errors = [line for line in died.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "a worker process died" in errors[0] and "die_in_worker__000" in errors[0]
+    assert "finished run(s) are kept" in errors[0] and "Traceback" not in died.stderr
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr
+    assert len(pd.read_parquet(tmp_path / "out" / "runs.parquet")) == 4

@@ -1,0 +1,48 @@
+"""Ctrl-C and SIGTERM while a ``python -m heurtune.<command>`` imports its modules.
+
+The imports take a second or more (numpy, pandas, numba, matplotlib). A KeyboardInterrupt raised
+inside one leaves a module half initialised, and what follows fails with a misleading traceback.
+:func:`guard` (called first thing by ``heurtune/__init__.py`` when the process is such a command)
+turns either signal into one line on stderr and exit code 130 or 143, at once; the command's
+entry point calls :func:`release` once its imports are done, and its own handling takes over.
+Standard library only: this runs before anything heavy is imported.
+"""
+
+import os
+import signal
+import sys
+
+_GUARDED = []
+
+
+def _command() -> bool:
+    """Whether this process is ``python [options] -m heurtune.<something>``."""
+    argv = getattr(sys, "orig_argv", [])
+    try:
+        i = argv.index("-m")
+    except ValueError:
+        return False
+    return i + 1 < len(argv) and argv[i + 1].startswith("heurtune.")
+
+
+def _stop(signum, frame):
+    os.write(2, b"\ninterrupted while starting; nothing was run\n")
+    os._exit(130 if signum == signal.SIGINT else 143)
+
+
+def guard() -> None:
+    """Install the start-up handlers (once, in the main thread of a heurtune command)."""
+    if _GUARDED or not _command():
+        return
+    try:
+        _GUARDED.append((signal.signal(signal.SIGINT, _stop), signal.signal(signal.SIGTERM, _stop)))
+    except ValueError:  # not the main thread
+        pass
+
+
+def release() -> None:
+    """Give SIGINT back to Python (KeyboardInterrupt) and SIGTERM to what it was."""
+    if _GUARDED:
+        sigint, sigterm = _GUARDED.pop()
+        signal.signal(signal.SIGINT, signal.default_int_handler if sigint is None else sigint)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL if sigterm is None else sigterm)
