@@ -116,17 +116,19 @@ def _watch_parent(parent: int) -> None:
     """Exit this worker once its parent is gone (killed by SIGKILL, which no handler sees; the
     worker is then adopted by another process), instead of finishing its run for no one."""
     while True:
-        time.sleep(PARENT_CHECK_S)
         if os.getppid() != parent:
             os._exit(1)
+        time.sleep(PARENT_CHECK_S)
 
 
-def _init_worker(plugins, key, payload):
-    """Loky worker initialiser: watch the parent, pin BLAS to one thread, install the shared
-    object, warm it."""
+def _init_worker(plugins, key, payload, parent=None):
+    """Loky worker initialiser: watch the parent (the pid of the process that opened the pool:
+    a worker that starts after its parent died sees another parent at once), pin BLAS to one
+    thread, install the shared object, warm it."""
     from threadpoolctl import threadpool_limits
 
-    threading.Thread(target=_watch_parent, args=(os.getppid(),), daemon=True, name="heurtune-parent-watch").start()
+    threading.Thread(target=_watch_parent, args=(os.getppid() if parent is None else parent,), daemon=True,
+                     name="heurtune-parent-watch").start()
     _SHARED["limits"] = threadpool_limits(1)
     value = _install(plugins, key, payload)
     warm = getattr(value, "warm_up", None)  # an objective's jitted kernels, compiled once per worker
@@ -230,7 +232,7 @@ class Pool:
             from joblib.externals.loky import get_reusable_executor
 
             self._loky = get_reusable_executor(max_workers=self.n_jobs, initializer=_init_worker,
-                                               initargs=(loaded(), self._key, self._payload))
+                                               initargs=(loaded(), self._key, self._payload, os.getpid()))
             if self._loky not in _LOKY:
                 _LOKY.append(self._loky)
         return self

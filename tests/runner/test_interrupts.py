@@ -6,6 +6,7 @@ progress line: the final gathering), sends the signal and checks the exit status
 on stderr, that no process of the session is left, and that the same command resumes.
 """
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -112,3 +113,70 @@ def test_interrupt_in_lockstep(tmp_path, sig, code):
     got, err, elapsed = interrupt(proc, sig)
     assert got == code and elapsed < 10, (got, elapsed, err)
     assert interrupted_line(err).startswith("interrupted: 0 of 4 runs kept")
+
+
+def caught_signals(pid) -> int:
+    """The mask of signals process ``pid`` has handlers for (Linux /proc)."""
+    with open(f"/proc/{pid}/status") as fh:
+        return int(next(line for line in fh if line.startswith("SigCgt:")).split()[1], 16)
+
+
+def alive(pid) -> bool:
+    """Whether ``pid`` runs (a zombie, dead but not yet reaped, does not)."""
+    try:
+        with open(f"/proc/{pid}/status") as fh:
+            return next(line for line in fh if line.startswith("State:")).split()[1] != "Z"
+    except (FileNotFoundError, StopIteration):
+        return False
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="needs Linux /proc")
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_signal_during_the_imports_is_one_line(tmp_path, sig, code):
+    """Sent as soon as the command's start-up handler is in place (it catches SIGTERM, which
+    Python alone does not): at that moment the command is importing its modules, or, on a fast
+    machine, already past them; either way one line and the exit code, no traceback."""
+    proc = start(tmp_path / "r")
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and proc.poll() is None:
+        try:
+            if caught_signals(proc.pid) & (1 << (signal.SIGTERM - 1)):
+                break
+        except (FileNotFoundError, StopIteration):
+            pass
+        time.sleep(0.001)
+    got, err, _ = interrupt(proc, sig)
+    assert got == code, (got, err)
+    assert len([line for line in err.splitlines() if line.startswith("interrupted")]) == 1, err
+    assert "Traceback" not in err and "partially initialized" not in err
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="needs Linux /proc")
+def test_workers_of_a_killed_parent_stop(tmp_path):
+    """SIGKILL of the experiment (no handler runs): its workers notice that their parent is
+    gone and exit (they check twice a second; allowed here: 30 s, for a loaded machine)."""
+    cfg = tmp_path / "slow.toml"
+    cfg.write_text('extends = "cs_folqi_qtp"\nruns = 4\n[[optimisers]]\nname = "cs"\nsettings = { n = 25 }\n'
+                   'max_epochs = 400\n')
+    proc = subprocess.Popen([sys.executable, "-m", "heurtune.experiment", str(cfg), "--out", str(tmp_path / "r"),
+                             "--jobs", "2", "--no-figures"],
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, start_new_session=True)
+    try:
+        wait_for(proc, "runs to do")
+        deadline = time.monotonic() + 120
+        workers = []
+        while time.monotonic() < deadline and len(workers) < 2:
+            workers = [int(p) for p in subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True,
+                                                      text=True).stdout.split()]
+            time.sleep(0.1)
+        assert len(workers) >= 2, workers
+        os.kill(proc.pid, signal.SIGKILL)
+        proc.wait()
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and any(alive(w) for w in workers):
+            time.sleep(0.1)
+        left = [open(f"/proc/{w}/cmdline").read().replace("\0", " ")[:200] for w in workers if alive(w)]
+        assert not left, f"still running after their parent was killed: {left}"
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
