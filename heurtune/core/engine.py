@@ -165,7 +165,8 @@ class Result:
 
     Attributes
     ----------
-    x, f, g, violation, feasible : the best candidate (Deb's rules or penalty, as configured)
+    x, f, g, violation, feasible : the best candidate (Deb's rules or penalty, as configured);
+        ``feasible`` is False when no candidate had a finite objective (see ``status``)
     n_evals, n_epochs : evaluations and completed generations (epoch 0 is the initial one)
     convergence_epoch : first epoch after which the best objective improves by at most ``tol``
         (relative) until the end
@@ -195,6 +196,15 @@ class Result:
     details: pd.DataFrame | None = None
     front: dict | None = None
     objectives: np.ndarray | None = None
+
+    @property
+    def status(self) -> str:
+        """``"failed"`` when no evaluated candidate had a finite objective (an objective that
+        is NaN or inf everywhere, or no evaluation at all), else ``"feasible"`` or
+        ``"infeasible"``."""
+        if not math.isfinite(self.f) or self.n_evals == 0:
+            return "failed"
+        return "feasible" if self.feasible else "infeasible"
 
 
 def convergence_epoch(best_f, tol: float = DEFAULT_TOL) -> int:
@@ -475,9 +485,12 @@ def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=No
         settings = registry.make_settings(algorithm, settings)
     elif not isinstance(settings, info.settings):
         raise ConfigError(f"{algorithm}: settings must be a dict or {info.settings.__name__}")
-    for key, value in (("max_evals", max_evals), ("max_epochs", max_epochs)):
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
-            raise ConfigError(f"{key} must be a non-negative integer, got {value!r}")
+    for key, value, least in (("max_evals", max_evals, 1), ("max_epochs", max_epochs, 0)):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < least):
+            raise ConfigError(f"{key} must be an integer >= {least}, got {value!r}")
+    if not isinstance(seed, np.random.SeedSequence) and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))
+                                                         or seed < 0):
+        raise ConfigError(f"seed must be an integer >= 0 or a numpy SeedSequence, got {seed!r}")
     if max_time is not None and not max_time > 0:
         raise ConfigError(f"max_time must be positive, got {max_time!r}")
     if tol is not None and not tol >= 0:
@@ -504,7 +517,8 @@ def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=No
     conv = convergence_epoch(hist["best_f"].to_numpy(), DEFAULT_TOL if tol is None else tol)
     x = ctx.best_x if ctx.best_x is not None else np.full(space.dim, np.nan)
     return Result(
-        x=x, f=ctx.best_f, g=ctx.best_g, violation=ctx.best_v, feasible=bool(ctx.best_v <= 0),
+        x=x, f=ctx.best_f, g=ctx.best_g, violation=ctx.best_v,
+        feasible=bool(ctx.best_v <= 0 and math.isfinite(ctx.best_f)),
         n_evals=ctx.n_evals, n_epochs=max(ctx.epoch, 0), convergence_epoch=conv,
         stop_reason=ctx.stop_reason, history=hist, algorithm=algorithm, settings=settings,
         seed=seed_seq.entropy if isinstance(seed, np.random.SeedSequence) else seed,

@@ -352,13 +352,23 @@ class Problem(TuningProblem):
     def simulate(self, x, scenario="nominal", *, record_levels: bool = True) -> pd.DataFrame:
         """Trajectories of one candidate: columns t, h1..h4, y1, y2, u1, u2.
 
+        A candidate whose linearised loop is unstable is simulated all the same (its trajectory
+        shows why); one whose controller cannot be designed is not.
+
         Raises
         ------
         ControllerDesignError
-            When the controller cannot be designed for ``x``.
+            (a :class:`heurtune.core.errors.DesignError`) when the controller cannot be
+            designed for ``x``; its ``reason`` is the one :meth:`evaluate` reports for ``x``
+            (``invalid_parameter``, ``riccati_failed``, ...).
         """
         sc = self.scenario(scenario)
-        ctrl = self.loop.controller(self.values(x))
+        values = self.values(x)
+        ctrl, reason, _ = self._design(np.array([values[n] for n in self.names], dtype=np.float64))
+        if ctrl is None and reason != "unstable":
+            raise ControllerDesignError(reason, "no controller can be designed for these values")
+        if ctrl is None:
+            ctrl = self.loop.controller(values)
         return self.loop.run(ctrl, sc, record_levels=record_levels).to_frame()
 
     def report(self, x, scenarios=None) -> pd.DataFrame:
