@@ -4,7 +4,4 @@
 from heurtune.analysis.export import main
 
 if __name__ == "__main__":
-    from heurtune import _startup
-
-    _startup.release()  # the imports are done: the command's own interrupt handling takes over
     main()

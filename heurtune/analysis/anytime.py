@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from heurtune import _startup
 from heurtune.core.io import atomic_path
 __all__ = ["feasible_best", "default_targets", "fixed_target", "ert", "budget_grid", "ecdf", "ecdf_auc",
            "plot_ecdf", "plot_fixed_target", "write_report", "main"]
@@ -462,4 +463,5 @@ def run(argv=None) -> int:
 
 
 def main() -> None:
+    _startup.release()  # python -m heurtune.<command>: its imports are done, its own handling takes over
     sys.exit(run())

@@ -66,6 +66,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from heurtune import _startup
 from heurtune.core.errors import ConfigError
 from heurtune.core.io import atomic_path, check_output_file
 from heurtune.core.problem import FAILED_OBJECTIVE
@@ -1540,4 +1541,5 @@ def run(argv=None) -> int:
 
 def main() -> None:
     """Run the command line and exit with its code."""
+    _startup.release()  # python -m heurtune.<command>: its imports are done, its own handling takes over
     sys.exit(run())

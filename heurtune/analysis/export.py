@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from heurtune import _startup
 from heurtune.analysis.anytime import feasible_best
 from heurtune.analysis.compare import best_runs
 from heurtune.core.errors import ConfigError
@@ -369,4 +370,5 @@ def run(argv=None) -> int:
 
 
 def main() -> None:
+    _startup.release()  # python -m heurtune.<command>: its imports are done, its own handling takes over
     sys.exit(run())

@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from heurtune import _startup
 from heurtune.analysis import anytime, compare, figures
 from heurtune.core.errors import ConfigError
 from heurtune.core.families import make_experiment
@@ -386,4 +387,5 @@ def run(argv=None) -> int:
 
 def main() -> None:
     """Run the command line and exit with its code."""
+    _startup.release()  # python -m heurtune.<command>: its imports are done, its own handling takes over
     sys.exit(run())

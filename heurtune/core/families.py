@@ -18,14 +18,16 @@ import dataclasses
 import importlib
 import importlib.util
 import pkgutil
+from pathlib import Path
 
 import heurtune.objectives as families_package
+from heurtune.core import registry
 from heurtune.core.errors import ConfigError
-from heurtune.core.plugins import load_plugins
+from heurtune.core.plugins import load_plugin, load_plugins, loaded
 from heurtune.core.problem import ExperimentBase
 
 __all__ = ["FamilyInfo", "register_family", "get_family", "available", "load_families", "make_experiment",
-           "families", "DEFAULT_MODEL"]
+           "families", "load_registering_plugin", "DEFAULT_MODEL"]
 
 DEFAULT_MODEL = "qtp"  # the plant model of a config that names none
 _FAMILIES: dict = {}  # model name -> FamilyInfo
@@ -116,3 +118,26 @@ def make_experiment(config: dict) -> ExperimentBase:
     its ``plant.model`` once the config's plugins are loaded."""
     load_plugins(config.get("plugins", []))
     return get_family(config.get("plant", {}).get("model", DEFAULT_MODEL)).cls(config)
+
+
+def load_registering_plugin(spec: str):
+    """:func:`heurtune.core.plugins.load_plugin`, and a one-line ConfigError when the plugin,
+    loaded for the first time, registers neither an optimiser nor a plant family (a module name
+    mistyped for another one, e.g. ``plugins = ["json"]``)."""
+    spec = str(spec)
+    key = str(Path(spec).resolve()) if spec.endswith(".py") else spec
+    if key in loaded():
+        return load_plugin(spec)
+    before = (tuple(registry.available()), tuple(sorted(_FAMILIES)))
+    module = load_plugin(spec)
+    if (tuple(registry.available()), tuple(sorted(_FAMILIES))) == before and not _registered_from(module.__name__):
+        raise ConfigError(f"plugin {spec!r} registers no optimiser and no plant family "
+                          "(heurtune.core.registry.register, heurtune.core.families.register_family)")
+    return module
+
+
+def _registered_from(module_name: str) -> bool:
+    """Whether an optimiser or plant family comes from ``module_name`` or its submodules (a
+    plugin imported before, whose import now adds nothing new)."""
+    classes = [registry.get(n).cls for n in registry.available()] + [f.cls for f in _FAMILIES.values()]
+    return any(c.__module__ == module_name or c.__module__.startswith(module_name + ".") for c in classes)

@@ -34,41 +34,9 @@ def load_plugin(spec: str):
     Raises
     ------
     ConfigError
-        For a file that does not exist, a module that cannot be imported, or a plugin that
-        registers neither an optimiser nor a plant family.
+        For a file that does not exist or a module that cannot be imported.
     """
     spec = str(spec)
-    if spec in _MODULES or (spec.endswith(".py") and Path(spec).resolve() in _LOADED_FILES):
-        return sys.modules[spec] if spec in _MODULES else sys.modules[_LOADED_FILES[Path(spec).resolve()]]
-    before = _registrations()
-    module = _import(spec)
-    if _registrations() == before and not _registers_from(module.__name__):
-        if spec.endswith(".py"):
-            del _LOADED_FILES[Path(spec).resolve()]
-        else:
-            _MODULES.pop(spec, None)
-        raise ConfigError(f"plugin {spec!r} registers no optimiser and no plant family "
-                          "(heurtune.core.registry.register, heurtune.core.families.register_family)")
-    return module
-
-
-def _registrations() -> tuple:
-    """What the registries hold now: optimiser names and plant model names."""
-    from heurtune.core import families, registry
-
-    return tuple(registry.available()), tuple(sorted(families._FAMILIES))
-
-
-def _registers_from(module_name: str) -> bool:
-    """Whether an optimiser or plant family was registered from ``module_name`` (or its
-    submodules): a plugin imported before, whose import now registers nothing new."""
-    from heurtune.core import families, registry
-
-    classes = [registry.get(n).cls for n in registry.available()] + [f.cls for f in families._FAMILIES.values()]
-    return any(c.__module__ == module_name or c.__module__.startswith(module_name + ".") for c in classes)
-
-
-def _import(spec: str):
     if spec.endswith(".py"):
         path = Path(spec).resolve()
         if not path.is_file():

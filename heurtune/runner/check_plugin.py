@@ -17,6 +17,7 @@ import argparse
 import json
 import sys
 
+from heurtune import _startup
 from heurtune.core import registry
 from heurtune.core.contract import CHECKS, run_checks
 from heurtune.core.errors import ConfigError
@@ -63,4 +64,5 @@ def run(argv=None, stream=None) -> int:
 
 
 def main() -> None:
+    _startup.release()  # python -m heurtune.<command>: its imports are done, its own handling takes over
     sys.exit(run())

@@ -14,8 +14,7 @@ from importlib import resources
 from pathlib import Path
 
 from heurtune.core.errors import ConfigError
-from heurtune.core.families import DEFAULT_MODEL, get_family, make_experiment
-from heurtune.core.plugins import load_plugin
+from heurtune.core.families import DEFAULT_MODEL, get_family, load_registering_plugin, make_experiment
 from heurtune.core.schema import COMMON_SCHEMA, NUMBER, PAIR, check  # noqa: F401  (NUMBER, PAIR: for plugin schemas)
 
 __all__ = ["experiments_dir", "list_experiments", "find_experiment", "load_config", "load_experiment"]
@@ -101,7 +100,7 @@ def load_config(name: str, _seen: tuple = ()) -> dict:
                       for p in plugins]
     for spec in raw["plugins"]:
         try:
-            load_plugin(spec)
+            load_registering_plugin(spec)
         except ConfigError as exc:
             raise ConfigError(f"{src}: plugins: {exc}") from None
     if base is not None and "plugins" in raw:

@@ -26,10 +26,11 @@ import warnings
 
 import pandas as pd
 
+from heurtune import _startup
 from heurtune.analysis.figures import plot_responses
 from heurtune.core.errors import ConfigError, DesignError
 from heurtune.core.io import FIGURE_SUFFIXES, check_output_file, write_parquet
-from heurtune.core.plugins import load_plugins
+from heurtune.core.families import load_registering_plugin
 from heurtune.core.problem import StructureWarning
 from heurtune.runner.config import load_experiment
 
@@ -73,7 +74,8 @@ def run(argv=None) -> int:
     """Entry point; returns the process exit code."""
     args = _parser().parse_args(argv)
     try:
-        load_plugins(args.plugin)
+        for spec in args.plugin:
+            load_registering_plugin(spec)
         if args.out:
             check_output_file(args.out, "--out")
         if args.plot:
@@ -126,4 +128,5 @@ def run(argv=None) -> int:
 
 
 def main() -> None:
+    _startup.release()  # python -m heurtune.<command>: its imports are done, its own handling takes over
     sys.exit(run())

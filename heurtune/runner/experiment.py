@@ -52,6 +52,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from heurtune import _startup
 from heurtune.analysis import figures
 from heurtune.analysis.compare import best_runs, failed_runs, successful_runs
 from heurtune.core import registry
@@ -59,7 +60,7 @@ from heurtune.core.engine import Checkpoint, SearchSpace, run as run_optimiser
 from heurtune.core.errors import ConfigError
 from heurtune.core.evaluator import CHUNKS_PER_WORKER, Evaluator, Objective, Objectives, evaluate_groups
 from heurtune.core.execution import BACKENDS, Pool, WorkerDied, is_worker_death, kill_workers
-from heurtune.core.families import make_experiment
+from heurtune.core.families import load_registering_plugin, make_experiment
 from heurtune.core.io import atomic_path, write_parquet
 from heurtune.core.lockstep import Lockstep
 from heurtune.core.plugins import load_plugins
@@ -627,9 +628,9 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     out_dir = Path(out) if out else Path("results") / exp.name
     parts = out_dir / "parts"
     specs = plan(exp, runs=runs, max_epochs=max_epochs, seed=seed, smoke=smoke)
-    ids = {case: problem_id(exp, case) for case in exp.cases}
-    identities = {case: exp.problem(case).identity() for case in exp.cases}
-    fingerprints = {s.part_name: run_fingerprint(s, identities[s.case]) for s in specs}
+    problems = {case: exp.problem(case) for case in exp.cases}
+    ids = {case: problem_fingerprint(prob) for case, prob in problems.items()}
+    fingerprints = {s.part_name: run_fingerprint(s, problems[s.case].identity()) for s in specs}
     if out_dir.exists() and not out_dir.is_dir():
         raise ConfigError(f"--out {out_dir} is a file, not a folder")
     # A first look, writing nothing: parts of another config are refused here.
@@ -775,6 +776,7 @@ def _dask_workers(scheduler) -> int:
 
 def _run_pending(config, pending, parts, bar, fingerprints, *, jobs, backend, scheduler, executor=None,
                  lockstep=False):
+    _RUNNING.clear()
     for spec in [s for s in pending if s.baseline]:  # analytic designs: one evaluation each
         row, hist = execute(config, spec)
         _persist(parts, spec, row, hist, fingerprints[spec.part_name])
@@ -1049,7 +1051,8 @@ def run(argv=None) -> int:
     if threading.current_thread() is threading.main_thread():
         previous_handler = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
-        load_plugins(args.plugin)
+        for spec in args.plugin:
+            load_registering_plugin(spec)
         if args.list:
             for name in list_experiments():
                 print(f"{name:24s} {load_config(name).get('description', '')}")
@@ -1105,6 +1108,7 @@ def run(argv=None) -> int:
 
 
 def main() -> None:
+    _startup.release()  # python -m heurtune.<command>: its imports are done, its own handling takes over
     code = run()
     if code in (130, 143):
         # Leave at once: loky's manager threads and the runs' threads may still be winding

@@ -7,11 +7,12 @@ problem's identity, the optimiser's name, resolved settings and budget (constrai
 handling included), the root seed and the run's seed key. A rerun reuses a part only when its
 fingerprint is the one the current config plans for that name:
 
-- a part whose file cannot be read, whose metadata is missing, whose content names another run
-  than its file name, or whose history is missing or damaged is *set aside* in
+- a part whose file cannot be read, whose content names another run than its file name, or
+  whose history is missing or damaged is *set aside* in
   ``parts/corrupt/`` with a one-line warning, and its run is computed again;
 - a part made by another config is a :class:`~heurtune.core.errors.ConfigError` naming the keys
-  that differ (the folder holds another experiment's runs: ``--fresh`` or another ``--out``).
+  that differ (the folder holds another experiment's runs: ``--fresh`` or another ``--out``),
+  and so is a part of an earlier heurtune, which carries no fingerprint.
 
 :class:`FolderLock` lets one process write into a folder at a time.
 """
@@ -130,9 +131,15 @@ class PartCheck:
         self.reusable: set = set()
         self.set_aside: dict = {}
         self.mismatched: dict = {}
+        self.legacy: set = set()
 
     def refuse_mismatch(self, out_dir) -> None:
-        """Raise the one-line ConfigError for parts of another config, if any."""
+        """Raise the one-line ConfigError for parts of another config, or of an earlier
+        heurtune that wrote no fingerprints, if any."""
+        if self.legacy:
+            raise ConfigError(f"{out_dir} was written by an earlier heurtune ({len(self.legacy)} run part(s) without a "
+                              "fingerprint, so what made them cannot be checked); use --fresh to redo them or "
+                              "another --out")
         if not self.mismatched:
             return
         keys = sorted({k for ks in self.mismatched.values() for k in ks})
@@ -147,10 +154,10 @@ def check_parts(parts: Path, specs, fingerprints: dict, *, dry=False) -> PartChe
     to the fingerprint the current config gives it).
 
     A run part is reusable when it is readable, names its own run, carries the expected
-    fingerprint, and its history part does too. Damaged or misnamed parts (and parts from an
-    earlier heurtune without a fingerprint) are moved to ``parts/corrupt/`` with a warning on
-    stderr (``dry``: only reported in ``set_aside``); parts of another config are reported in
-    ``mismatched``, not moved.
+    fingerprint, and its history part does too. Damaged or misnamed parts are moved to
+    ``parts/corrupt/`` with a warning on stderr (``dry``: only reported in ``set_aside``); parts of another config are reported in
+    ``mismatched`` and parts of an earlier heurtune, which carry no fingerprint, in ``legacy``,
+    neither moved.
     """
     check = PartCheck()
     parts = Path(parts)
@@ -163,7 +170,8 @@ def check_parts(parts: Path, specs, fingerprints: dict, *, dry=False) -> PartChe
         try:
             _, found = read_part(run_file, spec)
             if found is None:
-                raise ValueError("no fingerprint (written by an earlier heurtune)")
+                check.legacy.add(name)
+                continue
             keys = differing_keys(found, expected)
             if keys:
                 check.mismatched[name] = keys

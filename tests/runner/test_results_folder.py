@@ -357,4 +357,19 @@ def test_a_killed_worker_names_the_run_and_the_folder_resumes(tmp_path, capsys):
     assert "finished run(s) are kept" in errors[0] and "Traceback" not in died.stderr
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr
-    assert len(pd.read_parquet(tmp_path / "out" / "runs.parquet")) == 4
+    whole = subprocess.run(cmd[:cmd.index("--out") + 1] + [str(tmp_path / "whole")] + cmd[cmd.index("--out") + 2:],
+                           capture_output=True, text=True, timeout=600)
+    assert whole.returncode == 0, whole.stderr
+    pd.testing.assert_frame_equal(results(tmp_path / "out"), results(tmp_path / "whole"))
+
+
+def test_a_folder_of_an_earlier_heurtune_is_refused_in_one_line(copy, capsys):
+    """Parts without a fingerprint (as every earlier version wrote them): what made them cannot
+    be checked, so they are neither reused nor silently redone."""
+    cfg, out = copy
+    for path in (out / "parts").glob("*.parquet"):
+        df = pd.read_parquet(path)
+        df.to_parquet(path, index=False)  # the same table, without heurtune's metadata
+    capsys.readouterr()
+    assert run([str(cfg), "--out", str(out), "--no-figures"]) == 2
+    one_error_line(capsys, "was written by an earlier heurtune", "--fresh")
