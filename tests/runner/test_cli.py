@@ -119,3 +119,9 @@ def test_export_and_compare_refuse_wrong_outputs_in_one_line(tmp_path, capsys):
     assert compare.run([str(out), "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ") and err.count("\n") == 1 and "is a folder; give a file name" in err
+
+
+def test_out_into_a_missing_folder_creates_it(tmp_path, capsys):
+    out = tmp_path / "new" / "folder" / "traj.parquet"
+    assert run(["cs_folqi_qtp", "--case", "min", "--x", X, "--scenario", "nominal", "--out", str(out)]) == 0
+    assert len(pd.read_parquet(out)) == 35001

@@ -373,3 +373,38 @@ def test_a_folder_of_an_earlier_heurtune_is_refused_in_one_line(copy, capsys):
     capsys.readouterr()
     assert run([str(cfg), "--out", str(out), "--no-figures"]) == 2
     one_error_line(capsys, "was written by an earlier heurtune", "--fresh")
+
+
+def test_an_unwritable_folder_is_one_line_even_with_nothing_left_to_do(copy, monkeypatch, capsys):
+    """The write probe fails as a read-only folder makes it fail (root ignores permissions, so
+    the failure is injected): every run is done, yet the folder cannot take the lock or the
+    gathered files."""
+    import pathlib
+
+    cfg, out = copy
+    real = pathlib.Path.write_text
+
+    def read_only(self, *args, **kwargs):
+        if self.name.startswith(".heurtune-write-test"):
+            raise PermissionError(13, "Permission denied", str(self))
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(pathlib.Path, "write_text", read_only)
+    capsys.readouterr()
+    assert run([str(cfg), "--out", str(out), "--no-figures"]) == 2
+    one_error_line(capsys, f"cannot write in {out}: Permission denied")
+
+
+def test_a_part_of_another_plan_dropped_in_is_refused(clean, copy, tmp_path, capsys):
+    """A part written under the same name by another plan (here --max-epochs 1) cannot be
+    gathered: the folder is refused naming the budget."""
+    cfg, out = copy
+    other = tmp_path / "other"
+    assert run([str(cfg), "--out", str(other), "--no-figures", "--max-epochs", "1"]) == 0
+    victim = sorted((out / "parts").glob("*.run.parquet"))[0]
+    name = victim.name[:-len(".run.parquet")]
+    for kind in ("run", "history"):
+        shutil.copy(other / "parts" / f"{name}.{kind}.parquet", out / "parts" / f"{name}.{kind}.parquet")
+    capsys.readouterr()
+    assert run([str(cfg), "--out", str(out), "--no-figures"]) == 2
+    one_error_line(capsys, "holds 1 run(s) of a different config", "budget.max_epochs")
