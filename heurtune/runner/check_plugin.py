@@ -14,8 +14,10 @@ settings).
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import sys
+from pathlib import Path
 
 from heurtune import _startup
 from heurtune.core import registry
@@ -33,6 +35,17 @@ def _parser():
     return ap
 
 
+def _shipped_module(spec: str) -> str | None:
+    """The module name of a shipped optimiser given as its file (``algorithms/cmaes.py``), whose
+    import as a plugin would register it a second time; None for any other plugin."""
+    if not spec.endswith(".py"):
+        return None
+    import heurtune.algorithms as shipped
+
+    path = Path(spec).resolve()
+    return f"{shipped.__name__}.{path.stem}" if path.parent in {Path(p).resolve() for p in shipped.__path__} else None
+
+
 def run(argv=None, stream=None) -> int:
     """Entry point; returns the exit status (the lines go to ``stream``, default the
     ``sys.stdout`` of the call)."""
@@ -40,8 +53,11 @@ def run(argv=None, stream=None) -> int:
     args = _parser().parse_args(argv)
     try:
         before = set(registry.available())
-        load_plugin(args.plugin)
+        shipped = _shipped_module(args.plugin)
+        module = importlib.import_module(shipped) if shipped else load_plugin(args.plugin)
         names = sorted(set(registry.available()) - before)
+        if not names:  # a module imported before (a shipped optimiser): the ones it registered
+            names = sorted(n for n in registry.available() if registry.get(n).cls.__module__ == module.__name__)
         if not names:
             raise ConfigError(f"{args.plugin} registers no optimiser (use heurtune.core.registry.register)")
         try:

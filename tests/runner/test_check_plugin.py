@@ -1,6 +1,7 @@
 """python -m heurtune.check_plugin: the optimiser contract on an out-of-tree plugin."""
 
 import io
+import os
 from pathlib import Path
 
 from heurtune.runner.check_plugin import run
@@ -67,3 +68,14 @@ def test_load_plugin_returns_the_module_it_loaded_for_unit_tests_of_its_update(t
     opt = module.RandomWalk(SearchSpace(np.zeros(2), np.ones(2)), registry.make_settings("guide_walk_unit", None),
                             np.random.default_rng(0), Comparator())
     assert opt.X.shape == (0, 2) and opt.ask().shape == (20, 2)  # empty population, then the initial one
+
+
+def test_a_shipped_optimiser_passes_by_file_or_module(capsys):
+    """A shipped module is checked as imported (loading its file as a plugin would register
+    its optimiser twice)."""
+    import heurtune.algorithms as shipped
+
+    path = os.path.join(os.path.dirname(shipped.__file__), "cmaes.py")
+    for spec in (path, "heurtune.algorithms.cmaes"):
+        assert run([spec]) == 0
+        assert capsys.readouterr().out.strip().endswith("6 of 6 checks passed")
