@@ -505,6 +505,8 @@ def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=No
                      reference_point=reference_point, decision_weights=decision_weights,
                      multi_objective=info.multi_objective, progress=progress)
     opt = info.cls(space, settings, rng, compare)
+    if callable(getattr(opt, "set_budget", None)):  # an optimiser that plans by its budget (L-SHADE)
+        opt.set_budget(max_evals)
     details = None
     if info.kind == "driver":
         opt.run(ctx)

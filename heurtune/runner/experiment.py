@@ -187,7 +187,7 @@ def _check_population_memory(exp) -> None:
         if not sizes:
             continue
         key, size = max(sizes.items(), key=lambda kv: kv[1])
-        width = max(len(exp.problem(c).names) + 16 for c in opt.get("cases", exp.cases))
+        width = max((len(exp.problem(c).names) + 16 for c in opt.get("cases", exp.cases)), default=0)
         need = size * width * _BYTES_PER_VALUE
         if need > MEMORY_SHARE * total:
             raise ConfigError(f"{exp.name}: optimisers[{i}].settings.{key} = {size:,} needs about "

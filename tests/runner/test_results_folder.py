@@ -408,3 +408,14 @@ def test_a_part_of_another_plan_dropped_in_is_refused(clean, copy, tmp_path, cap
     capsys.readouterr()
     assert run([str(cfg), "--out", str(out), "--no-figures"]) == 2
     one_error_line(capsys, "holds 1 run(s) of a different config", "budget.max_epochs")
+
+
+def test_an_optimiser_entry_for_no_case_plans_no_runs_and_keeps_its_place(tmp_path):
+    """``cases = []``: the entry keeps its index (so the seeds of the entries after it), runs nothing."""
+    import heurtune
+    from heurtune.runner.experiment import plan
+
+    cfg = write_config(tmp_path, base=BASE.replace('name = "cs"', 'name = "cs"\ncases = []')
+                       + '[[optimisers]]\nname = "pso"\nmax_evals = 100\n')
+    specs = plan(heurtune.load_experiment(str(cfg)))
+    assert {s.algorithm for s in specs} == {"pso"} and {s.optimiser_index for s in specs} == {1}
