@@ -182,7 +182,8 @@ class LSHADE(Optimizer):
             not_worse = ~self.compare.better(f, v, fu, vu)
             better = self.compare.better(fu, vu, f, v)
             both_feasible = (v <= 0) & (vu <= 0)
-            delta = np.where(both_feasible, np.abs(f - fu), np.abs(v - vu))
+            with np.errstate(invalid="ignore"):  # inf - inf: no measurable improvement
+                delta = np.where(both_feasible, np.abs(f - fu), np.abs(v - vu))
             delta = np.where(np.isfinite(delta), delta, 0.0)
             self.archive = np.vstack([self.archive, X[better]])
             X[not_worse], f[not_worse], v[not_worse] = U[not_worse], fu[not_worse], vu[not_worse]
