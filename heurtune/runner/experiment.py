@@ -180,6 +180,7 @@ def _check_population_memory(exp) -> None:
     total = _physical_memory()
     if total is None:
         return
+    dims = {}
     for i, opt in enumerate(exp.optimisers):
         settings = dataclasses.asdict(opt["settings"]) if dataclasses.is_dataclass(opt["settings"]) else {}
         sizes = {k: v for k, v in settings.items() if k in ("n", "n_offspring", "batch", "starts")
@@ -187,16 +188,16 @@ def _check_population_memory(exp) -> None:
         if not sizes:
             continue
         key, size = max(sizes.items(), key=lambda kv: kv[1])
-        width = max((len(exp.problem(c).names) + 16 for c in opt.get("cases", exp.cases)), default=0)
+        for c in opt.get("cases", exp.cases):
+            if c not in dims:
+                dims[c] = len(exp.problem(c).names)
+        width = max((dims[c] + 16 for c in opt.get("cases", exp.cases)), default=0)
         need = size * width * _BYTES_PER_VALUE
         if need > MEMORY_SHARE * total:
             raise ConfigError(f"{exp.name}: optimisers[{i}].settings.{key} = {size:,} needs about "
                               f"{need / 2**30:,.0f} GiB for its population; this machine has "
                               f"{total / 2**30:,.0f} GiB: lower it")
 
-
-# The run this process is running one batch at a time (named when a worker dies).
-_RUNNING = []
 
 # Per-process cache: workers rebuild each case's problem once.
 _PROBLEMS = {}
@@ -717,8 +718,7 @@ def _run_locked(exp, config, specs, fingerprints, ids, out_dir, parts, *, fresh,
                 kill_workers()
                 kept = len(_finished(parts) & {s.part_name for s in specs})
                 index = getattr(exc, "index", None)
-                which = (f"run {pending_runs[index].part_name}" if index is not None and pending_runs
-                         else f"run {_RUNNING[0]}" if _RUNNING else "one of the runs")
+                which = f"run {pending_runs[index].part_name}" if index is not None else "one of the runs"
                 raise ConfigError(f"a worker process died (killed, or out of memory?) during {which}; "
                                   f"the {kept} finished run(s) are kept in {out_dir}: run the same command "
                                   "again to resume") from None
@@ -776,7 +776,6 @@ def _dask_workers(scheduler) -> int:
 
 def _run_pending(config, pending, parts, bar, fingerprints, *, jobs, backend, scheduler, executor=None,
                  lockstep=False):
-    _RUNNING.clear()
     for spec in [s for s in pending if s.baseline]:  # analytic designs: one evaluation each
         row, hist = execute(config, spec)
         _persist(parts, spec, row, hist, fingerprints[spec.part_name])
@@ -791,11 +790,15 @@ def _run_pending(config, pending, parts, bar, fingerprints, *, jobs, backend, sc
     whole_runs = backend == "dask" or executor is not None or (jobs > 1 and len(pending) >= jobs)
     if not whole_runs:
         # Few runs: one after the other, each spreading its batches over the workers.
-        for spec in pending:
-            _RUNNING[:] = [spec.part_name]
+        for i, spec in enumerate(pending):
             prob = _problem(config, spec.case)
-            with Evaluator(prob, n_jobs=jobs) as ev:
-                row, hist = execute(config, spec, ev, parts=parts)
+            try:
+                with Evaluator(prob, n_jobs=jobs) as ev:
+                    row, hist = execute(config, spec, ev, parts=parts)
+            except Exception as exc:
+                if is_worker_death(exc):  # a worker of this run's evaluations died
+                    raise WorkerDied(i, exc) from exc
+                raise
             _persist(parts, spec, row, hist, fingerprints[spec.part_name])
             bar.update(row, spec.part_name)
         return
