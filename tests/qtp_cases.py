@@ -54,3 +54,13 @@ def assert_metrics_close(got, ref):
     np.testing.assert_allclose(got[..., ESS], ref[..., ESS], rtol=0.0, atol=ESS_ATOL)
     both = ~np.isnan(ref[..., JDEV])
     assert np.all(np.abs(got[..., JDEV] - ref[..., JDEV])[both] <= RTOL * ref[..., J][both])
+
+
+def sampled_experiment(name, folder):
+    """The shipped experiment ``name`` with ``[controller] sample_time = 0.01``: the sampled loop
+    that was the default before the continuous-time loop (a config file written in ``folder``)."""
+    import heurtune
+
+    cfg = folder / f"{name}.toml"
+    cfg.write_text(f'extends = "{name}"\n[controller]\nsample_time = 0.01\n')
+    return heurtune.load_experiment(str(cfg))

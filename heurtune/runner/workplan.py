@@ -117,8 +117,14 @@ def _dry_run(key: str, shape: str) -> int:
 
 
 # -- calibration --------------------------------------------------------------------------------
+def _step(scenario) -> float | None:
+    """Simulated seconds per kernel step of a scenario: its ``kernel_step`` where it has one (a
+    QTP scenario, sampled or continuous), else its ``dt``."""
+    return getattr(scenario, "kernel_step", None) or getattr(scenario, "dt", None)
+
+
 def _steps(scenario) -> int | None:
-    horizon, dt = getattr(scenario, "horizon", None), getattr(scenario, "dt", None)
+    horizon, dt = getattr(scenario, "horizon", None), _step(scenario)
     try:
         return round(float(horizon) / float(dt))
     except (TypeError, ValueError, ZeroDivisionError, OverflowError):
@@ -198,7 +204,7 @@ def calibrate(prob, n: int = CALIBRATION_CANDIDATES, steps: int = CALIBRATION_ST
         k_long = min(per_scenario[0], steps)
         for k in (k_long, k_long // 2):
             try:
-                cut.append((k, dataclasses.replace(base, horizon=k * float(base.dt))))
+                cut.append((k, dataclasses.replace(base, horizon=k * float(_step(base)))))
             except (ConfigError, ValueError, TypeError):  # a scenario that cannot be cut short
                 cut = []
                 break

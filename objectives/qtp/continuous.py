@@ -24,6 +24,9 @@ import numpy as np
 # Table 4.7) through the plant, which the explicit part sees: 0.08 s is 1.8e-4 cm off, 0.1 s
 # 0.03 cm; its reference step is 0.05 s (4.6e-5 cm).
 REFERENCE_TOLERANCE = 0.005
+# The tolerance of a scenario that sets none of dt, tolerance, step: the continuous loop is the
+# default, to 0.005 cm on the levels.
+DEFAULT_TOLERANCE = 0.005
 STEP_AT_REFERENCE = {"folqi": 0.125, "iolqi": 0.125, "lqi": 0.125, "ladr": 0.05}
 DEFAULT_STEP_AT_REFERENCE = min(STEP_AT_REFERENCE.values())
 MAX_STEP = 1.0

@@ -9,6 +9,7 @@ times each configured controller type; :meth:`Experiment.problem` builds its
 from __future__ import annotations
 
 import math
+import sys
 
 import numpy as np
 
@@ -208,8 +209,17 @@ class Experiment(ExperimentBase):
         """``[controller] sample_time``: the controller is digital, sampled with zero-order hold
         every ``sample_time`` s, which is the sampled loop with ``dt = sample_time`` (the plant
         stepped by RK4 in between, several steps when it is long). Writes it into the scenario
-        keys ``sc``; the problem, and its id, are those of the same ``dt``."""
+        keys ``sc``; the problem, and its id, are those of the same ``dt``.
+
+        A ``scenario.dt`` without ``sample_time`` is what configs of earlier versions wrote for
+        the sampled loop, then the default: it is read as ``sample_time``, with a warning naming
+        both keys (the continuous loop is the default now)."""
         if sample_time is None:
+            if "dt" in sc:
+                print(f"warning: {self.name}: scenario.dt = {sc['dt']!r} is read as controller.sample_time = "
+                      f"{sc['dt']!r} (a digital controller, the sampled loop); the continuous-time loop is the "
+                      f"default now: write controller.sample_time to keep the sampled loop, or leave both out",
+                      file=sys.stderr)
             return
         where = f"{self.name}: controller.sample_time"
         if isinstance(sample_time, bool) or not isinstance(sample_time, (int, float)) \

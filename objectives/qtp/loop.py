@@ -68,8 +68,11 @@ class Scenario:
     ----------
     horizon : float
         Simulated time T in s (thesis: 350).
-    dt : float
-        Fixed step in s (default 0.01); ``horizon`` must be a whole number of steps.
+    dt : float or None
+        Sample period in s of the sampled-data loop (a digital controller with zero-order hold,
+        the plant stepped by RK4; ``horizon`` must be a whole number of samples). None
+        (default): the continuous-time loop. ``dt = 0.01`` is the loop of heurtune before the
+        continuous loop became the default, bit for bit.
     output_disturbance : (float, float)
         Additive step on the measured levels y1 = h1 + d1, y2 = h2 + d2 in cm (thesis: 1 cm).
     disturbance_time : float
@@ -95,8 +98,10 @@ class Scenario:
         Largest level error in cm of the continuous-time loop
         (:mod:`heurtune.objectives.qtp.continuous`): set, the loop is simulated in continuous
         time by exponential integration with the step that the rule
-        :func:`~heurtune.objectives.qtp.continuous.step_for_tolerance` gives for it, instead of
-        the sampled-data loop at ``dt``. None (default): the sampled loop.
+        :func:`~heurtune.objectives.qtp.continuous.step_for_tolerance` gives for it. Left at
+        None with ``dt`` and ``step`` also None, it is
+        :data:`~heurtune.objectives.qtp.continuous.DEFAULT_TOLERANCE` (0.005 cm): the
+        continuous loop is the default.
     step : float or None
         An explicit step in s of the continuous-time loop (overrides the rule of
         ``tolerance``; either key selects the continuous loop).
@@ -106,7 +111,7 @@ class Scenario:
     """
 
     horizon: float = 350.0
-    dt: float = 0.01
+    dt: float | None = None
     output_disturbance: tuple = (1.0, 1.0)
     disturbance_time: float = 50.0
     input_disturbance: tuple = (0.0, 0.0)
@@ -121,21 +126,28 @@ class Scenario:
     output_dt: float = 0.01
 
     def __post_init__(self):
+        if self.dt is not None:
+            for key in ("tolerance", "step"):
+                if getattr(self, key) is not None:
+                    raise ConfigError(f"scenario.dt (the sampled loop's sample period) and scenario.{key} (the "
+                                      f"continuous loop's) both set; give one")
+        elif self.tolerance is None and self.step is None:
+            object.__setattr__(self, "tolerance", _continuous.DEFAULT_TOLERANCE)
         for key in ("horizon", "dt", "disturbance_time", "input_disturbance_time", "noise_sd",
                     "uncertainty"):
             v = getattr(self, key)
+            if v is None and key == "dt":
+                continue
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
                 raise ConfigError(f"scenario.{key} must be a finite number, got {v!r}")
-        if self.dt <= 0 or self.horizon <= 0:
-            raise ConfigError(f"scenario.dt and scenario.horizon must be positive, got {self.dt}, {self.horizon}")
-        if abs(self.n_steps * self.dt - self.horizon) > 1e-9 * self.horizon:
-            raise ConfigError(f"scenario.horizon ({self.horizon}) must be a whole number of steps dt ({self.dt})")
+        if self.horizon <= 0:
+            raise ConfigError(f"scenario.horizon must be positive, got {self.horizon}")
         for key in ("disturbance_time", "input_disturbance_time"):
             t = getattr(self, key)
             if not 0 <= t <= self.horizon:
                 raise ConfigError(f"scenario.{key} must lie in [0, horizon], got {t}")
-            if abs(round(t / self.dt) * self.dt - t) > 1e-9 * max(1.0, t):
-                raise ConfigError(f"scenario.{key} ({t}) must be a multiple of dt ({self.dt})")
+        if self.dt is not None:
+            self._check_sampled()
         if self.noise_sd < 0:
             raise ConfigError(f"scenario.noise_sd must be >= 0, got {self.noise_sd}")
         if self.uncertainty <= 0:
@@ -154,6 +166,20 @@ class Scenario:
         if self.limits == "physical" and self.saturation is not None:
             raise ConfigError("scenario.saturation and scenario.limits = 'physical' both set pump limits; give one")
         self._check_continuous()
+
+    def _check_sampled(self):
+        """The sample period of the sampled loop: positive, no longer than the horizon, and a
+        divisor of the horizon and of both disturbance times."""
+        if self.dt <= 0:
+            raise ConfigError(f"scenario.dt (the sample period in s) must be > 0, got {self.dt}")
+        if self.dt > self.horizon:
+            raise ConfigError(f"scenario.dt ({self.dt}) must not exceed scenario.horizon ({self.horizon})")
+        if abs(self.n_steps * self.dt - self.horizon) > 1e-9 * self.horizon:
+            raise ConfigError(f"scenario.horizon ({self.horizon}) must be a whole number of steps dt ({self.dt})")
+        for key in ("disturbance_time", "input_disturbance_time"):
+            t = getattr(self, key)
+            if abs(round(t / self.dt) * self.dt - t) > 1e-9 * max(1.0, t):
+                raise ConfigError(f"scenario.{key} ({t}) must be a multiple of dt ({self.dt})")
 
     def _check_continuous(self):
         """The keys of the continuous-time loop: positive and finite, a step budget, and what
@@ -190,14 +216,14 @@ class Scenario:
                 f"{steps:,.0f} steps over scenario.horizon = {self.horizon:g} s, more than the budget of "
                 f"{_continuous.MAX_STEPS:,}; raise scenario.{key} or shorten scenario.horizon")
         if self.noise_sd > 0:
-            raise ConfigError("scenario.noise_sd > 0 needs the sampled loop: measurement noise is drawn per "
-                              "sample; give controller.sample_time (a digital controller) instead of "
-                              "scenario.tolerance / scenario.step, or set noise_sd = 0")
+            raise ConfigError("scenario.noise_sd > 0 needs a digital controller: measurement noise is drawn "
+                              "per sample; give controller.sample_time (e.g. 0.01 s, the sampled loop), or set "
+                              "noise_sd = 0")
 
     @property
     def continuous(self) -> bool:
-        """Whether this scenario simulates the continuous-time loop (``tolerance`` or ``step`` set)."""
-        return self.tolerance is not None or self.step is not None
+        """Whether this scenario simulates the continuous-time loop (no sample period ``dt``)."""
+        return self.dt is None
 
     def continuous_step_for(self, kind: str | None = None) -> float:
         """The largest step of the continuous loop under a controller of type ``kind``:
@@ -215,6 +241,13 @@ class Scenario:
         """The segments and steps of the continuous loop (:func:`continuous.plan_steps`)."""
         return _continuous.plan_steps(self.horizon, self.continuous_step_for(kind), self.output_disturbance,
                                       self.disturbance_time, self.input_disturbance, self.input_disturbance_time)
+
+    @property
+    def kernel_step(self) -> float:
+        """Simulated seconds per step of the kernel: the sample period ``dt`` of the sampled
+        loop, the (largest) step of the continuous one. The runner's calibration cuts a
+        scenario to a number of these (:func:`heurtune.runner.workplan.calibrate`)."""
+        return float(self.dt) if self.dt is not None else self.continuous_step
 
     @property
     def n_steps(self) -> int:

@@ -308,7 +308,7 @@ class Problem(TuningProblem):
             payload["weights"] = self.weights
         if payload["scenario"].get("limits", "none") == "none":
             payload["scenario"].pop("limits", None)
-        for key, default in (("tolerance", None), ("step", None), ("output_dt", 0.01)):
+        for key, default in (("dt", None), ("tolerance", None), ("step", None), ("output_dt", 0.01)):
             if payload["scenario"].get(key, default) == default:
                 payload["scenario"].pop(key, None)
         if self.loop.plant_model != "qtp":
@@ -325,12 +325,13 @@ class Problem(TuningProblem):
 
     def controller_record(self, x) -> dict:
         """The continuous controller (A, B, C, D, blocks), its discretisation at the scenario's
-        step and the nominal response, for the ``.mat`` export (``controller_error`` instead
-        when it cannot be designed)."""
+        sample period (``output_dt`` for the continuous loop) and the nominal response, for the
+        ``.mat`` export (``controller_error`` instead when it cannot be designed)."""
         scenario = "nominal" if "nominal" in self.scenarios else self.tuning_scenario
         try:
             ctrl = self.loop.controller(self.values(x))
-            dt = float(self.scenario(scenario).dt)
+            sc = self.scenario(scenario)
+            dt = float(sc.output_dt if sc.dt is None else sc.dt)
             dc = ctrl.discretise(dt)
             resp = self.simulate(x, scenario)
         except (ControllerDesignError, ConfigError) as exc:

@@ -151,7 +151,9 @@ def test_mat_export(tmp_path):
     prob = make_experiment(load_config("cs_folqi_qtp")).problem("min")
     x = np.array(list(X.values()))
     ctrl = prob.loop.controller(X)
-    dc = ctrl.discretise(prob.scenario("nominal").dt)
+    # the continuous loop (the default) has no sample period: the controller is discretised at
+    # the recorded grid's spacing
+    dc = ctrl.discretise(prob.scenario("nominal").output_dt)
     np.testing.assert_allclose(best["controller"]["A"], ctrl.A)
     np.testing.assert_allclose(best["discrete"]["ad"], dc.ad)
     np.testing.assert_allclose(best["discrete"]["Cc"], dc.Cc)

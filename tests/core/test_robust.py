@@ -145,6 +145,7 @@ def test_qtp_kernel_call_for_several_scenarios_equals_one_call_each(model):
 
     config = load_config("cs_folqi_qtp")
     config["plant"]["model"] = model
+    config["controller"]["sample_time"] = 0.01  # the sampled loop (the continuous one runs scenarios alone)
     prob = make_experiment(config).problem("min")
     x = prob.parse("Q11=0.4431,Q22=0.3027,Q33=0.4434,Q44=1.5722,R11=4.2253,R22=2.5994,Ki1=1.7411,Ki2=7.1716,"
                    "alpha1=0.9814,alpha2=0.8437")

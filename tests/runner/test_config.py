@@ -50,7 +50,7 @@ def test_custom_plant_case(tmp_path):
     ('extends = "cs_folqi_qtp"\n[problem.bounds]\nKi1 = [5.0, 1.0]\n', r"problem.bounds.Ki1: lower 5.0 > upper 1.0"),
     ('extends = "cs_folqi_qtp"\n[problem.bounds]\nKi9 = [1.0, 2.0]\n', r"unknown variable 'Ki9'; allowed: Q11"),
     ('extends = "cs_folqi_qtp"\n[plant]\ncases = ["medium"]\n', r"unknown QTP preset 'medium'; allowed: min, nmp"),
-    ('extends = "cs_folqi_qtp"\n[scenario]\nhorizon = 350.005\n', r"whole number of steps"),
+    ('extends = "cs_folqi_qtp"\n[scenario]\nhorizon = 350.005\n', r"must be a whole number of scenario.output_dt \(0.01\)"),
     ('extends = "cs_folqi_qtp"\n[problem]\ntuning_scenario = "worst"\n', r"tuning_scenario 'worst'; allowed: nominal"),
     ('extends = "cs_folqi_qtp"\n[problem]\nobjective = "speed"\n', r"problem.objective: got 'speed'; allowed: effort"),
     ('extends = "no_such_experiment"\n', r"unknown experiment 'no_such_experiment'; allowed: .*cs_folqi_qtp"),

@@ -145,9 +145,18 @@ def test_format_duration():
         ["0.8 s", "42 s", "3 min 20 s", "2 h 05 min", "5.8 days"]
 
 
+ENDLESS = 'extends = "cs_folqi_qtp"\n[controller]\nsample_time = 0.01\n[scenario]\nhorizon = 1e9\n'
+
+
 def test_a_configuration_too_costly_to_evaluate_is_refused_before_anything_is_written(tmp_path, capsys):
+    """The sampled loop at 0.01 s over 1e9 s is calibrated on cut horizons and refused; the
+    continuous loop refuses such a horizon at load, by its step budget."""
     config = tmp_path / "endless.toml"
     config.write_text('extends = "cs_folqi_qtp"\n[scenario]\nhorizon = 1e9\n')
+    assert run([str(config), "--runs", "1", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "more than the budget of 10,000,000; raise scenario.tolerance" in err[0]
+    config.write_text(ENDLESS)
     out = tmp_path / "out"
     assert run([str(config), "--runs", "1", "--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -188,7 +197,7 @@ def test_force_takes_the_costly_configuration_anyway(tmp_path, monkeypatch):
     from heurtune.runner.config import load_config
 
     config_file = tmp_path / "endless.toml"
-    config_file.write_text('extends = "cs_folqi_qtp"\n[scenario]\nhorizon = 1e9\n')
+    config_file.write_text(ENDLESS)
     config = load_config(str(config_file))
     exp = make_experiment(config)
     pending = runner.plan(exp, runs=1)

@@ -31,12 +31,12 @@ from heurtune.objectives.qtp.model import preset
 from qtp_cases import RTOL, assert_metrics_close, stable_controllers
 
 SCENARIOS = {
-    "nominal": Scenario(horizon=120.0, disturbance_time=20.0),
-    "noise_saturation": Scenario(horizon=80.0, disturbance_time=10.0, noise_sd=0.05, noise_seed=3,
+    "nominal": Scenario(dt=0.01, horizon=120.0, disturbance_time=20.0),
+    "noise_saturation": Scenario(dt=0.01, horizon=80.0, disturbance_time=10.0, noise_sd=0.05, noise_seed=3,
                                  saturation=(0.0, 4.0)),
-    "uncertain_input_disturbance": Scenario(horizon=80.0, uncertainty=1.3, input_disturbance=(0.3, -0.2),
+    "uncertain_input_disturbance": Scenario(dt=0.01, horizon=80.0, uncertainty=1.3, input_disturbance=(0.3, -0.2),
                                             input_disturbance_time=20.0),
-    "physical_limits": Scenario(horizon=80.0, disturbance_time=10.0, output_disturbance=(8.0, -8.0),
+    "physical_limits": Scenario(dt=0.01, horizon=80.0, disturbance_time=10.0, output_disturbance=(8.0, -8.0),
                                 limits="physical"),
     "coarse_step": Scenario(horizon=60.0, dt=0.05, disturbance_time=10.0),
 }
@@ -104,7 +104,7 @@ def test_problem_on_the_batched_device_equals_cpu():
     prob = heurtune.load_experiment("cs_folqi_qtp").problem("min")
     rng = np.random.default_rng(4)
     X = prob.lower + rng.random((12, prob.dim)) * (prob.upper - prob.lower)
-    scs = [Scenario(horizon=60.0, disturbance_time=10.0), SCENARIOS["noise_saturation"]]
+    scs = [Scenario(dt=0.01, horizon=60.0, disturbance_time=10.0), SCENARIOS["noise_saturation"]]
     ref = prob.evaluate_scenarios(X, scs)
     prob.set_device("cpu-batch")
     got = prob.evaluate_scenarios(X, scs)
@@ -159,10 +159,10 @@ loop = ClosedLoop(preset("min"), "folqi")
 ctrls = stable_controllers(loop, 2, seed=5)
 D = np.zeros((2, 4)); D[0, 0] = D[1, 1] = 1e4
 ctrls.append(LinearController(np.zeros((0, 0)), np.zeros((0, 4)), np.zeros((2, 0)), D, (), ()))
-scs = [Scenario(horizon=3.0, disturbance_time=1.0),
-       Scenario(horizon=3.0, disturbance_time=1.0, noise_sd=0.05, saturation=(0.0, 3.0),
+scs = [Scenario(dt=0.01, horizon=3.0, disturbance_time=1.0),
+       Scenario(dt=0.01, horizon=3.0, disturbance_time=1.0, noise_sd=0.05, saturation=(0.0, 3.0),
                 input_disturbance=(0.2, 0.1), input_disturbance_time=0.5),
-       Scenario(horizon=3.0, disturbance_time=0.5, output_disturbance=(8.0, -8.0), limits="physical")]
+       Scenario(dt=0.01, horizon=3.0, disturbance_time=0.5, output_disturbance=(8.0, -8.0), limits="physical")]
 diverged, metrics = loop.run_batch(ctrls, scs, device="gpu")
 ref = [[loop.run(c, sc, record=False) for sc in scs] for c in ctrls]
 print(json.dumps(dict(diverged=diverged.tolist(), metrics=metrics.tolist(),  # NaN travels as JSON NaN

@@ -201,14 +201,14 @@ def _rel(a, b):
 
 
 SCENARIOS = {
-    "nominal": Scenario(),
-    "uncertain": Scenario(uncertainty=1.3),
-    "disturbed": Scenario(noise_sd=0.05, noise_seed=4, input_disturbance=(0.3, -0.2),
+    "nominal": Scenario(dt=0.01),
+    "uncertain": Scenario(dt=0.01, uncertainty=1.3),
+    "disturbed": Scenario(dt=0.01, noise_sd=0.05, noise_seed=4, input_disturbance=(0.3, -0.2),
                           input_disturbance_time=120.0, saturation=(0.0, 10.0)),
     # P-: a -8 cm measured step drives the pumps to 10 V and overflows tanks 1 and 2; +6 cm
     # shuts the pumps (0 V) and empties tank 3.
-    "overflow": Scenario(horizon=200.0, disturbance_time=10.0, output_disturbance=(-8.0, -8.0), limits="physical"),
-    "empty": Scenario(horizon=200.0, disturbance_time=10.0, output_disturbance=(6.0, 6.0), limits="physical"),
+    "overflow": Scenario(dt=0.01, horizon=200.0, disturbance_time=10.0, output_disturbance=(-8.0, -8.0), limits="physical"),
+    "empty": Scenario(dt=0.01, horizon=200.0, disturbance_time=10.0, output_disturbance=(6.0, 6.0), limits="physical"),
 }
 
 
@@ -269,7 +269,7 @@ def test_divergence_is_judged_on_levels():
     # log(981) / 0.06 = 115 samples later. The last finite levels are below the limit in both.
     lev, bg = loops("nmp", "folqi")
     gains = dict(FOLQI, Ki1=10.0, Ki2=10.0, alpha1=1.9, alpha2=1.9)
-    sc = Scenario(horizon=2000.0)
+    sc = Scenario(dt=0.01, horizon=2000.0)
     a = lev.run(lev.controller(gains), sc)
     b = bg.run(bg.controller(gains), sc)
     assert a.diverged and b.diverged
@@ -282,7 +282,7 @@ def test_divergence_is_judged_on_levels():
 
 def test_pickle_round_trip():
     _, bg = loops("min", "folqi")
-    sc = Scenario(horizon=50.0, disturbance_time=10.0)
+    sc = Scenario(dt=0.01, horizon=50.0, disturbance_time=10.0)
     before = bg.run(bg.controller(FOLQI), sc, record=False).metrics
     clone = pickle.loads(pickle.dumps(bg))
     assert clone.plant_model == "qtp_bond_graph"

@@ -151,7 +151,7 @@ def test_sampled_loop_is_first_order_and_far_less_accurate(folqi_references):
     continuous loop's tolerance, at 30x the steps."""
     t, y_ref, _ = folqi_references["min"]
     loop = ClosedLoop(preset("min"), "folqi")
-    sampled = loop.run(loop.controller(THESIS_MIN), Scenario())
+    sampled = loop.run(loop.controller(THESIS_MIN), Scenario(dt=0.01))
     err_sampled = np.abs(sampled.y[::5] - y_ref).max()
     _, sim = continuous_run("min", "folqi", THESIS_MIN, tolerance=TOL)
     assert err_sampled > 3 * TOL > 3 * np.abs(sim.y - y_ref).max()
@@ -352,7 +352,7 @@ def test_saturation_and_overflow_located_inside_steps_match_an_independent_model
     D[0, 0] = D[1, 1] = -K
     ctrl = LinearController(np.zeros((0, 0)), np.zeros((0, 4)), np.zeros((2, 0)), D, (), ())
     d = (-3.0, 15.0)
-    sc = Scenario(horizon=40.0, dt=0.05, disturbance_time=5.0, output_disturbance=d, limits="physical",
+    sc = Scenario(horizon=40.0, disturbance_time=5.0, output_disturbance=d, limits="physical",
                   tolerance=TOL, output_dt=0.05)
     sim = ClosedLoop(plant, "iolqi").run(ctrl, sc)
     h_ref = projected_reference(plant_dict("min"), K, H, U, d, 5.0, 40.0, sim.t)
@@ -470,7 +470,13 @@ def test_problem_evaluates_continuous_scenarios_on_every_device():
     (dict(tolerance=TOL, output_dt=0.3), r"scenario.horizon \(350.0\) must be a whole number of scenario.output_dt"),
     (dict(tolerance=1e-30), r"scenario.tolerance = 1e-30 is below what the loop can meet"),
     (dict(tolerance=TOL, step=0.1), r"scenario.tolerance and scenario.step both set"),
-    (dict(tolerance=TOL, noise_sd=0.1), r"scenario.noise_sd > 0 needs the sampled loop"),
+    (dict(tolerance=TOL, noise_sd=0.1), r"scenario.noise_sd > 0 needs a digital controller"),
+    (dict(noise_sd=0.1), r"scenario.noise_sd > 0 needs a digital controller: .* give controller.sample_time"),
+    (dict(dt=0.01, tolerance=TOL), r"scenario.dt \(the sampled loop's sample period\) and scenario.tolerance"),
+    (dict(dt=0.01, step=0.1), r"scenario.dt .* and scenario.step .* both set"),
+    (dict(dt=0.0), r"scenario.dt \(the sample period in s\) must be > 0, got 0.0"),
+    (dict(dt=-0.01), r"scenario.dt \(the sample period in s\) must be > 0, got -0.01"),
+    (dict(dt=400.0), r"scenario.dt \(400.0\) must not exceed scenario.horizon \(350.0\)"),
 ])
 def test_bad_continuous_keys_get_one_line_errors(kwargs, message):
     with pytest.raises(ConfigError, match=message) as exc:
@@ -479,10 +485,10 @@ def test_bad_continuous_keys_get_one_line_errors(kwargs, message):
 
 
 def test_step_budget_is_stated():
-    """(The budget check uses the smallest step of any controller type.)"""
-    """A tolerance that cannot be met within the budget of steps is refused, naming it."""
+    """A tolerance that cannot be met within the budget of steps is refused, naming it (the
+    budget check uses the smallest step of any controller type)."""
     with pytest.raises(ConfigError, match=r"more than the budget of 10,000,000; raise scenario.tolerance"):
-        Scenario(horizon=35000.0, dt=0.01, disturbance_time=50.0, tolerance=1e-9)
+        Scenario(horizon=35000.0, disturbance_time=50.0, tolerance=1e-9)
 
 
 def test_cli_refuses_a_bad_tolerance_with_exit_code_2(tmp_path, capsys):
@@ -505,15 +511,26 @@ def config_experiment(tmp_path, text):
     return heurtune.load_experiment(str(cfg))
 
 
-def test_sample_time_is_the_sampled_loop_bit_for_bit(tmp_path):
-    """``sample_time = 0.01`` is today's sampled loop: same problem, same id, same numbers."""
-    import heurtune
+# problem_id of cs_folqi_qtp's cases in heurtune before the continuous loop became the default
+# (commit e1bb82f, where the config said [scenario] dt = 0.01)
+SAMPLED_RELEASE_IDS = {"min": "b82a33e350f3", "nmp": "ed3cb6596bba"}
 
-    plain = heurtune.load_experiment("cs_folqi_qtp")
+
+def test_sample_time_is_the_sampled_loop_bit_for_bit(tmp_path, capsys):
+    """``sample_time = 0.01`` is the sampled loop of earlier versions: same problem, same id as
+    that release, same numbers as an old config's ``[scenario] dt = 0.01``, which is read as
+    ``sample_time`` with a warning naming both keys."""
+    from heurtune.runner.experiment import problem_id
+
+    old = config_experiment(tmp_path, 'extends = "cs_folqi_qtp"\n[scenario]\ndt = 0.01\n')
+    warning = capsys.readouterr().err
+    assert warning.count("\n") == 1 and "scenario.dt = 0.01 is read as controller.sample_time = 0.01" in warning
     digital = config_experiment(tmp_path, 'extends = "cs_folqi_qtp"\n[controller]\nsample_time = 0.01\n')
+    assert capsys.readouterr().err == ""
     rng = np.random.default_rng(5)
-    for case in plain.cases:
-        a, b = plain.problem(case), digital.problem(case)
+    for case in old.cases:
+        assert problem_id(digital, case) == problem_id(old, case) == SAMPLED_RELEASE_IDS[case]
+        a, b = old.problem(case), digital.problem(case)
         assert a.identity() == b.identity()
         X = a.lower + rng.random((6, a.dim)) * (a.upper - a.lower)
         ea, eb = a.evaluate(X), b.evaluate(X)
@@ -559,7 +576,8 @@ def test_a_long_sample_period_steps_the_plant_between_samples():
     ("[controller]\nsample_time = -0.01\n", r"controller.sample_time must be a finite number > 0 \(s\), got -0.01"),
     ("[controller]\nsample_time = 0.01\n[scenario]\ntolerance = 0.005\n",
      r"controller.sample_time and scenario.tolerance both set"),
-    ("[controller]\nsample_time = 0.02\n", r"controller.sample_time \(0.02\) and scenario.dt \(0.01\) both set"),
+    ("[controller]\nsample_time = 0.02\n[scenario]\ndt = 0.01\n",
+     r"controller.sample_time \(0.02\) and scenario.dt \(0.01\) both set"),
     ("[controller]\nsample_time = 0.3\n[scenario]\ndt = 0.3\n",
      r"controller.sample_time \(0.3\) must divide scenario.horizon \(350\)"),
     ("[controller]\nsample_time = 400.0\n[scenario]\ndt = 400.0\n",
@@ -588,17 +606,16 @@ def test_an_experiment_runs_the_continuous_loop_end_to_end(tmp_path, capsys):
     import heurtune
     from heurtune.runner.experiment import problem_id
 
-    sampled = heurtune.load_experiment("cs_folqi_qtp")
+    sampled = config_experiment(tmp_path, 'extends = "cs_folqi_qtp"\n[controller]\nsample_time = 0.01\n')
     assert runs.problem_id.iloc[0] != problem_id(sampled, "min")
+    assert runs.problem_id.iloc[0] == problem_id(heurtune.load_experiment("cs_folqi_qtp"), "min")  # the default
     assert run(args) == 0  # resumes: nothing to redo
     assert pd.read_parquet(out / "runs.parquet").equals(runs)
     assert "1 of 1 runs" not in capsys.readouterr().out.split("\n")[-3:]
 
 
-def test_problem_id_of_sampled_scenarios_is_unchanged():
+def test_problem_id_of_sampled_scenarios_is_unchanged(tmp_path):
     """The new keys enter a problem's identity only when set, so earlier results keep their ids."""
-    import heurtune
-
-    prob = heurtune.load_experiment("cs_folqi_qtp").problem("min")
+    prob = config_experiment(tmp_path, 'extends = "cs_folqi_qtp"\n[controller]\nsample_time = 0.01\n').problem("min")
     scenario = prob.identity()["scenario"]
-    assert not {"tolerance", "step", "output_dt"} & set(scenario)
+    assert not {"tolerance", "step", "output_dt"} & set(scenario) and scenario["dt"] == 0.01

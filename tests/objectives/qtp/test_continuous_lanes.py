@@ -71,7 +71,7 @@ def test_cpu_lanes_with_dense_observers_and_mixed_devices():
     row = printed_row("4.7", "min-ladr")
     loop = ClosedLoop(preset("min"), "ladr")
     ctrl = loop.controller({n: float(row[n]) for n in decision_names("ladr")})
-    scenarios = SCENARIOS[:3] + [Scenario(horizon=40.0, disturbance_time=5.0)]
+    scenarios = SCENARIOS[:3] + [Scenario(dt=0.01, horizon=40.0, disturbance_time=5.0)]
     diverged, metrics = loop.run_batch([ctrl, ctrl], scenarios, device="cpu-batch")
     ref_diverged, ref_metrics = one_by_one(loop, [ctrl], scenarios)
     assert not diverged.any() and not ref_diverged.any()

@@ -41,7 +41,7 @@ def jitted(case, kind, gains, scenario, realisation="direct"):
 ])
 def test_jitted_loop_matches_continuous_reference(case, kind, factor, realisation):
     gains = THESIS[(case, kind)]
-    sc = Scenario(uncertainty=factor)
+    sc = Scenario(dt=0.01, uncertainty=factor)
     sim = jitted(case, kind, gains, sc, realisation)
     t = sim.t[::20]
     y_ref, u_ref = ref.reference_loop(plant_dict(case), gains, t, factor=factor, realisation=realisation)
@@ -70,7 +70,7 @@ def test_a_destabilising_controller_is_flagged_not_raised():
     D = np.zeros((2, 4))
     D[0, 0] = D[1, 1] = 1e4
     ctrl = LinearController(np.zeros((0, 0)), np.zeros((0, 4)), np.zeros((2, 0)), D, (), ())
-    sim = loop.run(ctrl, Scenario())
+    sim = loop.run(ctrl, Scenario(dt=0.01))
     assert sim.diverged
     assert np.isnan(sim.y[-1]).all()
     assert np.isfinite(sim.y[0]).all()
@@ -78,9 +78,9 @@ def test_a_destabilising_controller_is_flagged_not_raised():
 
 def test_noise_is_seeded_and_enters_the_measurement():
     gains = THESIS[("min", "folqi")]
-    a = jitted("min", "folqi", gains, Scenario(noise_sd=0.05, noise_seed=7))
-    b = jitted("min", "folqi", gains, Scenario(noise_sd=0.05, noise_seed=7))
-    c = jitted("min", "folqi", gains, Scenario(noise_sd=0.05, noise_seed=8))
+    a = jitted("min", "folqi", gains, Scenario(dt=0.01, noise_sd=0.05, noise_seed=7))
+    b = jitted("min", "folqi", gains, Scenario(dt=0.01, noise_sd=0.05, noise_seed=7))
+    c = jitted("min", "folqi", gains, Scenario(dt=0.01, noise_sd=0.05, noise_seed=8))
     np.testing.assert_array_equal(a.y, b.y)
     assert np.max(np.abs(a.y - c.y)) > 0.01
     assert abs(np.std(a.y[:100, 0] - 16.47) - 0.05) < 0.02  # before the loop reacts much
@@ -88,10 +88,10 @@ def test_noise_is_seeded_and_enters_the_measurement():
 
 def test_saturation_clips_voltages_and_holds_the_integrator():
     gains = THESIS[("min", "folqi")]
-    sc = Scenario(saturation=(2.2, 2.8))
+    sc = Scenario(dt=0.01, saturation=(2.2, 2.8))
     sim = jitted("min", "folqi", gains, sc)
     assert sim.u.min() >= 2.2 - 1e-12 and sim.u.max() <= 2.8 + 1e-12
-    free = jitted("min", "folqi", gains, Scenario())
+    free = jitted("min", "folqi", gains, Scenario(dt=0.01))
     assert free.u.min() < 2.2  # the limits were active
     # With anti-windup the loop still settles back to the set-point.
     assert abs(sim.y[-1, 0] - 16.47) < 0.05
@@ -99,7 +99,7 @@ def test_saturation_clips_voltages_and_holds_the_integrator():
 
 def test_input_disturbance_is_rejected():
     gains = THESIS[("min", "folqi")]
-    sim = jitted("min", "folqi", gains, Scenario(output_disturbance=(0, 0), input_disturbance=(0.3, 0.0),
+    sim = jitted("min", "folqi", gains, Scenario(dt=0.01, output_disturbance=(0, 0), input_disturbance=(0.3, 0.0),
                                                   input_disturbance_time=100.0))
     assert np.max(np.abs(sim.y[:10000] - [16.47, 16.71])) < 1e-9  # nothing before 100 s
     assert np.max(np.abs(sim.y[10000:, 0] - 16.47)) > 0.01

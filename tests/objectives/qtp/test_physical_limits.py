@@ -73,20 +73,20 @@ def test_limit_validation(over, message):
 
 
 def test_scenario_limits_validation():
-    assert Scenario().limits == "none"
-    assert Scenario(limits="physical").limits == "physical"
+    assert Scenario(dt=0.01).limits == "none"
+    assert Scenario(dt=0.01, limits="physical").limits == "physical"
     with pytest.raises(ConfigError, match=r"scenario.limits must be one of 'none', 'physical', got 'hard'"):
-        Scenario(limits="hard")
+        Scenario(dt=0.01, limits="hard")
     with pytest.raises(ConfigError, match=r"scenario.saturation and scenario.limits = 'physical' both set "
                                           r"pump limits; give one"):
-        Scenario(limits="physical", saturation=(0.0, 10.0))
+        Scenario(dt=0.01, limits="physical", saturation=(0.0, 10.0))
 
 
 def test_physical_limits_need_a_plant_with_limits_that_holds_its_operating_point():
     ctrl = LinearController(np.zeros((0, 0)), np.zeros((0, 4)), np.zeros((2, 0)), np.zeros((2, 4)), (), ())
-    sc = Scenario(horizon=1.0, disturbance_time=0.5, limits="physical")
+    sc = Scenario(dt=0.01, horizon=1.0, disturbance_time=0.5, limits="physical")
     bare = ClosedLoop(QTPParams(**plant_kwargs()), "iolqi")
-    bare.run(ctrl, Scenario(horizon=1.0, disturbance_time=0.5))  # fine without limits
+    bare.run(ctrl, Scenario(dt=0.01, horizon=1.0, disturbance_time=0.5))  # fine without limits
     with pytest.raises(ConfigError, match=r"needs plant height and u_range"):
         bare.run(ctrl, sc)
     low = ClosedLoop(QTPParams(**plant_kwargs(height=(16.0, 20, 20, 20), u_range=(0, 10))), "iolqi")
@@ -162,8 +162,10 @@ def test_loop_metrics_range_on_synthetic_trajectories(n):
     ("nmp", "folqi", NMP_FOLQI, dict(limits="physical")),
 ])
 def test_kernel_range_equals_that_of_the_recorded_trajectory(case, kind, gains, extra):
+    """The sampled loop records every sample, so its range is that of its trajectory (the
+    continuous loop refines extremes between step points: tests/objectives/qtp/test_continuous.py)."""
     loop = ClosedLoop(preset(case), kind)
-    sc = Scenario(**extra)
+    sc = Scenario(dt=0.01, **extra)
     ctrl = loop.controller(gains)
     lean = loop.run(ctrl, sc, record=False)
     sim = loop.run(ctrl, sc, record_levels=True)
@@ -178,7 +180,7 @@ def test_a_diverged_run_has_nan_range():
     D = np.zeros((2, 4))
     D[0, 0] = D[1, 1] = 1e4
     ctrl = LinearController(np.zeros((0, 0)), np.zeros((0, 4)), np.zeros((2, 0)), D, (), ())
-    sim = loop.run(ctrl, Scenario(), record=False)
+    sim = loop.run(ctrl, Scenario(dt=0.01), record=False)
     assert sim.diverged and np.isnan(sim.metrics).all()
 
 
@@ -253,7 +255,7 @@ def test_unlimited_run_leaves_the_range_that_a_physical_run_keeps():
     plant = preset("nmp")
     loop = ClosedLoop(plant, "folqi")
     ctrl = loop.controller(NMP_FOLQI)
-    free = loop.run(ctrl, Scenario(), record_levels=True)
+    free = loop.run(ctrl, Scenario(dt=0.01), record_levels=True)
     m_free = dict(zip(METRIC_NAMES, free.metrics))
     assert m_free["umin"] < -3.5
     flags = physical_range_flags(m_free, plant)
@@ -264,7 +266,7 @@ def test_unlimited_run_leaves_the_range_that_a_physical_run_keeps():
     traj = dict(hmin=free.h.min(), hmax=free.h.max(), umin=free.u.min(), umax=free.u.max())
     assert physical_range_flags(traj, plant) == flags
 
-    held = loop.run(ctrl, Scenario(limits="physical"), record_levels=True)
+    held = loop.run(ctrl, Scenario(dt=0.01, limits="physical"), record_levels=True)
     m = dict(zip(METRIC_NAMES, held.metrics))
     assert not held.diverged
     assert m["umin"] == 0.0 and m["umax"] <= 10.0
@@ -272,7 +274,7 @@ def test_unlimited_run_leaves_the_range_that_a_physical_run_keeps():
     assert held.u.min() == 0.0 and held.h.min() >= 0.0 and held.h.max() <= 50.0
     assert physical_range_flags(m, plant) == []
     # the default stays the thesis' model: same numbers as an explicit limits = "none"
-    np.testing.assert_array_equal(free.metrics, loop.run(ctrl, Scenario(limits="none")).metrics)
+    np.testing.assert_array_equal(free.metrics, loop.run(ctrl, Scenario(dt=0.01, limits="none")).metrics)
 
 
 def test_physical_range_flags():

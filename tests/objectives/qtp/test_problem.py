@@ -130,7 +130,7 @@ def test_in_loop_metrics_equal_those_of_the_recorded_trajectory(problem, extra):
     the recorded y and u. Same samples, sums grouped alike: equal to 1e-12 relative."""
     from heurtune.objectives.qtp.loop import Scenario
 
-    sc = Scenario(**extra)
+    sc = Scenario(dt=0.01, **extra)  # the sampled loop: its metrics are sums over the samples
     loop = problem.loop
     ctrl = loop.controller(THESIS_MIN)
     lean = loop.run(ctrl, sc, record=False)

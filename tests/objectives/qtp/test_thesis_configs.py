@@ -27,13 +27,16 @@ def test_chapter_experiments_load(name):
     assert exp.config["report"]["thesis_chapter"] == {"thesis_ch4": 4, "thesis_ch6": 6}.get(name, 5)
 
 
-def test_thesis_heuristics_is_thesis_ch5_with_five_runs():
+def test_thesis_heuristics_is_thesis_ch5_with_five_runs(tmp_path):
+    from qtp_cases import sampled_experiment
+
     old, new = heurtune.load_experiment("thesis_heuristics"), heurtune.load_experiment("thesis_ch5")
     assert old.cases == new.cases == ("min-folqi", "nmp-folqi", "min-iolqi", "nmp-iolqi")
     assert [problem_id(old, c) for c in old.cases] == [problem_id(new, c) for c in new.cases]
-    # The ids the earlier thesis_heuristics wrote: its results stay comparable.
-    assert [problem_id(old, c) for c in old.cases] == ["b82a33e350f3", "ed3cb6596bba", "154058fba0b2",
-                                                        "322f7a74b55e"]
+    # With the sampled loop, the ids the earlier thesis_heuristics wrote: its results stay comparable.
+    sampled = sampled_experiment("thesis_heuristics", tmp_path)
+    assert [problem_id(sampled, c) for c in old.cases] == ["b82a33e350f3", "ed3cb6596bba", "154058fba0b2",
+                                                            "322f7a74b55e"]
     assert old.config["runs"] == 5 and new.config["runs"] >= 20
     assert [o["name"] for o in old.optimisers] == [o["name"] for o in new.optimisers] == ["cs", "apso", "firefly"]
 

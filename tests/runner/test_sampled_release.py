@@ -1,0 +1,122 @@
+"""``[controller] sample_time = 0.01`` reproduces the release before the continuous-time loop
+became the default, on every shipped QTP experiment's smoke run.
+
+``sampled_release_smoke.json`` holds the ``runs.parquet`` of each shipped QTP experiment run at
+commit e1bb82f (where the QTP configs said ``[scenario] dt = 0.01``, the sampled loop) as
+``python -m heurtune.experiment NAME --smoke --seed 7 --jobs 1 --no-figures``; everything but
+the wall time. The test reruns each with ``sample_time = 0.01`` and compares: the problem ids,
+statuses, evaluation counts and texts exactly, the numbers to 1e-9 relative. On the machine that
+wrote the file they are equal bit for bit (``python tests/runner/test_sampled_release.py compare
+ROOT`` checks a folder of such runs exactly); the margin is for CPUs whose vector width makes the
+jitted kernels round differently.
+
+Rewrite the file (only on purpose: it pins a past release) with
+``python tests/runner/test_sampled_release.py write ROOT``, ROOT holding one result folder per
+experiment made by the earlier release.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+REFERENCE = Path(__file__).with_name("sampled_release_smoke.json")
+SKIPPED_COLUMNS = ("wall_time_s",)
+KEY = ["case", "algorithm", "run"]
+
+
+def records(runs: pd.DataFrame) -> list[dict]:
+    """The rows of a runs.parquet as JSON-ready dicts, ordered by case, algorithm and run."""
+    runs = runs.drop(columns=[c for c in SKIPPED_COLUMNS if c in runs]).sort_values(KEY)
+    out = []
+    for row in runs.to_dict("records"):
+        out.append({k: (v.item() if isinstance(v, np.generic) else v) for k, v in row.items()})
+    return out
+
+
+def _reference() -> dict:
+    return json.loads(REFERENCE.read_text())
+
+
+def _same(a, b, exact: bool) -> bool:
+    if isinstance(a, float) or isinstance(b, float):
+        if a is None or b is None:
+            return a is b
+        if math.isnan(a) or math.isnan(b):
+            return math.isnan(a) and math.isnan(b)
+        return a == b if exact else math.isclose(a, b, rel_tol=1e-9, abs_tol=0.0)
+    return a == b
+
+
+def differences(expected: list[dict], got: list[dict], exact: bool = False) -> list[str]:
+    """Where two lists of records differ: one line per differing field (or row count)."""
+    if len(expected) != len(got):
+        return [f"{len(got)} runs, expected {len(expected)}"]
+    out = []
+    for e, g in zip(expected, got):
+        where = "/".join(str(e.get(k)) for k in KEY)
+        for key in sorted(set(e) | set(g)):
+            if not _same(e.get(key), g.get(key), exact):
+                out.append(f"{where}: {key} = {g.get(key)!r}, expected {e.get(key)!r}")
+    return out
+
+
+EXPERIMENTS = sorted(_reference()["experiments"]) if REFERENCE.exists() else []
+
+
+def test_every_shipped_qtp_experiment_is_pinned():
+    import heurtune
+    from heurtune.runner.config import list_experiments
+
+    qtp = sorted(name for name in list_experiments() if heurtune.load_experiment(name).family == "qtp")
+    assert qtp == EXPERIMENTS
+
+
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_sample_time_reproduces_the_sampled_release(tmp_path, name):
+    from heurtune.runner.experiment import run
+
+    cfg = tmp_path / f"{name}.toml"
+    cfg.write_text(f'extends = "{name}"\n[controller]\nsample_time = 0.01\n')
+    out = tmp_path / "out"
+    assert run([str(cfg), "--smoke", "--seed", "7", "--jobs", "1", "--no-figures", "--out", str(out)]) == 0
+    got = records(pd.read_parquet(out / "runs.parquet"))
+    for row in got:  # the config file's name is the experiment's
+        row["experiment"] = name
+    diff = differences(_reference()["experiments"][name], got)
+    assert not diff, "\n".join(diff[:10])
+
+
+def _write(root: Path) -> None:
+    data = {"made_by": "heurtune e1bb82f: python -m heurtune.experiment NAME --smoke --seed 7 --jobs 1 "
+                       "--no-figures (the sampled loop, [scenario] dt = 0.01)",
+            "experiments": {}}
+    for folder in sorted(p for p in root.iterdir() if (p / "runs.parquet").exists()):
+        data["experiments"][folder.name] = records(pd.read_parquet(folder / "runs.parquet"))
+    REFERENCE.write_text(json.dumps(data, sort_keys=True, separators=(",", ":")) + "\n")
+
+
+def _compare(root: Path) -> int:
+    """Exact comparison of the result folders under ``root`` with the reference; 0 when equal."""
+    failed = 0
+    for name, expected in _reference()["experiments"].items():
+        got = records(pd.read_parquet(root / name / "runs.parquet"))
+        for row in got:
+            row["experiment"] = name
+        diff = differences(expected, got, exact=True)
+        failed += bool(diff)
+        print(f"{name}: {'bit for bit' if not diff else diff[0]}")
+    return int(failed > 0)
+
+
+if __name__ == "__main__":
+    if sys.argv[1:2] == ["write"]:
+        _write(Path(sys.argv[2]))
+    else:
+        sys.exit(_compare(Path(sys.argv[2])))
