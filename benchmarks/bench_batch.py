@@ -4,7 +4,8 @@ Run with ``make bench`` (or ``python benchmarks/bench_batch.py [--candidates 64]
 is pinned to one thread and everything runs on one core, in this process, side by side:
 
 * one-candidate kernel: ``ClosedLoop.run(record=False)`` for each of N stable FOLQI candidates
-  (the thesis' minimum-phase plant and nominal scenario, 35,000 steps);
+  (the thesis' minimum-phase plant and nominal scenario: the default continuous-time loop, or
+  with ``--sample-time 0.01`` the sampled loop of 35,000 steps);
 * batched CPU kernel: ``ClosedLoop.run_batch`` of the same N candidates (device ``cpu-batch``);
 * the whole evaluation a user waits for (design, stability check, simulation, metrics) of the
   same N candidates by ``Problem.evaluate_scenarios`` on each device;
@@ -24,8 +25,8 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
+import dataclasses  # noqa: E402
 import json  # noqa: E402
-import platform  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -35,22 +36,13 @@ from threadpoolctl import threadpool_limits  # noqa: E402
 
 import heurtune  # noqa: E402
 from heurtune.objectives.qtp import gpu  # noqa: E402
+from heurtune.runner.machine import cpu_name  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import reference_qtp  # noqa: E402
 
 GAINS = dict(Q11=0.4431, Q22=0.3027, Q33=0.4434, Q44=1.5722, R11=4.2253, R22=2.5994,
              Ki1=1.7411, Ki2=7.1716, alpha1=0.9814, alpha2=0.8437)
-
-
-def cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def metric_differences(got, ref):
@@ -90,6 +82,8 @@ def main(argv=None):
     ap.add_argument("--candidates", type=int, default=64, help="candidates in the batch (default 64)")
     ap.add_argument("--repeats", type=int, default=3, help="timed repeats (best of)")
     ap.add_argument("--gpu", action="store_true", help="also time the CUDA kernel (needs a GPU)")
+    ap.add_argument("--sample-time", type=float, help="time the sampled loop at this sample period instead of "
+                                                       "the default continuous loop")
     ap.add_argument("--json", help="also write the figures to this JSON file")
     args = ap.parse_args(argv)
 
@@ -100,7 +94,13 @@ def main(argv=None):
     n = len(ctrls)
     p = loop.plant
     plant = dict(A=list(p.A), a=list(p.a), k=list(p.k), gamma=list(p.gamma), levels=list(p.levels))
-    t = np.arange(sc.n_steps + 1) * sc.dt
+    if args.sample_time is not None:
+        sc = dataclasses.replace(sc, dt=args.sample_time, tolerance=None)
+    grid = sc.dt if sc.dt is not None else sc.output_dt
+    t = np.arange(round(sc.horizon / grid) + 1) * grid
+    steps = sc.n_steps if sc.dt is not None else sc.step_plan("folqi").n_steps
+    what = (f"the sampled loop, {steps} steps of {sc.dt} s" if sc.dt is not None else
+            f"the continuous loop, tolerance {sc.tolerance} cm, {steps} steps")
     with threadpool_limits(1):
         loop.run_batch(ctrls[:2], [sc])  # compile / load the kernels
         prob.evaluate(X[:1])
@@ -117,12 +117,12 @@ def main(argv=None):
         m_one = np.array([loop.run(c, sc, record=False).metrics for c in ctrls])
     diff, ess_diff = metric_differences(m_batch[:, 0], m_one)
     figures = {
-        "cpu": cpu_name(), "candidates": n, "steps": sc.n_steps,
+        "cpu": cpu_name(), "candidates": n, "loop": what, "steps": steps,
         "one_candidate_kernel_ms": 1e3 * one, "batched_kernel_ms": 1e3 * batch,
         "evaluation_cpu_ms": 1e3 * full["cpu"], "evaluation_cpu_batch_ms": 1e3 * full["cpu-batch"],
         "lsoda_ms": 1e3 * lsoda, "largest_relative_metric_difference": diff, "largest_ess_difference_pct": ess_diff,
     }
-    print(f"QTP FOLQI simulations, minimum phase, {sc.n_steps} steps of {sc.dt} s, {n} stable candidates, "
+    print(f"QTP FOLQI simulations, minimum phase, {what}, {n} stable candidates, "
           f"one core of {figures['cpu']}")
     print(f"  one-candidate kernel       {1e3 * one:8.3f} ms per candidate")
     print(f"  batched kernel (cpu-batch) {1e3 * batch:8.3f} ms per candidate   x{one / batch:.2f}")

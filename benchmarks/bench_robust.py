@@ -18,24 +18,16 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import platform  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
 import heurtune  # noqa: E402
+from heurtune.runner.machine import cpu_name  # noqa: E402
 
 GAINS = dict(Q11=0.4431, Q22=0.3027, Q33=0.4434, Q44=1.5722, R11=4.2253, R22=2.5994,
              Ki1=1.7411, Ki2=7.1716, alpha1=0.9814, alpha2=0.8437)
-
-
-def _cpu() -> str:
-    try:
-        with open("/proc/cpuinfo") as fh:
-            return next(line.split(":", 1)[1].strip() for line in fh if line.startswith("model name"))
-    except (OSError, StopIteration):
-        return platform.processor() or platform.machine()
 
 
 def _ms_per_candidate(fn, n, repeats) -> float:
@@ -62,12 +54,12 @@ def _compare(label, nominal, robust, X, repeats):
 def _python_overhead(prob, x, scenario, repeats=40):
     """Milliseconds per simulation spent in ``ClosedLoop.run`` outside the jitted kernel: what
     one kernel call for several scenarios could save at most."""
-    from heurtune.objectives.qtp import kernels
+    from heurtune.objectives.qtp import continuous_kernels, kernels
 
     ctrl = prob.loop.controller(prob.values(x))
     sc = prob.scenario(scenario)
-    dc = ctrl.discretise(sc.dt)
-    kernel, spent = kernels.simulate_loop, [0.0]
+    module, name = (continuous_kernels, "simulate_continuous") if sc.continuous else (kernels, "simulate_loop")
+    kernel, spent = getattr(module, name), [0.0]
 
     def timed(*args):
         t0 = time.perf_counter()
@@ -75,17 +67,17 @@ def _python_overhead(prob, x, scenario, repeats=40):
         spent[0] += time.perf_counter() - t0
         return out
 
-    kernels.simulate_loop = timed
+    setattr(module, name, timed)
     try:
         for _ in range(5):
-            prob.loop.run(ctrl, sc, record=False, discrete=dc)
+            prob.loop.run(ctrl, sc, record=False)
         spent[0] = 0.0
         t0 = time.perf_counter()
         for _ in range(repeats):
-            prob.loop.run(ctrl, sc, record=False, discrete=dc)
+            prob.loop.run(ctrl, sc, record=False)
         total = time.perf_counter() - t0
     finally:
-        kernels.simulate_loop = kernel
+        setattr(module, name, kernel)
     return 1e3 * total / repeats, 1e3 * (total - spent[0]) / repeats
 
 
@@ -94,7 +86,7 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=5, help="timed evaluations of each batch")
     args = ap.parse_args(argv)
     rng = np.random.default_rng(0)
-    print(f"CPU: {_cpu()}; 25 simulated candidates per batch, median of {args.repeats}; BLAS threads = 1")
+    print(f"CPU: {cpu_name()}; 25 simulated candidates per batch, median of {args.repeats}; BLAS threads = 1")
     with threadpool_limits(1):
         nominal = heurtune.load_experiment("cs_folqi_qtp").problem("min")
         robust = heurtune.load_experiment("robust_cs_folqi_qtp").problem("min")

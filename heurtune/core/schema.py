@@ -88,14 +88,14 @@ def check(value, spec, where: str, src: str):
     """Validate ``value`` against ``spec``; raise ConfigError naming file and key."""
 
     def fail(msg):
-        raise ConfigError(f"{src}: {where}: {msg}")
+        raise ConfigError(f"{src}: {where}: {msg}" if where else f"{src}: {msg}")
 
     if isinstance(spec, dict):
         if not isinstance(value, dict):
             fail(f"expected a table, got {value!r}")
         for key, sub in value.items():
             if key not in spec:
-                fail(f"unknown key {key!r}; allowed: {', '.join(spec)}")
+                fail(f"unknown {'key' if where else 'top-level key or table'} {key!r}; allowed: {', '.join(spec)}")
             check(sub, spec[key], f"{where}.{key}" if where else key, src)
         return
     if isinstance(spec, tuple) and spec and spec[0] == "map":

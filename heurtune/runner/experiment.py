@@ -489,17 +489,13 @@ def _platform() -> dict:
     import os
     import platform
 
-    cpu = platform.processor() or ""
-    try:
-        with open("/proc/cpuinfo") as fh:
-            cpu = next((line.split(":", 1)[1].strip() for line in fh if line.startswith("model name")), cpu)
-    except OSError:
-        pass
     from threadpoolctl import threadpool_info
+
+    from heurtune.runner.machine import cpu_name
 
     blas = [{k: lib.get(k) for k in ("internal_api", "version", "threading_layer", "architecture", "num_threads")}
             for lib in threadpool_info() if lib.get("user_api") == "blas"]
-    return dict(system=platform.platform(), machine=platform.machine(), cpu=cpu, cpu_count=os.cpu_count(),
+    return dict(system=platform.platform(), machine=platform.machine(), cpu=cpu_name(), cpu_count=os.cpu_count(),
                 blas=blas)
 
 

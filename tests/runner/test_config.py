@@ -43,7 +43,8 @@ def test_custom_plant_case(tmp_path):
 
 @pytest.mark.parametrize("text, message", [
     ('extends = "cs_folqi_qtp"\n[controller]\ntypo = 1\n', r"exp.toml: controller: unknown key 'typo'; allowed: type, oustaloup_order"),
-    ('extends = "cs_folqi_qtp"\nrunz = 3\n', r"unknown key 'runz'; allowed: description, extends, runs"),
+    ('extends = "cs_folqi_qtp"\nrunz = 3\n', r"exp.toml: unknown top-level key or table 'runz'; allowed: description, extends, runs"),
+    ('extends = "cs_folqi_qtp"\n[senario]\nhorizon = 1.0\n', r"exp.toml: unknown top-level key or table 'senario'; allowed: "),
     ('extends = "cs_folqi_qtp"\n[controller]\ntype = "pid"\n', r"controller.type: got 'pid'; allowed: folqi, iolqi, ladr"),
     ('extends = "cs_folqi_qtp"\n[controller]\noustaloup_order = 2.5\n', r"controller.oustaloup_order: expected an integer"),
     ('extends = "cs_folqi_qtp"\n[scenario]\nhorizon = "long"\n', r"scenario.horizon: expected a number"),
