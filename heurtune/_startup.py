@@ -46,3 +46,31 @@ def release() -> None:
         sigint, sigterm = _GUARDED.pop()
         signal.signal(signal.SIGINT, signal.default_int_handler if sigint is None else sigint)
         signal.signal(signal.SIGTERM, signal.SIG_DFL if sigterm is None else sigterm)
+
+
+def _stdout_closed() -> bool:
+    """Whether the reader of stdout has gone (the pipe reports an error to a writer)."""
+    import select
+
+    try:
+        poll = select.poll()
+        poll.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(events & (select.POLLERR | select.POLLHUP) for _, events in poll.poll(0))
+    except (AttributeError, OSError, ValueError):  # no poll here, or no real stdout: assume it is
+        return True
+
+
+def run_command(run) -> int:
+    """``run()``'s exit code, with a closed stdout taken as the reader's choice: a command
+    piped into ``head`` (``--list | head``) stops quietly with exit code 0 instead of a
+    BrokenPipeError traceback. A BrokenPipeError from anything but stdout is raised as it is."""
+    try:
+        code = run()
+        sys.stdout.flush()
+        return code
+    except BrokenPipeError:
+        if not _stdout_closed():
+            raise  # stdout still works: the pipe that broke is another one
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # the interpreter's last flush at exit goes nowhere
+        return 0

@@ -388,4 +388,4 @@ def run(argv=None) -> int:
 def main() -> None:
     """Run the command line and exit with its code."""
     _startup.release()  # python -m heurtune.<command>: its imports are done, its own handling takes over
-    sys.exit(run())
+    sys.exit(_startup.run_command(run))

@@ -129,4 +129,4 @@ def run(argv=None) -> int:
 
 def main() -> None:
     _startup.release()  # python -m heurtune.<command>: its imports are done, its own handling takes over
-    sys.exit(run())
+    sys.exit(_startup.run_command(run))

@@ -1086,6 +1086,8 @@ def run(argv=None) -> int:
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # stdout closed by its reader (--list | head): main() ends quietly
+        raise
     except OSError as exc:  # a full or read-only disk, a folder removed under the run
         kill_workers()
         where = exc.filename or args.out or "the output folder"
@@ -1108,7 +1110,7 @@ def run(argv=None) -> int:
 
 def main() -> None:
     _startup.release()  # python -m heurtune.<command>: its imports are done, its own handling takes over
-    code = run()
+    code = _startup.run_command(run)
     if code in (130, 143):
         # Leave at once: loky's manager threads and the runs' threads may still be winding
         # down, and the interpreter's exit would wait for them; the finished runs are on disk.

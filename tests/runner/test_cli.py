@@ -125,3 +125,27 @@ def test_out_into_a_missing_folder_creates_it(tmp_path, capsys):
     out = tmp_path / "new" / "folder" / "traj.parquet"
     assert run(["cs_folqi_qtp", "--case", "min", "--x", X, "--scenario", "nominal", "--out", str(out)]) == 0
     assert len(pd.read_parquet(out)) == 35001
+
+
+@pytest.mark.parametrize("args", [["heurtune.experiment", "--list"], ["heurtune.experiment", "--list-algorithms"],
+                                  ["heurtune.compare", "--help"]])
+def test_a_reader_that_stops_early_ends_the_command_quietly(args):
+    """``--list | head``: the reader closes the pipe before the command has written (it is still
+    importing), so every write fails; the command stops with exit code 0 and no traceback."""
+    import subprocess
+
+    proc = subprocess.Popen([sys.executable, "-m", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 0 and err == ""
+
+
+def test_a_broken_pipe_other_than_stdout_is_not_hidden(monkeypatch):
+    from heurtune import _startup
+
+    def run():
+        raise BrokenPipeError("a worker's pipe")
+
+    monkeypatch.setattr(_startup, "_stdout_closed", lambda: False)
+    with pytest.raises(BrokenPipeError, match="a worker's pipe"):
+        _startup.run_command(run)
