@@ -338,13 +338,9 @@ def _labels(df: pd.DataFrame) -> pd.Series:
 
 
 def _axes():
-    import matplotlib
+    from heurtune.analysis.figures import new_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.2), layout="constrained")
-    return plt, fig, ax
+    return new_figure(figsize=(6.4, 4.2), layout="constrained")
 
 
 def plot_ecdf(ecdf_table: pd.DataFrame, path, *, case: str, title: str | None = None):
@@ -361,7 +357,7 @@ def plot_ecdf(ecdf_table: pd.DataFrame, path, *, case: str, title: str | None = 
     """
     d = ecdf_table[ecdf_table["case"] == case]
     d = d.assign(_label=_labels(d))
-    plt, fig, ax = _axes()
+    fig, ax = _axes()
     for label, g in d.groupby("_label", sort=False):
         ax.step(g["budget"], g["fraction"], where="post", label=label)
     ax.set_xscale("log")
@@ -373,7 +369,6 @@ def plot_ecdf(ecdf_table: pd.DataFrame, path, *, case: str, title: str | None = 
     ax.legend(fontsize="small")
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=120, format="png")
-    plt.close(fig)
 
 
 def plot_fixed_target(ert_table: pd.DataFrame, path, *, case: str, title: str | None = None):
@@ -383,7 +378,7 @@ def plot_fixed_target(ert_table: pd.DataFrame, path, *, case: str, title: str | 
     """
     d = ert_table[ert_table["case"] == case]
     d = d.assign(_label=_labels(d))
-    plt, fig, ax = _axes()
+    fig, ax = _axes()
     for label, g in d.groupby("_label", sort=False):
         g = g[np.isfinite(g["ert"])].sort_values("target")
         ax.plot(g["target"], g["ert"], marker="o", markersize=3, label=label)
@@ -398,7 +393,6 @@ def plot_fixed_target(ert_table: pd.DataFrame, path, *, case: str, title: str | 
         ax.legend(fontsize="small")
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=120, format="png")
-    plt.close(fig)
 
 
 def _slug(text: str) -> str:

@@ -1,7 +1,9 @@
 """Result figures: convergence curves, final-objective box plots, closed-loop responses.
 
-Every figure is drawn with matplotlib's Agg backend (no display needed) and written as a PNG
-through :func:`heurtune.core.io.atomic_path`, so a figure file is either complete or absent.
+Every figure is a :class:`matplotlib.figure.Figure` of its own with an Agg canvas
+(:func:`new_figure`: no display needed, and pyplot's backend, a notebook's say, is never switched
+or touched), written through :func:`heurtune.core.io.atomic_path`, so a figure file is either
+complete or absent.
 
 Examples
 --------
@@ -16,17 +18,14 @@ import math
 from pathlib import Path
 
 import matplotlib
+import numpy as np
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from heurtune.core.io import atomic_path  # noqa: E402
-from heurtune.core.problem import DEFAULT_SIGNAL_LABELS, RANGE_RTOL  # noqa: E402
+from heurtune.core.io import atomic_path
+from heurtune.core.problem import DEFAULT_SIGNAL_LABELS, RANGE_RTOL
 
 __all__ = ["convergence_figure", "boxplot_figure", "response_figure", "plot_responses", "pareto_figure",
-           "FAILED_THRESHOLD"]
+           "new_figure", "FAILED_THRESHOLD"]
 
 # Objective values at or above this are the problem's failure sentinel (FAILED_OBJECTIVE = 1e10,
 # see heurtune.objectives.qtp.problem): they are left out of medians and boxes, which they would otherwise swamp.
@@ -43,10 +42,39 @@ def _needs_log(values) -> bool:
     return bool(v.size and v.min() > 0 and v.max() / v.min() > 100.0)
 
 
+def new_figure(nrows: int = 1, ncols: int = 1, *, figsize=None, layout=None, **subplots):
+    """A figure and its axes, as pyplot's ``subplots`` gives them, without pyplot.
+
+    Parameters
+    ----------
+    nrows, ncols : int
+        The grid of axes.
+    figsize : (float, float), optional
+        Width and height in inches.
+    layout : str, optional
+        Matplotlib's layout engine (``"constrained"``, ``"tight"``).
+    **subplots
+        Passed to :meth:`matplotlib.figure.Figure.subplots` (``sharex``, ``squeeze``, ...).
+
+    Returns
+    -------
+    fig : matplotlib.figure.Figure
+        With an Agg canvas of its own: it draws and saves without a display and leaves the
+        backend of pyplot (a notebook's, say) as it was; nothing needs closing.
+    axes : Axes or array of Axes
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=figsize, layout=layout)
+    FigureCanvasAgg(fig)
+    return fig, fig.subplots(nrows, ncols, **subplots)
+
+
 def _panel_grid(n: int, width: float = 5.2, height: float = 3.8, max_cols: int = 3):
     cols = min(n, max_cols)
     rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(width * cols, height * rows), squeeze=False)
+    fig, axes = new_figure(rows, cols, figsize=(width * cols, height * rows), squeeze=False)
     for ax in axes.flat[n:]:
         ax.set_visible(False)
     return fig, list(axes.flat[:n])
@@ -58,11 +86,8 @@ def _save(fig, path) -> None:
     fmt = Path(path).suffix.lower().lstrip(".")
     if fmt not in fig.canvas.get_supported_filetypes():
         fmt = "png"
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=DPI, format=fmt)
-    finally:
-        plt.close(fig)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=DPI, format=fmt)
 
 
 def _require(df: pd.DataFrame, cols, what: str) -> None:
@@ -72,7 +97,7 @@ def _require(df: pd.DataFrame, cols, what: str) -> None:
 
 
 def _algorithm_colors(algorithms):
-    cmap = plt.get_cmap("tab10")
+    cmap = matplotlib.colormaps["tab10"]
     return {a: cmap(i % 10) for i, a in enumerate(algorithms)}
 
 
@@ -328,7 +353,7 @@ def plot_responses(traj, path, title: str = "", limits=None, labels=None) -> Non
         :attr:`~heurtune.core.problem.TuningProblem.signal_labels` (panel names and units).
     """
     lab = {**DEFAULT_SIGNAL_LABELS, **(labels or {})}
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
+    fig, axes = new_figure(2, 2, figsize=(11, 7), sharex=True)
     for k, (name, df) in enumerate(traj.groupby("scenario", sort=False)):
         style = SCENARIO_STYLES[k % len(SCENARIO_STYLES)]  # scenarios that overlap stay apart
         for i in (1, 2):
@@ -394,7 +419,7 @@ def pareto_figure(fronts, path, objectives, title: str = "") -> None:
     title : str
         Figure title.
     """
-    fig, ax = plt.subplots(figsize=(6.5, 5))
+    fig, ax = new_figure(figsize=(6.5, 5))
     a, b = (f"f_{name}" for name in objectives[:2])
     for (alg, run), front in fronts.groupby(["algorithm", "run"], sort=False):
         front = front.sort_values(a)

@@ -68,12 +68,9 @@ def spectral_radius_figure(results: dict, path, title: str = "") -> None:
 
     ``results`` maps a label to a :class:`~heurtune.objectives.robustness.SpectralRadiusResult`.
     """
-    import matplotlib
+    from heurtune.analysis.figures import new_figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    fig, axes = new_figure(1, 2, figsize=(11, 4), sharey=True)
     for label, sr in results.items():
         axes[0].semilogx(sr.w, sr.rho_input, label=label)
         axes[1].semilogx(sr.w, sr.rho_output, label=label)
@@ -89,11 +86,8 @@ def spectral_radius_figure(results: dict, path, title: str = "") -> None:
 
 
 def _save(fig, path) -> None:
-    import matplotlib.pyplot as plt
-
     with atomic_path(Path(path)) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
 
 
 def write_outputs(exp, runs: pd.DataFrame, best: pd.DataFrame, out_dir: Path, *, figures: bool = True) -> None:

@@ -5,6 +5,7 @@ import pandas as pd
 import pytest
 
 import heurtune
+from figure_helpers import keep_figures
 from heurtune.analysis.figures import (FAILED_THRESHOLD, _needs_log, boxplot_figure, convergence_figure,
                               response_figure)
 
@@ -107,9 +108,7 @@ def test_response_figure(tmp_path):
 def test_convergence_uses_evaluations_when_epochs_are_unequal_work(tmp_path, monkeypatch):
     from heurtune.analysis import figures
 
-    figs = []
-    close = figures.plt.close
-    monkeypatch.setattr(figures.plt, "close", lambda fig: (figs.append(fig), close(fig)))
+    figs = keep_figures(monkeypatch, figures)
     rows = []
     for alg, per_epoch in (("cs", 50), ("firefly", 100)):
         for run in range(3):
@@ -128,9 +127,7 @@ def test_convergence_uses_evaluations_when_epochs_are_unequal_work(tmp_path, mon
 def test_empty_panel_says_why_and_axes_carry_units(tmp_path, monkeypatch):
     from heurtune.analysis import figures
 
-    figs = []
-    close = figures.plt.close
-    monkeypatch.setattr(figures.plt, "close", lambda fig: (figs.append(fig), close(fig)))
+    figs = keep_figures(monkeypatch, figures)
     failed = synthetic_history().assign(best_f=1e10)  # no run found a stable candidate
     convergence_figure(failed, tmp_path / "c.png", case="min", failures={"min": ["unstable"] * 15},
                        ylabel="effort J (V² s)")
@@ -145,9 +142,7 @@ def test_empty_panel_says_why_and_axes_carry_units(tmp_path, monkeypatch):
 def test_overlapping_scenarios_get_their_own_line_styles(tmp_path, monkeypatch):
     from heurtune.analysis import figures
 
-    figs = []
-    close = figures.plt.close
-    monkeypatch.setattr(figures.plt, "close", lambda fig: (figs.append(fig), close(fig)))
+    figs = keep_figures(monkeypatch, figures)
     t = np.linspace(0, 1, 11)
     traj = pd.concat([pd.DataFrame(dict(scenario=name, t=t, y1=t, y2=t, u1=t, u2=t)) for name in ("a", "b", "c")])
     labels = heurtune.load_experiment("cs_folqi_qtp").problem("min").signal_labels
@@ -155,3 +150,30 @@ def test_overlapping_scenarios_get_their_own_line_styles(tmp_path, monkeypatch):
     styles = [line.get_linestyle() for line in figs[0].axes[2].get_lines()]  # u1: one line per scenario
     assert len(styles) == 3 and len(set(styles)) == 3
     assert figs[0].axes[2].get_xlabel() == "t (s)" and "(V)" in figs[0].axes[2].get_ylabel()
+
+
+def test_no_import_or_figure_switches_the_matplotlib_backend(tmp_path):
+    """A notebook's backend stays what it was: importing heurtune and its figure modules, and
+    writing figures, neither switches pyplot's backend nor imports pyplot (each figure has an
+    Agg canvas of its own)."""
+    import subprocess
+    import sys
+
+    script = f"""
+import sys
+import matplotlib
+before = matplotlib.get_backend()
+import heurtune
+from heurtune.analysis import figures, anytime
+from heurtune.objectives.qtp.thesis import figures as thesis_figures
+import pandas as pd
+h = pd.DataFrame(dict(case="min", algorithm="cs", optimiser_index=0, run=0, epoch=[0, 1], n_evals=[10, 20],
+                      best_f=[2.0, 1.0], best_violation=0.0))
+figures.convergence_figure(h, r"{tmp_path / 'c.png'}")
+assert matplotlib.get_backend() == before == "svg", (before, matplotlib.get_backend())
+assert "matplotlib.pyplot" not in sys.modules
+"""
+    env = {**__import__("os").environ, "MPLBACKEND": "svg"}
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "c.png").read_bytes()[:4] == b"\x89PNG"

@@ -10,7 +10,8 @@
   output j" of the best FOLQI design on min and nmp (the loops whose margins
   :func:`heurtune.objectives.qtp.margins.loop_margins` reports), gain crossovers marked.
 
-Every figure uses matplotlib's Agg backend and is written atomically as a PNG.
+Every figure is drawn on an Agg canvas of its own (:func:`heurtune.analysis.figures.new_figure`,
+pyplot's backend untouched) and written atomically as a PNG.
 """
 
 from __future__ import annotations
@@ -18,16 +19,12 @@ from __future__ import annotations
 import warnings
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+import pandas as pd
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-
-from heurtune.analysis.compare import best_run_index  # noqa: E402
-from heurtune.analysis.figures import _save, convergence_figure  # noqa: E402
-from heurtune.objectives.qtp.margins import element_loop, frequency_grid, loop_margins  # noqa: E402
+from heurtune.analysis.compare import best_run_index
+from heurtune.analysis.figures import _save, convergence_figure, new_figure
+from heurtune.objectives.qtp.margins import element_loop, frequency_grid, loop_margins
 
 __all__ = ["response_overlay_figure", "bode_figure", "chapter_figures"]
 
@@ -63,7 +60,7 @@ def response_overlay_figure(designs: dict, path, scenario: str = "nominal", titl
     """
     if not designs:
         raise ValueError("response_overlay_figure: no designs")
-    fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
+    fig, axes = new_figure(2, 2, figsize=(11, 7), sharex=True)
     failed = []
     for label, (prob, x) in designs.items():
         try:
@@ -128,7 +125,7 @@ def bode_figure(problem, x, path, title: str = "", omega=None) -> None:
         omega = frequency_grid(np.concatenate([control.poles(sys) for sys in loops.values()]))
     omega = np.asarray(omega, dtype=np.float64)
     margins = loop_margins(problem, x)
-    fig, axes = plt.subplots(2, 4, figsize=(16, 6), sharex=True)
+    fig, axes = new_figure(2, 4, figsize=(16, 6), sharex=True)
     for k, ((i, j), sys) in enumerate(loops.items()):
         resp = control.frequency_response(sys, omega)
         mag = np.asarray(resp.magnitude).ravel()
@@ -231,7 +228,7 @@ def chapter_figures(chapter: int, exp, out_dir, *, runs=None, history=None) -> l
                     bode_figure(*d, p, title=f"Bode plots of the best FOLQI loop, {_COND[plant]}")
                     written.append(p)
                 except Exception:  # noqa: BLE001 - an undesignable best run has no Bode plot
-                    plt.close("all")
+                    pass
     else:
         for plant in ("min", "nmp"):
             for ctrl in ("iolqi", "folqi"):

@@ -309,9 +309,9 @@ def test_response_figure_marks_a_run_outside_the_physical_range(tmp_path, monkey
     from heurtune.analysis import figures
     from heurtune.analysis.figures import response_figure
 
-    figs = []
-    close = figures.plt.close
-    monkeypatch.setattr(figures.plt, "close", lambda fig: (figs.append(fig), close(fig)))
+    from figure_helpers import keep_figures
+
+    figs = keep_figures(monkeypatch, figures)
     exp = heurtune.load_experiment("cs_folqi_qtp")
     prob = exp.problem("nmp")
     x = prob.parse(",".join(f"{k}={v}" for k, v in NMP_FOLQI.items()))
