@@ -136,7 +136,7 @@ class LSHADE(Optimizer):
 
     def __init__(self, space, settings, rng, compare):
         super().__init__(space, settings, rng, compare)
-        self.n_init = max(settings.n_min, int(round(settings.n_init_per_dim * space.dim)))
+        self.n_init = self._initial_size(space.dim)
         self.max_nfe = 0
         self.nfe = 0
         self.m_cr = np.full(settings.memory, 0.5)
@@ -149,6 +149,28 @@ class LSHADE(Optimizer):
         """The run's evaluation budget (the engine calls this), which sets the reduction."""
         self.max_nfe = int(max_evals or 0)
 
+    # -- the steps a successor (jSO) changes --------------------------------------------------
+    def _initial_size(self, dim: int) -> int:
+        return max(self.settings.n_min, int(round(self.settings.n_init_per_dim * dim)))
+
+    def _parameters(self, slots) -> tuple:
+        """``(CR, F)`` of the members drawing the memory slots ``slots``."""
+        return sample_cr(self.m_cr[slots], self.rng), sample_f(self.m_f[slots], self.rng)
+
+    def _p(self) -> float:
+        """The share of the best members ``x_pbest`` is drawn from."""
+        return self.settings.p
+
+    def _mutant(self, X, F, pbest, r1, r2_vectors) -> np.ndarray:
+        return current_to_pbest(X, F, pbest, r1, r2_vectors)
+
+    def _remember(self, s_cr, s_f, delta) -> None:
+        """Update slot ``k`` from a generation's successes and move on when there were any."""
+        self.m_cr[self.k], self.m_f[self.k] = update_memory(self.m_cr[self.k], self.m_f[self.k], s_cr, s_f, delta)
+        if len(s_cr):
+            self.k = (self.k + 1) % self.settings.memory
+
+    # -- one generation ------------------------------------------------------------------------
     def ask(self) -> np.ndarray:
         if self.pop is None:
             self._trial = None
@@ -156,15 +178,14 @@ class LSHADE(Optimizer):
         X, f, v = self.pop
         n, d = X.shape
         slots = self.rng.integers(0, self.settings.memory, n)
-        CR = sample_cr(self.m_cr[slots], self.rng)
-        F = sample_f(self.m_f[slots], self.rng)
+        CR, F = self._parameters(slots)
         order = self.compare.order(f, v)
-        top = order[:max(2, int(round(self.settings.p * n)))]
+        top = order[:max(2, int(round(self._p() * n)))]
         pbest = top[self.rng.integers(0, len(top), n)]
         r1 = _distinct(self.rng, n, n, [np.arange(n)])
         pool = np.vstack([X, self.archive])
         r2 = _distinct(self.rng, n, len(pool), [np.arange(n), r1])
-        V = current_to_pbest(X, F, pbest, r1, pool[r2])
+        V = self._mutant(X, F, pbest, r1, pool[r2])
         U = binomial_crossover(X, V, CR, self.rng.integers(0, d, n), self.rng.random((n, d)))
         U = halfway_repair(U, X, self.space.lower, self.space.upper)
         self._trial = (CR, F)
@@ -187,14 +208,14 @@ class LSHADE(Optimizer):
             delta = np.where(np.isfinite(delta), delta, 0.0)
             self.archive = np.vstack([self.archive, X[better]])
             X[not_worse], f[not_worse], v[not_worse] = U[not_worse], fu[not_worse], vu[not_worse]
-            self.m_cr[self.k], self.m_f[self.k] = update_memory(self.m_cr[self.k], self.m_f[self.k], CR[better],
-                                                                F[better], delta[better])
-            if better.any():
-                self.k = (self.k + 1) % self.settings.memory
+            self._remember(CR[better], F[better], delta[better])
             self.pop = (X, f, v)
         self._reduce()
         self.X, self.f, self.v = self.pop
         return True
+
+    def _archive_rate(self) -> float:
+        return self.settings.archive_rate
 
     def _reduce(self) -> None:
         """Shrink the population (the worst leave) and the archive (random members leave)."""
@@ -203,7 +224,7 @@ class LSHADE(Optimizer):
         if n < len(X):
             keep = np.sort(self.compare.order(f, v)[:n])
             self.pop = (X[keep], f[keep], v[keep])
-        size = int(round(self.settings.archive_rate * len(self.pop[0])))
+        size = int(round(self._archive_rate() * len(self.pop[0])))
         if len(self.archive) > size:
             self.archive = self.archive[np.sort(self.rng.permutation(len(self.archive))[:size])]
 
