@@ -972,7 +972,8 @@ def summary_table(runs: pd.DataFrame, exp) -> pd.DataFrame:
     stable, simulable candidate), best, mean, sd, median, worst (of
     ``best_f`` over the successful runs, :func:`heurtune.analysis.compare.successful_runs`: a failed
     run's ``best_f`` is a sentinel and an infeasible run's answers another question, so both are
-    counted, not averaged; NaN when no run succeeded), conv_epoch, conv_evals (the convergence
+    counted, not averaged; NaN when no run succeeded, and sd NaN below two successes, as in
+    ``compare``), conv_epoch, conv_evals (the convergence
     point in evaluations; NaN for runs written before it was recorded) and n_evals (means over
     all runs), wall_s (summed), best_run, and the best run's gains (one column per variable).
     """
@@ -985,7 +986,7 @@ def summary_table(runs: pd.DataFrame, exp) -> pd.DataFrame:
             "case": case, "algorithm": grp["algorithm"].iloc[0], "optimiser_index": int(oi), "runs": len(grp),
             "successes": int(successful_runs(grp).sum()),
             "feasible": int(grp["feasible"].sum()), "failed": int(failed.sum()),
-            "best": f.min(), "mean": f.mean(), "sd": f.std(ddof=1) if len(f) > 1 else 0.0,
+            "best": f.min(), "mean": f.mean(), "sd": f.std(ddof=1) if len(f) > 1 else np.nan,
             "median": f.median(), "worst": f.max(),
             "conv_epoch": grp["convergence_epoch"].mean(),
             "conv_evals": grp["convergence_evals"].mean() if "convergence_evals" in grp else np.nan,

@@ -177,6 +177,8 @@ def test_summary_parquet_holds_the_printed_statistics_and_meta_says_where_it_ran
         if len(ok):
             assert row["best"] == ok.min() and row["mean"] == pytest.approx(ok.mean())
             assert row["median"] == pytest.approx(ok.median())
+        # a standard deviation needs two successes (compare leaves it blank too), not 0.0
+        assert np.isnan(row["sd"]) if len(ok) < 2 else row["sd"] == pytest.approx(ok.std(ddof=1))
         assert row["n_evals"] == grp["n_evals"].mean() and row["wall_s"] == pytest.approx(grp["wall_time_s"].sum())
         assert row["conv_evals"] == grp["convergence_evals"].mean()
         best = grp[grp["run"] == row["best_run"]].iloc[0]
