@@ -35,7 +35,9 @@ import numpy as np
 import pandas as pd
 
 from heurtune import _startup
+from heurtune.core.cli import exit_codes
 from heurtune.core.io import atomic_path
+
 __all__ = ["feasible_best", "default_targets", "fixed_target", "ert", "budget_grid", "ecdf", "ecdf_auc",
            "plot_ecdf", "plot_fixed_target", "write_report", "main"]
 
@@ -426,7 +428,8 @@ def write_report(history: pd.DataFrame, out, *, n_targets: int = 20, reference=N
 
 def _parser():
     ap = argparse.ArgumentParser(prog="python -m heurtune.anytime",
-                                 description="Anytime measures (ERT, ECDF, AUC) of an experiment's history.")
+                                 description="Anytime measures (ERT, ECDF, AUC) of an experiment's history.",
+                                 epilog=exit_codes())
     ap.add_argument("dir", help="results folder with history.parquet")
     ap.add_argument("--targets", type=int, default=20, help="targets per case (default 20)")
     ap.add_argument("--reference", type=float, help="easiest target for every case (default: per case, "

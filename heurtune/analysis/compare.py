@@ -67,6 +67,7 @@ import pandas as pd
 from scipy import stats
 
 from heurtune import _startup
+from heurtune.core.cli import exit_codes
 from heurtune.core.errors import ConfigError
 from heurtune.core.io import atomic_path, check_output_file
 from heurtune.core.problem import FAILED_OBJECTIVE
@@ -1471,7 +1472,7 @@ class OneLineParser(argparse.ArgumentParser):
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = OneLineParser(prog="python -m heurtune.compare", description=__doc__.split("\n")[0])
+    ap = OneLineParser(prog="python -m heurtune.compare", description=__doc__.split("\n")[0], epilog=exit_codes())
     ap.add_argument("dirs", nargs="*", metavar="DIR", help="experiment output folder containing runs.parquet")
     ap.add_argument("--format", default="md", help="output format: md (default), csv or latex")
     ap.add_argument("--metric", default="best_f", help="column to compare, lower is better (default best_f)")

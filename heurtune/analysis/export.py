@@ -45,6 +45,7 @@ import pandas as pd
 from heurtune import _startup
 from heurtune.analysis.anytime import feasible_best
 from heurtune.analysis.compare import best_runs
+from heurtune.core.cli import exit_codes
 from heurtune.core.errors import ConfigError
 from heurtune.core.families import make_experiment
 from heurtune.core.io import atomic_path, check_output_folder
@@ -347,7 +348,8 @@ def export_mat(results_dir, out) -> list:
 
 # -- command line ----------------------------------------------------------------------------
 def _parser():
-    ap = argparse.ArgumentParser(prog="python -m heurtune.export", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m heurtune.export", description=__doc__.split("\n")[0],
+                                 epilog=exit_codes())
     ap.add_argument("dir", help="results folder (runs.parquet, history.parquet, meta.json)")
     ap.add_argument("--format", required=True, help="ioh (IOHprofiler: IOHanalyzer, iohinspector) or mat")
     ap.add_argument("--out", help="output folder (default DIR/ioh or DIR/mat)")

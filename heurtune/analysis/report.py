@@ -40,6 +40,7 @@ import pandas as pd
 
 from heurtune import _startup
 from heurtune.analysis import anytime, compare, figures
+from heurtune.core.cli import exit_codes
 from heurtune.core.errors import ConfigError
 from heurtune.core.families import make_experiment
 from heurtune.core.io import atomic_path
@@ -348,7 +349,8 @@ def build_report(dirs, out, *, metric: str = "best_f", alpha: float = 0.05, resp
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = compare.OneLineParser(prog="python -m heurtune.report", description=__doc__.split("\n")[0])
+    ap = compare.OneLineParser(prog="python -m heurtune.report", description=__doc__.split("\n")[0],
+                               epilog=exit_codes())
     ap.add_argument("dirs", nargs="*", metavar="DIR", help="experiment results folder (with runs.parquet)")
     ap.add_argument("--out", help="output folder; the report is OUT/index.html")
     ap.add_argument("--metric", default="best_f", help="column compared, lower is better (default best_f)")

@@ -21,6 +21,7 @@ from pathlib import Path
 
 from heurtune import _startup
 from heurtune.core import registry
+from heurtune.core.cli import exit_codes
 from heurtune.core.contract import CHECKS, run_checks
 from heurtune.core.errors import ConfigError
 from heurtune.core.plugins import load_plugin
@@ -29,7 +30,8 @@ __all__ = ["run", "main"]
 
 
 def _parser():
-    ap = argparse.ArgumentParser(prog="python -m heurtune.check_plugin", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m heurtune.check_plugin", description=__doc__.split("\n")[0],
+                                 epilog=exit_codes(c1="a check of the contract failed"))
     ap.add_argument("plugin", help="a .py file or an importable module that registers optimisers")
     ap.add_argument("--settings", default="{}", help="settings for the checks, as JSON (default: the optimiser's)")
     return ap

@@ -28,15 +28,17 @@ import pandas as pd
 
 from heurtune import _startup
 from heurtune.analysis.figures import plot_responses
+from heurtune.core.cli import exit_codes
 from heurtune.core.errors import ConfigError, DesignError
-from heurtune.core.io import FIGURE_SUFFIXES, check_output_file, write_parquet
 from heurtune.core.families import load_registering_plugin
+from heurtune.core.io import FIGURE_SUFFIXES, check_output_file, write_parquet
 from heurtune.core.problem import StructureWarning
 from heurtune.runner.config import load_experiment
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="python -m heurtune.evaluate", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m heurtune.evaluate", description=__doc__.split("\n")[0],
+                                 epilog=exit_codes())
     ap.add_argument("experiment", help="experiment name (experiments/<name>.toml) or a .toml path")
     ap.add_argument("--case", required=True, help="plant case, e.g. min or nmp")
     ap.add_argument("--x", required=True, help='decision variables as "NAME=VALUE,NAME=VALUE,..."')

@@ -56,7 +56,9 @@ from heurtune import _startup
 from heurtune.analysis import figures
 from heurtune.analysis.compare import best_runs, failed_runs, successful_runs
 from heurtune.core import registry
-from heurtune.core.engine import Checkpoint, SearchSpace, run as run_optimiser
+from heurtune.core.cli import exit_codes
+from heurtune.core.engine import Checkpoint, SearchSpace
+from heurtune.core.engine import run as run_optimiser
 from heurtune.core.errors import ConfigError
 from heurtune.core.evaluator import CHUNKS_PER_WORKER, Evaluator, Objective, Objectives, evaluate_groups
 from heurtune.core.execution import BACKENDS, Pool, WorkerDied, is_worker_death, kill_workers
@@ -67,10 +69,24 @@ from heurtune.core.plugins import load_plugins
 from heurtune.core.problem import StructureWarning, problem_fingerprint
 from heurtune.runner.config import list_experiments, load_config
 from heurtune.runner.progress import HEARTBEAT_SUFFIX, Heartbeat, Progress, clear_heartbeats
-from heurtune.runner.resultdir import METADATA_KEY, FolderLock, check_parts, clear_folder, differing_keys, \
-    fingerprint_of, read_part, run_fingerprint, set_aside_file
-from heurtune.runner.workplan import borrow_step_cost, calibrate, check_evaluation_time, estimate_line, \
-    planned_evaluations
+from heurtune.runner.resultdir import (
+    METADATA_KEY,
+    FolderLock,
+    check_parts,
+    clear_folder,
+    differing_keys,
+    fingerprint_of,
+    read_part,
+    run_fingerprint,
+    set_aside_file,
+)
+from heurtune.runner.workplan import (
+    borrow_step_cost,
+    calibrate,
+    check_evaluation_time,
+    estimate_line,
+    planned_evaluations,
+)
 
 __all__ = ["RunSpec", "plan", "execute", "problem_id", "run_status", "RUN_STATUSES", "run_experiment", "summary_table",
            "status_table",
@@ -1015,7 +1031,10 @@ def print_summary(runs: pd.DataFrame, exp, stream=None):
 
 
 def _parser():
-    ap = argparse.ArgumentParser(prog="python -m heurtune.experiment", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m heurtune.experiment", description=__doc__.split("\n")[0],
+                                 epilog=exit_codes(c130="interrupted by Ctrl-C",
+                                                   c143="stopped by SIGTERM (after either, the finished runs are "
+                                                        "kept and the same command resumes)"))
     ap.add_argument("name", nargs="?", help="experiment name (experiments/<name>.toml) or a .toml path")
     ap.add_argument("--runs", type=int, help="runs per case and optimiser (overrides the config)")
     ap.add_argument("--max-epochs", type=int, help="generation budget of every optimiser (overrides the config)")

@@ -149,3 +149,21 @@ def test_a_broken_pipe_other_than_stdout_is_not_hidden(monkeypatch):
     monkeypatch.setattr(_startup, "_stdout_closed", lambda: False)
     with pytest.raises(BrokenPipeError, match="a worker's pipe"):
         _startup.run_command(run)
+
+
+@pytest.mark.parametrize("command, codes", [
+    ("experiment", (0, 2, 130, 143)), ("evaluate", (0, 2)), ("check_plugin", (0, 1, 2)), ("compare", (0, 2)),
+    ("report", (0, 2)), ("anytime", (0, 2)), ("export", (0, 2)),
+])
+def test_every_help_states_the_exit_codes(command, codes, capsys):
+    import importlib
+
+    module = {"experiment": "heurtune.runner.experiment", "evaluate": "heurtune.runner.evaluate",
+              "check_plugin": "heurtune.runner.check_plugin"}.get(command, f"heurtune.analysis.{command}")
+    with pytest.raises(SystemExit) as done:
+        importlib.import_module(module).run(["--help"])
+    assert done.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "exit codes: " in text
+    for code in codes:
+        assert f" {code} " in text.split("exit codes:")[1] + " "

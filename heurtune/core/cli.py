@@ -1,0 +1,19 @@
+"""What every ``python -m heurtune.<command>`` has in common: its exit codes, stated in ``--help``."""
+
+from __future__ import annotations
+
+__all__ = ["EXIT_CODES", "exit_codes"]
+
+EXIT_CODES = {
+    0: "done",
+    2: "a bad config, option, input or output path, or a disk error: one line on stderr names it and "
+       "nothing half-written is left",
+}
+
+
+def exit_codes(**extra: str) -> str:
+    """The ``--help`` epilog listing a command's exit codes: :data:`EXIT_CODES` and ``extra``
+    (keyword ``c<code>``, e.g. ``c130="interrupted"``)."""
+    codes = dict(EXIT_CODES)
+    codes.update({int(k.lstrip("c")): v for k, v in extra.items()})
+    return "exit codes: " + "; ".join(f"{code} {what}" for code, what in sorted(codes.items()))
