@@ -561,7 +561,8 @@ def status_table(root, name: str | None = None) -> pd.DataFrame:
     -------
     pandas.DataFrame
         Columns folder, experiment, done, planned (None when the folder predates
-        ``planned.json``), complete.
+        ``planned.json``), complete, smoke (whether the last command was ``--smoke``, whose
+        tiny budgets make results that are a check, not a study; None when not recorded).
     """
     root = Path(root)
     folders = [root / name] if name else sorted(p for p in root.iterdir() if (p / "parts").is_dir()) \
@@ -582,8 +583,9 @@ def status_table(root, name: str | None = None) -> pd.DataFrame:
         rows.append(dict(folder=str(folder), experiment=planned["experiment"] if planned else folder.name,
                          done=len(done),
                          planned=None if runs is None else len(runs),
-                         complete=runs is not None and set(runs) <= done and (folder / "runs.parquet").exists()))
-    return pd.DataFrame(rows, columns=["folder", "experiment", "done", "planned", "complete"])
+                         complete=runs is not None and set(runs) <= done and (folder / "runs.parquet").exists(),
+                         smoke=planned.get("smoke") if isinstance(planned, dict) else None))
+    return pd.DataFrame(rows, columns=["folder", "experiment", "done", "planned", "complete", "smoke"])
 
 
 def _print_status(table: pd.DataFrame, stream=None) -> None:
@@ -593,7 +595,8 @@ def _print_status(table: pd.DataFrame, stream=None) -> None:
     for r in table.itertuples(index=False):
         planned = "?" if r.planned is None or pd.isna(r.planned) else int(r.planned)
         state = "complete" if r.complete else "incomplete: run the same command to resume"
-        print(f"{r.folder:40s} {r.experiment:24s} {r.done}/{planned} runs  {state}", file=stream)
+        smoke = "  (--smoke: tiny budgets, a check)" if r.smoke is True else ""
+        print(f"{r.folder:40s} {r.experiment:24s} {r.done}/{planned} runs  {state}{smoke}", file=stream)
 
 
 def _finished(parts: Path) -> set:
@@ -694,7 +697,8 @@ def _run_locked(exp, config, specs, fingerprints, ids, out_dir, parts, *, fresh,
         tmp.write_text(json.dumps(plan_key))
     with atomic_path(out_dir / PLANNED_FILE) as tmp:  # what --status compares the parts with
         tmp.write_text(json.dumps(dict(experiment=exp.name, runs=[s.part_name for s in specs],
-                                       fingerprints={s.part_name: _digest(fingerprints[s.part_name]) for s in specs})))
+                                       fingerprints={s.part_name: _digest(fingerprints[s.part_name]) for s in specs},
+                                       smoke=bool(plan_key.get("smoke")))))
     structure_warnings = exp.structure_warnings()
     for case, msg in structure_warnings.items():
         print(f"warning: {case}: {msg}", file=sys.stderr)

@@ -205,14 +205,15 @@ def test_status_lists_result_folders_with_runs_done_and_planned(tmp_path, capsys
     table = status_table(root)
     assert list(table["experiment"]) == ["cs_folqi_qtp", "ga_pi_ccts"]
     assert list(table["done"]) == list(table["planned"]) and table["complete"].all()
+    assert list(table["smoke"]) == [True, True]  # a smoke folder says so
     # a lost run and no gathered table: incomplete, and what is missing is counted
     next((root / "a" / "parts").glob("*.run.parquet")).unlink()
     (root / "a" / "runs.parquet").unlink()
     (root / "b" / "planned.json").unlink()  # a folder written before planned.json existed
     assert run(["--status", "--out", str(root)]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert "3/4 runs  incomplete: run the same command to resume" in lines[0]
-    assert "/? runs" in lines[1]
+    assert "3/4 runs  incomplete: run the same command to resume  (--smoke: tiny budgets, a check)" in lines[0]
+    assert "/? runs" in lines[1] and "--smoke" not in lines[1]  # not known without planned.json
     assert run(["--status", "--out", str(root / "a")]) == 0 and len(capsys.readouterr().out.splitlines()) == 1
 
 
