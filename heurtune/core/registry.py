@@ -102,7 +102,8 @@ def get(name: str) -> AlgorithmInfo:
 
 
 def _check_type(name: str, key: str, hint, value):
-    """Check one setting against its annotation (int, float, bool or str); ints pass as floats."""
+    """Check one setting against its annotation (int, float, bool or str); ints pass as floats.
+    Returns the value, or raises a ConfigError saying what it must be."""
     if hint is float:
         ok = isinstance(value, (int, float)) and not isinstance(value, bool)
         value = float(value) if ok else value
@@ -124,12 +125,17 @@ def make_settings(name: str, values: dict | None = None):
     info = get(name)
     values = dict(values or {})
     fields = [f.name for f in dataclasses.fields(info.settings)]
-    unknown = [k for k in values if k not in fields]
-    if unknown:
-        raise ConfigError(f"{name}: unknown setting {unknown[0]!r}; allowed: {', '.join(fields)}")
+    problems = [f"unknown setting {k!r}" for k in values if k not in fields]
     hints = typing.get_type_hints(info.settings)
     for key, value in list(values.items()):
-        values[key] = _check_type(name, key, hints.get(key), value)
+        if key in fields:
+            try:
+                values[key] = _check_type(name, key, hints.get(key), value)
+            except ConfigError as exc:
+                problems.append(str(exc).split(": ", 1)[1])
+    if problems:  # every bad key at once, in one line
+        allowed = f"; allowed: {', '.join(fields)}" if any(p.startswith("unknown") for p in problems) else ""
+        raise ConfigError(f"{name}: {'; '.join(problems)}{allowed}")
     try:
         return info.settings(**values)
     except (ValueError, TypeError) as exc:

@@ -58,6 +58,9 @@ def test_custom_plant_case(tmp_path):
     ('[plant\ncases = 1', r"exp.toml: not valid TOML"),
     ('extends = "cs_folqi_qtp"\n[[optimisers]]\nname = "hillclimb"\n', r"optimisers\[0\]: unknown optimiser 'hillclimb'; allowed: .*cs"),
     ('extends = "cs_folqi_qtp"\n[[optimisers]]\nname = "cs"\nsettings = {npop = 3}\n', r"optimisers\[0\]: cs: unknown setting 'npop'; allowed: n, pa"),
+    # every bad setting in the one line, not only the first
+    ('extends = "cs_folqi_qtp"\n[[optimisers]]\nname = "cs"\nsettings = {npop = 3, pa = "x", nn = 1}\n',
+     r"cs: unknown setting 'npop'; unknown setting 'nn'; setting pa must be float, got 'x'; allowed: n, pa"),
     ('extends = "cs_folqi_qtp"\n[[optimisers]]\nname = "cs"\nbudget = 3\n', r"optimisers\[0\]: unknown key 'budget'; allowed: name, settings"),
     ('extends = "cs_folqi_qtp"\n[plant]\ncases = ["rig"]\n[plant.custom.rig]\nA = [1, 1, 1, 1]\n', r"plant.custom.rig: missing a, k, gamma, levels"),
 ])
