@@ -21,9 +21,19 @@ from heurtune.core.errors import ConfigError  # noqa: E402
 from heurtune.core.families import register_family  # noqa: E402
 from heurtune.core.problem import Evaluation, ExperimentBase, TuningProblem  # noqa: E402
 from heurtune.core.registry import register  # noqa: E402
-from heurtune.objectives.qtp.family import Experiment  # noqa: E402
-from heurtune.objectives.qtp.problem import Problem  # noqa: E402
 from heurtune.runner.config import load_experiment  # noqa: E402
+
+# The QTP family's classes, imported when first asked for: ``import heurtune`` loads no plant
+# family (each is imported when a config names its model, heurtune.core.families).
+_LAZY = {"Experiment": "heurtune.objectives.qtp.family", "Problem": "heurtune.objectives.qtp.problem"}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'heurtune' has no attribute {name!r}")
 
 __version__ = "0.1.0"
 __all__ = ["ConfigError", "Evaluation", "Experiment", "ExperimentBase", "Problem", "Result", "TuningProblem",
