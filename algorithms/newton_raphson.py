@@ -16,9 +16,8 @@ import dataclasses
 
 import numpy as np
 
-from heurtune.core.registry import register
-
 from heurtune.algorithms._gradient import GradientOptimizer, GradientSettings, modify_eigenvalues
+from heurtune.core.registry import register
 
 
 @dataclasses.dataclass(frozen=True)

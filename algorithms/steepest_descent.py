@@ -11,9 +11,8 @@ from __future__ import annotations
 
 import dataclasses
 
-from heurtune.core.registry import register
-
 from heurtune.algorithms._gradient import GradientOptimizer, GradientSettings
+from heurtune.core.registry import register
 
 
 @dataclasses.dataclass(frozen=True)

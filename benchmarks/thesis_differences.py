@@ -284,8 +284,8 @@ def table(header, rows, first=38, width=9):
 
 def part_a():
     print("=== a. Per-pump effort J1, J2 (x 1e3 in the thesis) and the split J2/J1 ===\n")
-    from heurtune.runner.config import load_config
     from heurtune.core.families import make_experiment
+    from heurtune.runner.config import load_config
 
     # 0. this script's loop against heurtune's Problem.report
     vals = GAINS[("ch4", "folqi", "min")]
@@ -367,7 +367,7 @@ def part_a():
 
         def add(label, s, **kw):
             J = effort(s, **kw)
-            rows.append([label, J[0], J[1], J.sum(), J[1] / J[0]] if s["ok"] else [label, "diverged"])
+            rows.append([label, J[0], J[1], J.sum(), J[1] / J[0]] if s["ok"] else [label, "diverged"])  # noqa: B023 - called within this iteration
 
         add("heurtune: u^2 over [0, 350] s", base)
         add("u^2 over [50, 350] s", base, t0=50.0)

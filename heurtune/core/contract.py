@@ -73,8 +73,8 @@ def check_nan_inf(name, settings):
 def check_seeds(name, settings):
     kw = dict(max_evals=200, settings=settings)
     a = minimize(sphere, LOWER, UPPER, name, seed=5, **kw)
-    np.random.seed(123)
-    np.random.random(10)  # a global-RNG poke must change nothing
+    np.random.seed(123)  # noqa: NPY002 - the global generator, poked on purpose:
+    np.random.random(10)  # noqa: NPY002 - a run seeded by its own generator must not change
     b = minimize(sphere, LOWER, UPPER, name, seed=5, **kw)
     c = minimize(sphere, LOWER, UPPER, name, seed=6, **kw)
     assert a.history[HISTORY_COLUMNS].equals(b.history[HISTORY_COLUMNS]) and np.array_equal(a.x, b.x), \

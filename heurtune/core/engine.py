@@ -151,7 +151,7 @@ class Driver:
         self.rng = rng
         self.compare = compare
 
-    def run(self, ctx: "RunContext") -> None:
+    def run(self, ctx: RunContext) -> None:
         raise NotImplementedError
 
 

@@ -43,7 +43,7 @@ class Client:
     ``objective`` (for a driver's tasks) and ``pool.imap_unordered`` (for a driver's work units).
     """
 
-    def __init__(self, hub: "Lockstep", group):
+    def __init__(self, hub: Lockstep, group):
         self.hub = hub
         self.group = group
 

@@ -31,7 +31,8 @@ import time
 import numpy as np
 
 from heurtune.core import registry
-from heurtune.core.engine import SearchSpace, run as run_optimiser
+from heurtune.core.engine import SearchSpace
+from heurtune.core.engine import run as run_optimiser
 from heurtune.core.errors import ConfigError
 from heurtune.core.evaluator import Evaluator
 

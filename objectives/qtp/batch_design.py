@@ -29,9 +29,19 @@ from __future__ import annotations
 import numpy as np
 
 from heurtune.core.errors import ConfigError
-from heurtune.objectives.qtp.controllers import (_PUMP_ROWS, _SEGMENT_KEYS, N_INPUTS, N_MEASURED,
-                                                 RICCATI_RESIDUAL_TOL, ControllerDesignError, DiscreteController,
-                                                 LinearController, _error_of_pump, build_controller, lqr_gain)
+from heurtune.objectives.qtp.controllers import (
+    _PUMP_ROWS,
+    _SEGMENT_KEYS,
+    N_INPUTS,
+    N_MEASURED,
+    RICCATI_RESIDUAL_TOL,
+    ControllerDesignError,
+    DiscreteController,
+    LinearController,
+    _error_of_pump,
+    build_controller,
+    lqr_gain,
+)
 from heurtune.objectives.qtp.oustaloup import _INTEGER_TOL
 
 __all__ = ["lqr_gains", "folqi_controllers", "stability_margins", "discretise_many", "design_batch"]

@@ -20,10 +20,24 @@ import math
 import numpy as np
 from numba import njit
 
-from heurtune.objectives.qtp.kernels import (_FAST, IN_STATE, LEVEL_LIMIT, METRIC_BLOCK, N_METRICS, OUT_STATE,
-                                             STATUS_DIVERGED, STATUS_OK, _finish_input, _finish_output,
-                                             _finish_range, _fold_input, _fold_output, _output_state_init,
-                                             _rk4_clipped, _rk4_limited)
+from heurtune.objectives.qtp.kernels import (
+    _FAST,
+    IN_STATE,
+    LEVEL_LIMIT,
+    METRIC_BLOCK,
+    N_METRICS,
+    OUT_STATE,
+    STATUS_DIVERGED,
+    STATUS_OK,
+    _finish_input,
+    _finish_output,
+    _finish_range,
+    _fold_input,
+    _fold_output,
+    _output_state_init,
+    _rk4_clipped,
+    _rk4_limited,
+)
 
 __all__ = ["simulate_batch", "NP"]
 

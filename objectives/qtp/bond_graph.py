@@ -76,7 +76,7 @@ class BondGraphElements:
     g: float
 
     @classmethod
-    def from_plant(cls, p: QTPParams, rho: float = RHO_WATER) -> "BondGraphElements":
+    def from_plant(cls, p: QTPParams, rho: float = RHO_WATER) -> BondGraphElements:
         """Element values of the plant ``p`` for a liquid of density ``rho`` (g/cm^3).
 
         Raises

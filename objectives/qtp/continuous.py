@@ -59,7 +59,7 @@ class ContinuousController:
     channel: np.ndarray
 
     @classmethod
-    def from_linear(cls, ctrl) -> "ContinuousController":
+    def from_linear(cls, ctrl) -> ContinuousController:
         """Modal form of a :class:`LinearController` (:meth:`LinearController.modal_blocks`)."""
         lam, b, col, Cm, dense, ch_m, ch_q = [], [], [], [], [], [], []
         for part in ctrl.modal_blocks():
@@ -84,7 +84,9 @@ class ContinuousController:
             Bq[k:k + m] = B
             Cq[:, k:k + m] = C
             k += m
-        cat = (lambda xs, empty: np.ascontiguousarray(np.concatenate(xs)) if xs else empty)
+        def cat(xs, empty):
+            return np.ascontiguousarray(np.concatenate(xs)) if xs else empty
+
         return cls(lam=cat(lam, np.zeros(0)), b=cat(b, np.zeros(0)), col=cat(col, np.zeros(0, dtype=np.int64)),
                    Cm=np.ascontiguousarray(np.hstack(Cm)) if Cm else np.zeros((2, 0)), Aq=Aq, Bq=Bq,
                    Cq=np.ascontiguousarray(Cq), D=np.ascontiguousarray(ctrl.D, dtype=np.float64),

@@ -221,15 +221,15 @@ N_STEP_LEVELS = N_LEVELS - 1
 def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, rows, coup, prop_m, prop_q, prop_qb, pmc, pmh, phw, sqw, rw, bw):
     """Everything an ETDRK4 step of the segment needs from the controller, per step level.
 
-    For each step level ``l`` (step ``H = h 2^-l``, half step ``c = H / 2``; Lambda the modal
+    For each step level ``lv`` (step ``H = h 2^-lv``, half step ``c = H / 2``; Lambda the modal
     eigenvalues (+) the dense blocks, B the input matrix, C the output matrix) writes
 
-    - ``rows[l]`` (N_ROWS, nd + nq): ``C phi_1(c)``, ``C phi_1(c) phi_0(c)``, ``C phi_0(c)``,
+    - ``rows[lv]`` (N_ROWS, nd + nq): ``C phi_1(c)``, ``C phi_1(c) phi_0(c)``, ``C phi_0(c)``,
       ``C phi_1(H)``, ``C phi_0(H)`` (two rows each), applied to the controller state;
-    - ``coup[l]`` (N_COUPLINGS, 2, 4): ``C phi_k(c) B`` (k = 1..4), ``C phi_1(c)^2 B``,
+    - ``coup[lv]`` (N_COUPLINGS, 2, 4): ``C phi_k(c) B`` (k = 1..4), ``C phi_1(c)^2 B``,
       ``C phi_k(H) B`` (k = 1..4), applied to measured signals;
-    - ``prop_m[l]`` (4, nd): ``phi_0(H)`` and ``phi_k(H) b`` (k = 1..3) of the modal states;
-    - ``prop_q[l]`` (nq, nq) ``phi_0(H)`` and ``prop_qb[l]`` (3, nq, 4) ``phi_k(H) Bq`` of the dense
+    - ``prop_m[lv]`` (4, nd): ``phi_0(H)`` and ``phi_k(H) b`` (k = 1..3) of the modal states;
+    - ``prop_q[lv]`` (nq, nq) ``phi_0(H)`` and ``prop_qb[lv]`` (3, nq, 4) ``phi_k(H) Bq`` of the dense
       part.
 
     Scratch: ``pmc``, ``pmh`` (N_PHI,); for the dense part ``phw`` (2, N_PHI, nq, nq), ``sqw``
@@ -239,35 +239,35 @@ def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, rows, coup, prop_m, prop_q, prop
     """
     nd = lam.size
     nq = Aq.shape[0]
-    for l in range(N_STEP_LEVELS):
-        H = h / 2.0 ** l
+    for lv in range(N_STEP_LEVELS):
+        H = h / 2.0 ** lv
         c = 0.5 * H
         for r in range(N_ROWS):
             for i in range(nd + nq):
-                rows[l, r, i] = 0.0
+                rows[lv, r, i] = 0.0
         for g in range(N_COUPLINGS):
             for r in range(2):
                 for j in range(4):
-                    coup[l, g, r, j] = 0.0
+                    coup[lv, g, r, j] = 0.0
         for i in range(nd):
             phi_scalar(c * lam[i], pmc)
             phi_scalar(H * lam[i], pmh)
             col = mi[i]
             for r in range(2):
                 cr = Cm[r, i]
-                rows[l, _R_C1 + r, i] = cr * pmc[1]
-                rows[l, _R_C10 + r, i] = cr * pmc[1] * pmc[0]
-                rows[l, _R_C0 + r, i] = cr * pmc[0]
-                rows[l, _R_H1 + r, i] = cr * pmh[1]
-                rows[l, _R_H0 + r, i] = cr * pmh[0]
+                rows[lv, _R_C1 + r, i] = cr * pmc[1]
+                rows[lv, _R_C10 + r, i] = cr * pmc[1] * pmc[0]
+                rows[lv, _R_C0 + r, i] = cr * pmc[0]
+                rows[lv, _R_H1 + r, i] = cr * pmh[1]
+                rows[lv, _R_H0 + r, i] = cr * pmh[0]
                 cb = cr * bm[i]
                 for k in range(1, 5):
-                    coup[l, _G_C1 + k - 1, r, col] += cb * pmc[k]
-                    coup[l, _G_H1 + k - 1, r, col] += cb * pmh[k]
-                coup[l, _G_C11, r, col] += cb * pmc[1] * pmc[1]
-            prop_m[l, 0, i] = pmh[0]
+                    coup[lv, _G_C1 + k - 1, r, col] += cb * pmc[k]
+                    coup[lv, _G_H1 + k - 1, r, col] += cb * pmh[k]
+                coup[lv, _G_C11, r, col] += cb * pmc[1] * pmc[1]
+            prop_m[lv, 0, i] = pmh[0]
             for k in range(1, 4):
-                prop_m[l, k, i] = pmh[k] * bm[i]
+                prop_m[lv, k, i] = pmh[k] * bm[i]
     if nq == 0:
         return
     m = _phi_scaled(Aq, h, N_STEP_LEVELS, phw[0], sqw[0], sqw[1])
@@ -275,33 +275,33 @@ def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, rows, coup, prop_m, prop_q, prop
     while True:
         ph = phw[cur]  # phi_k(h 2^-m Aq)
         if 1 <= m <= N_STEP_LEVELS:  # the half step of step level m - 1
-            l = m - 1
+            lv = m - 1
             _matmul(Cq, ph[1], rw[0])  # C phi_1(c)
             _matmul(rw[0], ph[0], rw[1])  # C phi_1(c) phi_0(c)
             _matmul(Cq, ph[0], rw[2])  # C phi_0(c)
             for r in range(2):
                 for i in range(nq):
-                    rows[l, _R_C1 + r, nd + i] = rw[0, r, i]
-                    rows[l, _R_C10 + r, nd + i] = rw[1, r, i]
-                    rows[l, _R_C0 + r, nd + i] = rw[2, r, i]
+                    rows[lv, _R_C1 + r, nd + i] = rw[0, r, i]
+                    rows[lv, _R_C10 + r, nd + i] = rw[1, r, i]
+                    rows[lv, _R_C0 + r, nd + i] = rw[2, r, i]
             for k in range(1, 5):
-                _add_c_m_b(Cq, ph[k], Bq, bw, coup[l, _G_C1 + k - 1])
-            _add_c_m_b(rw[0], ph[1], Bq, bw, coup[l, _G_C11])
+                _add_c_m_b(Cq, ph[k], Bq, bw, coup[lv, _G_C1 + k - 1])
+            _add_c_m_b(rw[0], ph[1], Bq, bw, coup[lv, _G_C11])
         if m <= N_STEP_LEVELS - 1:  # the full step of step level m
-            l = m
+            lv = m
             _matmul(Cq, ph[1], rw[0])
             _matmul(Cq, ph[0], rw[2])
             for r in range(2):
                 for i in range(nq):
-                    rows[l, _R_H1 + r, nd + i] = rw[0, r, i]
-                    rows[l, _R_H0 + r, nd + i] = rw[2, r, i]
+                    rows[lv, _R_H1 + r, nd + i] = rw[0, r, i]
+                    rows[lv, _R_H0 + r, nd + i] = rw[2, r, i]
             for k in range(1, 5):
-                _add_c_m_b(Cq, ph[k], Bq, bw, coup[l, _G_H1 + k - 1])
+                _add_c_m_b(Cq, ph[k], Bq, bw, coup[lv, _G_H1 + k - 1])
             for i in range(nq):
                 for j in range(nq):
-                    prop_q[l, i, j] = ph[0, i, j]
+                    prop_q[lv, i, j] = ph[0, i, j]
             for k in range(1, 4):
-                _matmul(ph[k], Bq, prop_qb[l, k - 1])
+                _matmul(ph[k], Bq, prop_qb[lv, k - 1])
         if m == 0:
             break
         _phi_double(phw[cur], phw[1 - cur])

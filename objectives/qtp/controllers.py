@@ -23,7 +23,6 @@ sign.
 from __future__ import annotations
 
 import dataclasses
-
 import math
 
 import numpy as np
@@ -138,7 +137,7 @@ class LinearController:
                 parts.append(("dense", A, B, C, ch))
         return parts
 
-    def discretise(self, dt: float) -> "DiscreteController":
+    def discretise(self, dt: float) -> DiscreteController:
         """Exact zero-order-hold discretisation, block by block (see :meth:`modal_blocks`):
         each modal state advances by ``z <- a z + b w_col``, a dense block by its matrix
         exponential.

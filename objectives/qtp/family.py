@@ -19,12 +19,17 @@ from heurtune.core.problem import ExperimentBase
 from heurtune.core.robust import ROBUST_SCHEMA, robust_tuning
 from heurtune.core.schema import COMMON_SCHEMA, MULTI_OBJECTIVE_SCHEMA, NUMBER, PAIR, within
 from heurtune.objectives.qtp.controllers import (
-    CONTROLLER_TYPES, PAIRED_TYPES, dc_gain, decision_names, default_bounds, integral_action_obstruction,
+    CONTROLLER_TYPES,
+    PAIRED_TYPES,
+    dc_gain,
+    decision_names,
+    default_bounds,
+    integral_action_obstruction,
     variable_domain,
 )
-from heurtune.objectives.qtp.oustaloup import MAX_OUSTALOUP_ORDER
 from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
 from heurtune.objectives.qtp.model import QTPParams, linearise, preset
+from heurtune.objectives.qtp.oustaloup import MAX_OUSTALOUP_ORDER
 from heurtune.objectives.qtp.problem import OBJECTIVES, WEIGHTED_METRICS, Problem
 from heurtune.objectives.qtp.thesis.printed import printed_row
 from heurtune.objectives.qtp.thesis.tables import write_chapter

@@ -20,9 +20,9 @@ from heurtune.objectives.qtp import continuous as _continuous
 from heurtune.objectives.qtp import continuous_kernels as _continuous_kernels
 from heurtune.objectives.qtp import kernels as _kernels
 from heurtune.objectives.qtp.batch_design import discretise_many
+from heurtune.objectives.qtp.bond_graph import BondGraphElements, pressure_coefficients
 from heurtune.objectives.qtp.controllers import LinearController, build_controller
 from heurtune.objectives.qtp.model import QTPParams, linearise, operating_point
-from heurtune.objectives.qtp.bond_graph import BondGraphElements, pressure_coefficients
 
 _DGEEV = scipy.linalg.lapack.get_lapack_funcs("geev", dtype=np.float64)
 

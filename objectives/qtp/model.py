@@ -136,7 +136,7 @@ class QTPParams:
             )
         return np.array(self.height, dtype=np.float64), self.u_range
 
-    def scaled(self, factor: float) -> "QTPParams":
+    def scaled(self, factor: float) -> QTPParams:
         """Return the plant with every A_i and a_i multiplied by ``factor``.
 
         This is the thesis' parameter uncertainty: time constants and operating levels stay,

@@ -18,7 +18,14 @@ from heurtune.core.schema import COMMON_SCHEMA, MULTI_OBJECTIVE_SCHEMA, NUMBER, 
 from heurtune.objectives.tito import model as tito
 from heurtune.objectives.tito import report, two_tank
 from heurtune.objectives.tito.problem import (
-    DEFAULT_GPM, MULTI_OBJECTIVES, OBJECTIVES, DesignChain, TITOProblem, default_bounds, fopdt_fit, gain_names,
+    DEFAULT_GPM,
+    MULTI_OBJECTIVES,
+    OBJECTIVES,
+    DesignChain,
+    TITOProblem,
+    default_bounds,
+    fopdt_fit,
+    gain_names,
 )
 from heurtune.objectives.tito.sim import TITOScenario
 

@@ -40,12 +40,17 @@ import numpy as np
 import pandas as pd
 
 from heurtune.core.errors import ConfigError
-from heurtune.objectives.tito import design as tito_design, model as tito, two_tank
-from heurtune.objectives.robustness import (
-    interval_characteristic_polynomial, kharitonov_test, pade, spectral_radius_test,
-)
-from heurtune.objectives.tito.sim import TITOScenario, TITOSimulator
 from heurtune.core.problem import FAILED_OBJECTIVE, FAILED_VIOLATION, Evaluation, TuningProblem
+from heurtune.objectives.robustness import (
+    interval_characteristic_polynomial,
+    kharitonov_test,
+    pade,
+    spectral_radius_test,
+)
+from heurtune.objectives.tito import design as tito_design
+from heurtune.objectives.tito import model as tito
+from heurtune.objectives.tito import two_tank
+from heurtune.objectives.tito.sim import TITOScenario, TITOSimulator
 
 __all__ = ["TITOProblem", "DesignChain", "gain_names", "default_bounds", "fopdt_fit", "DEFAULT_GPM"]
 

@@ -24,7 +24,12 @@ import numpy as np
 from numba import njit
 
 from heurtune.objectives.tito.kernels import (  # noqa: F401  (status codes re-exported)
-    SIGNAL_LIMIT, STATUS_DIVERGED, STATUS_OK, _block_update, controllers_and_decoupler, fill_nan,
+    SIGNAL_LIMIT,
+    STATUS_DIVERGED,
+    STATUS_OK,
+    _block_update,
+    controllers_and_decoupler,
+    fill_nan,
 )
 
 N_BLOCKS = 6

@@ -39,11 +39,11 @@ def test_deb_values_put_every_infeasible_candidate_after_the_feasible_ones():
 
 
 def test_no_global_random_state_is_used_and_seeds_reproduce():
-    np.random.seed(123)
-    state = np.random.get_state()[1].copy()
+    np.random.seed(123)  # noqa: NPY002 - the legacy global state, which the run must not touch
+    state = np.random.get_state()[1].copy()  # noqa: NPY002
     a = heurtune.minimize(rosenbrock, [-2.0] * 4, [2.0] * 4, "cmaes", max_evals=600, seed=9)
-    assert np.array_equal(np.random.get_state()[1], state)
-    np.random.seed(7)  # disturbed: the run must not care
+    assert np.array_equal(np.random.get_state()[1], state)  # noqa: NPY002
+    np.random.seed(7)  # noqa: NPY002 - disturbed: the run must not care
     b = heurtune.minimize(rosenbrock, [-2.0] * 4, [2.0] * 4, "cmaes", max_evals=600, seed=9)
     pd_equal = a.history.drop(columns=["wall_time_s"]).equals(b.history.drop(columns=["wall_time_s"]))
     assert pd_equal and a.f == b.f

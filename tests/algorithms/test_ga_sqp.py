@@ -6,9 +6,9 @@ import pandas as pd
 import pytest
 
 import heurtune
-from heurtune.core import registry
 from heurtune.algorithms import ga
 from heurtune.algorithms import sqp_multistart as sqp
+from heurtune.core import registry
 from heurtune.core.engine import Comparator, SearchSpace
 
 DEB = Comparator("deb")

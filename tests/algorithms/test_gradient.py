@@ -16,10 +16,16 @@ import numpy as np
 import pytest
 
 import heurtune
+from heurtune.algorithms._gradient import (
+    bfgs_update,
+    dfp_update,
+    finite_difference_gradient,
+    finite_difference_hessian,
+    gradient_from_stencil,
+    gradient_stencil,
+    modify_eigenvalues,
+)
 from heurtune.core import registry
-from heurtune.algorithms._gradient import (bfgs_update, dfp_update, finite_difference_gradient,
-                                           finite_difference_hessian, gradient_from_stencil,
-                                           gradient_stencil, modify_eigenvalues)
 
 METHODS = ["steepest_descent", "dfp", "bfgs", "newton_raphson"]
 

@@ -5,8 +5,16 @@ import numpy as np
 import pytest
 
 import heurtune
-from heurtune.algorithms.jso import (JSO, cr_floor, current_to_pbest_w, f_cap, initial_population, jso_p,
-                                     update_memory, weighted_f)
+from heurtune.algorithms.jso import (
+    JSO,
+    cr_floor,
+    current_to_pbest_w,
+    f_cap,
+    initial_population,
+    jso_p,
+    update_memory,
+    weighted_f,
+)
 from heurtune.algorithms.lshade import TERMINAL, lehmer_mean
 
 

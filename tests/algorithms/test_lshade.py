@@ -5,8 +5,17 @@ import numpy as np
 import pytest
 
 import heurtune
-from heurtune.algorithms.lshade import (TERMINAL, binomial_crossover, current_to_pbest, halfway_repair, lehmer_mean,
-                                        population_size, sample_cr, sample_f, update_memory)
+from heurtune.algorithms.lshade import (
+    TERMINAL,
+    binomial_crossover,
+    current_to_pbest,
+    halfway_repair,
+    lehmer_mean,
+    population_size,
+    sample_cr,
+    sample_f,
+    update_memory,
+)
 
 
 def test_cr_is_normal_around_its_memory_clipped_and_zero_for_a_terminal_slot():

@@ -10,8 +10,18 @@ import pytest
 from scipy import stats
 
 from heurtune.analysis import compare
-from heurtune.analysis.compare import (find_winners, friedman_across_cases, holm, kruskal_test, load_runs, pairwise_tests,
-                              reevaluation_table, report, run, summary_table)
+from heurtune.analysis.compare import (
+    find_winners,
+    friedman_across_cases,
+    holm,
+    kruskal_test,
+    load_runs,
+    pairwise_tests,
+    reevaluation_table,
+    report,
+    run,
+    summary_table,
+)
 from heurtune.core.errors import ConfigError
 
 SCENARIOS = ("nominal", "-30%", "+30%")

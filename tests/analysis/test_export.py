@@ -7,8 +7,7 @@ import pandas as pd
 import pytest
 import scipy.io
 
-from heurtune.analysis import anytime
-from heurtune.analysis import export
+from heurtune.analysis import anytime, export
 
 P = 1.0e10  # the placeholder before a feasible value (FAILED_OBJECTIVE)
 X = dict(Q11=0.4431, Q22=0.3027, Q33=0.4434, Q44=1.5722, R11=4.2253, R22=2.5994, Ki1=1.7411, Ki2=7.1716,
@@ -132,8 +131,8 @@ def _results(tmp_path):
 
 
 def test_mat_export(tmp_path):
-    from heurtune.runner.config import load_config
     from heurtune.core.families import make_experiment
+    from heurtune.runner.config import load_config
 
     runs, h = _results(tmp_path)
     assert export.run([str(tmp_path), "--format", "mat", "--out", str(tmp_path / "m")]) == 0

@@ -3,11 +3,10 @@
 import numpy as np
 import pandas as pd
 import pytest
+from figure_helpers import keep_figures
 
 import heurtune
-from figure_helpers import keep_figures
-from heurtune.analysis.figures import (FAILED_THRESHOLD, _needs_log, boxplot_figure, convergence_figure,
-                              response_figure)
+from heurtune.analysis.figures import FAILED_THRESHOLD, _needs_log, boxplot_figure, convergence_figure, response_figure
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 THESIS_X = ("Q11=0.4431,Q22=0.3027,Q33=0.4434,Q44=1.5722,R11=4.2253,R22=2.5994,"

@@ -18,6 +18,7 @@ from heurtune.core.contract import CHECKS, LOWER, UPPER, run_checks, sphere
 from heurtune.core.engine import Optimizer
 from heurtune.core.plugins import load_plugin
 
+
 @dataclasses.dataclass(frozen=True)
 class ToySettings:
     n: int = 6

@@ -18,7 +18,12 @@ from heurtune.core.engine import SearchSpace, run
 from heurtune.core.evaluator import Evaluator
 from heurtune.core.families import families, get_family, make_experiment
 from heurtune.core.problem import (
-    FAILED_OBJECTIVE, FAILURE_REASONS, Evaluation, ExperimentBase, TuningProblem, problem_fingerprint,
+    FAILED_OBJECTIVE,
+    FAILURE_REASONS,
+    Evaluation,
+    ExperimentBase,
+    TuningProblem,
+    problem_fingerprint,
 )
 from heurtune.runner.config import list_experiments, load_config
 

@@ -4,6 +4,9 @@ import math
 
 import numpy as np
 import pytest
+from scipy.interpolate import pade as scipy_pade
+
+from heurtune.core.errors import ConfigError
 from heurtune.objectives.robustness import (
     complementary_sensitivity,
     frequency_response,
@@ -18,9 +21,6 @@ from heurtune.objectives.robustness import (
     spectral_radius,
     spectral_radius_test,
 )
-from scipy.interpolate import pade as scipy_pade
-
-from heurtune.core.errors import ConfigError
 
 W = np.concatenate([[0.0], np.logspace(-3, 3, 400)])
 
@@ -65,7 +65,9 @@ def test_pipeline_matches_direct_formulas_on_random_responses():
 
 @pytest.mark.parametrize("k, weight, stable", [(1.0, 1.5, True), (3.0, 1.5, False), (9.0, 0.3, True)])
 def test_siso_reduces_to_weighted_complementary_sensitivity(k, weight, stable):
-    G = lambda w: 1.0 / (1j * w + 1.0)
+    def G(w):
+        return 1.0 / (1j * w + 1.0)
+
     res = spectral_radius_test(G, k, W, weight)
     T = k / (1j * W + 1.0 + k)
     for arr in (res.rho_input, res.rho_output, res.sigma_input, res.sigma_output):
@@ -119,7 +121,9 @@ def test_rho_passes_where_sigma_is_conservative():
 
 def test_delay_plant_and_scalar_only_callable():
     # A callable written for scalars only (math.*) is evaluated per frequency.
-    G = lambda w: complex(math.cos(w), -math.sin(w)) / complex(1.0, 10.0 * w)
+    def G(w):
+        return complex(math.cos(w), -math.sin(w)) / complex(1.0, 10.0 * w)
+
     Gw = frequency_response(G, W)
     np.testing.assert_allclose(Gw[:, 0, 0], np.exp(-1j * W) / (1 + 10j * W))
     res = spectral_radius_test(G, 2.0, W, 0.3)

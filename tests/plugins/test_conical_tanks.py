@@ -127,7 +127,7 @@ def test_closed_loop_kernel_matches_radau(ct, pid):
 
     f = reference_rhs(p, 0.8)
     h = levels.copy()
-    I = u0.copy()
+    integral = u0.copy()
     D = np.zeros(2)
     yp = levels.copy()
     kp, ki, kd = gains[[0, 3]], gains[[1, 4]], gains[[2, 5]]
@@ -137,16 +137,16 @@ def test_closed_loop_kernel_matches_radau(ct, pid):
         e = r[k] - h
         D = Tf / (Tf + Ts) * D - kd / (Tf + Ts) * (h - yp)
         yp = h.copy()
-        v = kp * e + I + D
+        v = kp * e + integral + D
         us = np.clip(v, 0.0, 10.0)
         saturated += int(np.any(us != v))
         w = ki * Ts * e
         hold = ((v >= 10.0) & (w > 0)) | ((v <= 0.0) & (w < 0))
-        I = np.where(hold, I, I + w)
+        integral = np.where(hold, integral, integral + w)
         yr.append(h.copy())
         ur.append(us.copy())
         q = us + d[k]
-        sol = solve_ivp(lambda t, x: f(x, q), (0.0, Ts), h, method="Radau", rtol=1e-11, atol=1e-11)
+        sol = solve_ivp(lambda t, x: f(x, q), (0.0, Ts), h, method="Radau", rtol=1e-11, atol=1e-11)  # noqa: B023 - called within this iteration
         h = sol.y[:, -1]
         assert h[0] - h[1] > 0.1  # the plain square roots of the reference stay valid
     yr, ur = np.array(yr), np.array(ur)

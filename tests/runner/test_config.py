@@ -3,8 +3,8 @@
 import pytest
 
 import heurtune
-from heurtune.runner.config import list_experiments, load_config
 from heurtune.core.errors import ConfigError
+from heurtune.runner.config import list_experiments, load_config
 
 
 def write(tmp_path, text, name="exp.toml"):

@@ -10,7 +10,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from heurtune.core.engine import SearchSpace, run as run_optimiser
+from heurtune.core.engine import SearchSpace
+from heurtune.core.engine import run as run_optimiser
 from heurtune.core.evaluator import Evaluator
 from heurtune.runner.experiment import run_experiment
 from heurtune.runner.progress import HEARTBEAT_SUFFIX, Heartbeat, Progress, clear_heartbeats

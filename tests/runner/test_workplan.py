@@ -11,14 +11,21 @@ import pandas as pd
 import pytest
 
 from heurtune.core import registry
-from heurtune.core.engine import SearchSpace, run as run_optimiser
+from heurtune.core.engine import SearchSpace
+from heurtune.core.engine import run as run_optimiser
 from heurtune.core.errors import ConfigError
 from heurtune.core.evaluator import Evaluator
 from heurtune.core.problem import Evaluation, TuningProblem
 from heurtune.runner.experiment import RunSpec, run, run_experiment
-from heurtune.runner.workplan import (Calibration, borrow_step_cost, calibrate, check_evaluation_time, estimate_line,
-                                      format_duration,
-                                      planned_evaluations)
+from heurtune.runner.workplan import (
+    Calibration,
+    borrow_step_cost,
+    calibrate,
+    check_evaluation_time,
+    estimate_line,
+    format_duration,
+    planned_evaluations,
+)
 
 # Metaheuristics spend a number of evaluations per generation that does not depend on the values:
 # their planned count must be exact.

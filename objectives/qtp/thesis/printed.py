@@ -88,7 +88,7 @@ def available_tables() -> list[str]:
     return list(TABLES)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _text(table: str) -> str:
     path = resources.files("heurtune.experiments") / "printed" / "thesis" / table_file(table)
     try:
@@ -123,7 +123,7 @@ def printed_table(table, *, raw: bool = False) -> pd.DataFrame:
     return _parsed(_key(table), bool(raw)).copy()
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _parsed(key: str, raw: bool) -> pd.DataFrame:
     text = _text(key)
     if raw:

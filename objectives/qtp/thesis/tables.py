@@ -496,7 +496,7 @@ def _gain_table(inp: _Inputs, chapter: int, table: str) -> ThesisTable:
     raw = _raw(table)
     notes = []
     rows_a, rows_b = [], []
-    for key, r in raw.iterrows():
+    for _, r in raw.iterrows():
         case = r["case"]
         alg = r.get("algorithm", None) if "algorithm" in raw else None
         plant, ctrl = _split(case)
@@ -558,7 +558,7 @@ def _metric_table(inp: _Inputs, chapter: int, table: str) -> ThesisTable:
     raw = _raw(table)
     rows_a, rows_b = [], []
     fixed_alg = _METRIC_ALG.get(table)
-    for key, r in raw.iterrows():
+    for _, r in raw.iterrows():
         case = r["case"]
         plant, ctrl = _split(case)
         hcase = _case(inp, plant, ctrl)
@@ -597,7 +597,7 @@ def _effort_table(inp: _Inputs) -> ThesisTable:
     raw = _raw("6.5")
     rows_a, rows_b = [], []
     scen = ["-30%", "nominal", "+30%"]
-    for key, r in raw.iterrows():
+    for _, r in raw.iterrows():
         case, alg = r["case"], r["algorithm"]
         plant, ctrl = _split(case)
         hcase = _case(inp, plant, ctrl)
@@ -663,7 +663,7 @@ def _convergence_table(inp: _Inputs) -> ThesisTable:
     raw = _raw("5.3")
     rows = []
     notes = []
-    for key, r in raw.iterrows():
+    for _, r in raw.iterrows():
         case, alg = r["case"], r["algorithm"]
         plant, ctrl = _split(case)
         hcase = _case(inp, plant, ctrl)

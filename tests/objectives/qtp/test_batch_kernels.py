@@ -21,6 +21,7 @@ import sys
 
 import numpy as np
 import pytest
+from qtp_cases import RTOL, assert_metrics_close, stable_controllers
 
 from heurtune.core.errors import ConfigError
 from heurtune.objectives.qtp import gpu
@@ -28,7 +29,6 @@ from heurtune.objectives.qtp.controllers import LinearController
 from heurtune.objectives.qtp.kernels import METRIC_NAMES
 from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
 from heurtune.objectives.qtp.model import preset
-from qtp_cases import RTOL, assert_metrics_close, stable_controllers
 
 SCENARIOS = {
     "nominal": Scenario(dt=0.01, horizon=120.0, disturbance_time=20.0),

@@ -9,12 +9,17 @@ from scipy.integrate import solve_ivp
 
 from heurtune.core.errors import ConfigError
 from heurtune.objectives.qtp import kernels as _kernels
+from heurtune.objectives.qtp.bond_graph import (
+    RHO_WATER,
+    BondGraphElements,
+    level_of_pressure,
+    linearise_pressure,
+    pressure_coefficients,
+    pressure_of_level,
+    pressure_rhs,
+)
 from heurtune.objectives.qtp.loop import METRIC_NAMES, ClosedLoop, Scenario
 from heurtune.objectives.qtp.model import linearise, operating_point, preset, qtp_rhs
-from heurtune.objectives.qtp.bond_graph import (
-    RHO_WATER, BondGraphElements, level_of_pressure, linearise_pressure, pressure_coefficients,
-    pressure_of_level, pressure_rhs,
-)
 
 FOLQI = dict(Q11=0.4431, Q22=0.3027, Q33=0.4434, Q44=1.5722, R11=4.2253, R22=2.5994,
              Ki1=1.7411, Ki2=7.1716, alpha1=0.9814, alpha2=0.8437)

@@ -17,17 +17,17 @@ import math
 
 import numpy as np
 import pytest
+import reference_qtp as ref
 import scipy.linalg
+from qtp_cases import IOLQI_NMP, THESIS_MIN, THESIS_NMP, WEAK
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
-import reference_qtp as ref
 from heurtune.core.errors import ConfigError
 from heurtune.objectives.qtp import continuous as cont
 from heurtune.objectives.qtp import continuous_kernels as ck
 from heurtune.objectives.qtp.loop import METRIC_NAMES, ClosedLoop, Scenario
 from heurtune.objectives.qtp.model import preset
-from qtp_cases import IOLQI_NMP, THESIS_MIN, THESIS_NMP, WEAK
 
 T = 350.0
 TOL = 0.005
@@ -208,7 +208,7 @@ def reference_metrics(pieces, h0, integrals, parts, band_pct=3.0):
             out[f"ts{i + 1}"] = 0.0
         else:
             j = outside[-1]
-            f = lambda t: abs(sol.sol(t)[i] - h0[i] + dist[i]) - band  # noqa: E731
+            f = lambda t: abs(sol.sol(t)[i] - h0[i] + dist[i]) - band  # noqa: B023, E731
             out[f"ts{i + 1}"] = brentq(f, grid[j], grid[j + 1], xtol=1e-12) - t0
         out[f"IAE{i + 1}"] = integrals[i]
         out[f"J{i + 1}"] = integrals[2 + i]
@@ -258,7 +258,7 @@ def test_metrics_within_the_targets_of_the_continuous_reference(name, ladr_gains
         assert m[f"Mp{i}"] == pytest.approx(expected[f"Mp{i}"], abs=0.005 / h0[i - 1] * 100), name
     # the levels of the dense output against the reference, at the default tolerance
     rec = loop.run(ctrl, Scenario(tolerance=TOL, output_dt=0.5))
-    for t0, t1, dist, sol in pieces:
+    for t0, t1, _, sol in pieces:
         mask = (rec.t >= t0) & (rec.t < t1)
         assert np.abs(rec.h[mask] - sol.sol(rec.t[mask])[:4].T).max() <= TOL, name
 

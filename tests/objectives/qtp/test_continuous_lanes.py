@@ -19,11 +19,11 @@ import sys
 
 import numpy as np
 import pytest
+from qtp_cases import THESIS_MIN, WEAK, assert_metrics_close, stable_controllers
 
 from heurtune.objectives.qtp.controllers import LinearController
 from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
 from heurtune.objectives.qtp.model import preset
-from qtp_cases import THESIS_MIN, WEAK, assert_metrics_close, stable_controllers
 
 TOL = 0.005
 SCENARIOS = [

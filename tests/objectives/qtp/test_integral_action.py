@@ -9,18 +9,23 @@ import pytest
 
 import heurtune
 from heurtune.core.errors import ConfigError
-from heurtune.runner.evaluate import run as evaluate_cli
-from heurtune.runner.experiment import problem_id, run_status
+from heurtune.core.families import make_experiment
+from heurtune.core.problem import FAILED_OBJECTIVE
 from heurtune.objectives.qtp.controllers import (
-    build_controller, dc_gain, decision_names, default_bounds, integral_action_obstruction, lqr_gain,
+    build_controller,
+    dc_gain,
+    decision_names,
+    default_bounds,
+    integral_action_obstruction,
+    lqr_gain,
 )
 from heurtune.objectives.qtp.loop import ClosedLoop
 from heurtune.objectives.qtp.model import linearise, preset
-from heurtune.core.families import make_experiment
-from heurtune.core.problem import FAILED_OBJECTIVE
 from heurtune.objectives.qtp.problem import IntegralActionWarning
 from heurtune.objectives.qtp.thesis.printed import printed_row
 from heurtune.runner.config import load_config
+from heurtune.runner.evaluate import run as evaluate_cli
+from heurtune.runner.experiment import problem_id, run_status
 
 
 def random_values(kind, rng, ki=(0.1, 10.0)):
@@ -281,8 +286,8 @@ def test_benchmark_runs_every_population_metaheuristic_on_a_sound_problem():
     methods, not the multistart driver, not the multi-objective ones) with the same budget, on
     min and nmp with integral action that can be stable, physical limits and a discriminating
     objective."""
-    from heurtune.core import registry
     from heurtune.algorithms._gradient import GradientOptimizer
+    from heurtune.core import registry
 
     exp = heurtune.load_experiment("benchmark_qtp")
     shipped = [registry.get(n) for n in registry.available()

@@ -2,8 +2,8 @@
 
 import numpy as np
 import pytest
-
 import reference_qtp as ref
+
 from heurtune.objectives.qtp.controllers import LinearController
 from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
 from heurtune.objectives.qtp.model import preset

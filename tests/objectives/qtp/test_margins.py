@@ -14,12 +14,19 @@ import math
 import control
 import numpy as np
 import pytest
-
-import heurtune
 from scipy.optimize import brentq
 
-from heurtune.objectives.qtp.margins import (ELEMENT_LOOP, MARGIN_COLUMNS, element_loop, frequency_grid, loop_margins,
-                              multivariable_margins, return_ratio, siso_margins)
+import heurtune
+from heurtune.objectives.qtp.margins import (
+    ELEMENT_LOOP,
+    MARGIN_COLUMNS,
+    element_loop,
+    frequency_grid,
+    loop_margins,
+    multivariable_margins,
+    return_ratio,
+    siso_margins,
+)
 from heurtune.objectives.qtp.model import linearise, operating_point
 
 THESIS_X = ("Q11=0.4431,Q22=0.3027,Q33=0.4434,Q44=1.5722,R11=4.2253,R22=2.5994,"

@@ -4,10 +4,10 @@ import dataclasses
 
 import numpy as np
 import pytest
+import reference_qtp as ref
 from scipy.integrate import solve_ivp
 
 import heurtune
-import reference_qtp as ref
 from heurtune.core.errors import ConfigError
 from heurtune.objectives.qtp import kernels as _kernels
 from heurtune.objectives.qtp.controllers import LinearController
@@ -306,10 +306,10 @@ def test_physical_range_flags():
 # -- figures ---------------------------------------------------------------------------------
 
 def test_response_figure_marks_a_run_outside_the_physical_range(tmp_path, monkeypatch):
+    from figure_helpers import keep_figures
+
     from heurtune.analysis import figures
     from heurtune.analysis.figures import response_figure
-
-    from figure_helpers import keep_figures
 
     figs = keep_figures(monkeypatch, figures)
     exp = heurtune.load_experiment("cs_folqi_qtp")

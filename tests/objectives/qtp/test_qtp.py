@@ -9,7 +9,13 @@ import pytest
 from heurtune.core.errors import ConfigError
 from heurtune.objectives.qtp import kernels as _kernels
 from heurtune.objectives.qtp.model import (
-    PRESETS, QTPParams, is_minimum_phase, linearise, operating_point, preset, qtp_rhs,
+    PRESETS,
+    QTPParams,
+    is_minimum_phase,
+    linearise,
+    operating_point,
+    preset,
+    qtp_rhs,
     transmission_zeros,
 )
 

@@ -7,10 +7,10 @@ import pandas as pd
 import pytest
 
 import heurtune
-from heurtune.runner.config import load_config
 from heurtune.core.errors import ConfigError
-from heurtune.runner.experiment import plan, problem_id, run
 from heurtune.core.families import make_experiment
+from heurtune.runner.config import load_config
+from heurtune.runner.experiment import plan, problem_id, run
 
 TABLE_4_7_MIN_BETA11 = 27.6941  # thesis Table 4.7, minimum phase
 

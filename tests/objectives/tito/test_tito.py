@@ -5,6 +5,8 @@ import math
 
 import numpy as np
 import pytest
+
+from heurtune.core.errors import ConfigError
 from heurtune.objectives.tito.model import (
     FOPDT,
     PRESETS,
@@ -18,8 +20,6 @@ from heurtune.objectives.tito.model import (
     inverted_decoupler,
     preset,
 )
-
-from heurtune.core.errors import ConfigError
 
 
 def test_element_freqresp_is_exact():

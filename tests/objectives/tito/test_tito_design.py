@@ -12,6 +12,9 @@ import warnings
 import control
 import numpy as np
 import pytest
+from scipy.optimize import brentq, minimize_scalar
+
+from heurtune.core.errors import ConfigError
 from heurtune.objectives.tito import design as td
 from heurtune.objectives.tito.model import (
     FOPDT,
@@ -24,9 +27,6 @@ from heurtune.objectives.tito.model import (
     inverted_decoupler,
     preset,
 )
-from scipy.optimize import brentq, minimize_scalar
-
-from heurtune.core.errors import ConfigError
 
 PRESETS = ("ccts", "qts", "wood_berry")
 # Pade [10/10] of e^{-sL}: its phase error stays below 1e-9 rad for w L < 3 (the crossover region of

@@ -16,10 +16,10 @@ from scipy.optimize import brentq
 
 import heurtune
 from heurtune.core.errors import ConfigError
-from heurtune.runner.experiment import run
+from heurtune.core.problem import FAILED_OBJECTIVE
 from heurtune.objectives.tito import model as tito
 from heurtune.objectives.tito.sim import loop_metrics, simulate_tito
-from heurtune.core.problem import FAILED_OBJECTIVE
+from heurtune.runner.experiment import run
 
 
 @pytest.fixture(scope="module")

@@ -5,6 +5,8 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+
+from heurtune.core.errors import ConfigError
 from heurtune.objectives.tito.model import (
     PIController,
     PIDController,
@@ -21,8 +23,6 @@ from heurtune.objectives.tito.sim import (
     simulate_tito,
     vary_plant,
 )
-
-from heurtune.core.errors import ConfigError
 
 OPEN = (PIController(Kc=0.0, Ti=1.0), PIController(Kc=0.0, Ti=1.0))
 
@@ -252,7 +252,9 @@ def _compare(plant, controllers, sc, h):
     df = simulate_tito(plant, controllers, dec, sc)
     assert df.attrs["status"] == "ok"
     t = np.arange(0.0, sc.horizon + h / 2, h)
-    step = lambda t0, v: np.where(t >= t0 - 1e-9, v, 0.0)
+    def step(t0, v):
+        return np.where(t >= t0 - 1e-9, v, 0.0)
+
     r = np.zeros((t.size, 2))
     for i in (0, 1):
         for a, v in sc.setpoints[i]:

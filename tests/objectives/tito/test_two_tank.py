@@ -9,6 +9,9 @@ import math
 
 import numpy as np
 import pytest
+from scipy.integrate import solve_ivp
+
+from heurtune.core.errors import ConfigError
 from heurtune.objectives.tito import two_tank_kernels as _k
 from heurtune.objectives.tito.model import (
     PIController,
@@ -31,9 +34,6 @@ from heurtune.objectives.tito.two_tank import (
     simulate_two_tank,
     two_tank_rhs,
 )
-from scipy.integrate import solve_ivp
-
-from heurtune.core.errors import ConfigError
 
 DEFAULT = TwoTankParams()
 # h1 > h2 regime (tank 2 outlet open, coupling flow from tank 1 to tank 2)
