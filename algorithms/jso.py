@@ -34,7 +34,8 @@ import math
 
 import numpy as np
 
-from heurtune.algorithms.lshade import LSHADE, TERMINAL, lehmer_mean
+from heurtune.algorithms.lshade import LSHADE, TERMINAL
+from heurtune.algorithms.lshade import update_memory as lshade_update_memory
 from heurtune.core.registry import register
 
 
@@ -99,19 +100,13 @@ def current_to_pbest_w(X, F, Fw, pbest, r1, r2_vectors):
 
 
 def update_memory(m_cr: float, m_f: float, s_cr, s_f, delta) -> tuple:
-    """The new ``(M_CR[k], M_F[k])``: each the mean of its old value and the weighted Lehmer mean
-    of the generation's successes; ``M_CR`` terminal once it or ``max S_CR`` is 0; unchanged
-    without successes."""
+    """The new ``(M_CR[k], M_F[k])``: each the mean of its old value and L-SHADE's update (the
+    weighted Lehmer mean of the generation's successes, :func:`heurtune.algorithms.lshade.update_memory`,
+    whose terminal rule for ``M_CR`` holds); unchanged without successes."""
     if len(s_cr) == 0:
         return m_cr, m_f
-    delta = np.asarray(delta, dtype=np.float64)
-    if not np.sum(delta) > 0:
-        delta = np.ones_like(delta)
-    if m_cr == TERMINAL or max(s_cr) == 0:
-        new_cr = TERMINAL
-    else:
-        new_cr = 0.5 * (lehmer_mean(s_cr, delta) + m_cr)
-    return new_cr, 0.5 * (lehmer_mean(s_f, delta) + m_f)
+    cr, f = lshade_update_memory(m_cr, m_f, s_cr, s_f, delta)
+    return (TERMINAL if cr == TERMINAL else 0.5 * (cr + m_cr)), 0.5 * (f + m_f)
 
 
 @register("jso", settings=JSOSettings, description="jSO: L-SHADE with parameter schedules and a weighted mutation",
