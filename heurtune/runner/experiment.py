@@ -988,7 +988,8 @@ def summary_table(runs: pd.DataFrame, exp) -> pd.DataFrame:
     """One row per (case, optimiser): the statistics of the printed summary, as data.
 
     Columns: case, algorithm, optimiser_index, runs, successes (runs that did not fail and whose
-    best candidate is feasible), feasible (runs whose best candidate is feasible), failed (no
+    best candidate is feasible), feasible_runs (runs whose best candidate is feasible: a count,
+    where ``runs.parquet``'s ``feasible`` is each run's flag), failed (no
     stable, simulable candidate), best, mean, sd, median, worst (of
     ``best_f`` over the successful runs, :func:`heurtune.analysis.compare.successful_runs`: a failed
     run's ``best_f`` is a sentinel and an infeasible run's answers another question, so both are
@@ -1005,7 +1006,7 @@ def summary_table(runs: pd.DataFrame, exp) -> pd.DataFrame:
         row = {
             "case": case, "algorithm": grp["algorithm"].iloc[0], "optimiser_index": int(oi), "runs": len(grp),
             "successes": int(successful_runs(grp).sum()),
-            "feasible": int(grp["feasible"].sum()), "failed": int(failed.sum()),
+            "feasible_runs": int(grp["feasible"].sum()), "failed": int(failed.sum()),
             "best": f.min(), "mean": f.mean(), "sd": f.std(ddof=1) if len(f) > 1 else np.nan,
             "median": f.median(), "worst": f.max(),
             "conv_epoch": grp["convergence_epoch"].mean(),
@@ -1025,7 +1026,7 @@ def print_summary(runs: pd.DataFrame, exp, stream=None):
     stream = sys.stdout if stream is None else stream
     summary = summary_table(runs, exp)
     table = summary[["case", "algorithm", "runs", "best", "mean", "sd", "median", "worst"]].assign(
-        feasible=[f"{a}/{b}" for a, b in zip(summary["feasible"], summary["runs"])], failed=summary["failed"],
+        feasible=[f"{a}/{b}" for a, b in zip(summary["feasible_runs"], summary["runs"])], failed=summary["failed"],
         conv_epoch=summary["conv_epoch"], conv_evals=summary["conv_evals"], wall_s=summary["wall_s"])
     table["best gains"] = [" ".join(f"{n}={row[n]:.4g}" for n in exp.problem(row["case"]).names)
                            for _, row in summary.iterrows()]

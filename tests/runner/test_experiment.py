@@ -172,7 +172,7 @@ def test_summary_parquet_holds_the_printed_statistics_and_meta_says_where_it_ran
     for _, row in summary.iterrows():
         grp = runs[(runs["case"] == row["case"]) & (runs["optimiser_index"] == row["optimiser_index"])]
         ok = grp[(grp["status"] != "failed") & grp["feasible"]]["best_f"]
-        assert row["failed"] == (grp["status"] == "failed").sum() and row["feasible"] == grp["feasible"].sum()
+        assert row["failed"] == (grp["status"] == "failed").sum() and row["feasible_runs"] == grp["feasible"].sum()
         assert row["successes"] == len(ok)
         if len(ok):
             assert row["best"] == ok.min() and row["mean"] == pytest.approx(ok.mean())
