@@ -177,6 +177,11 @@ class Result:
     front : dict or None, several objectives only: the final front, arrays ``X`` (p, d),
         ``F`` (p, k), ``v`` (p,), ``g`` (p, m), and ``chosen`` (the index of ``x`` in it);
         ``f`` is then minus its hypervolume and ``objectives`` the chosen point's objectives
+    population : dict or None, population optimisers only: the optimiser's population at the
+        end of the run, arrays ``X`` (n, d), ``f`` (n,) (or (n, k) with several objectives:
+        what the optimiser selects on, which for NSGA-II and SMS-EMOA differs from ``front``,
+        the archive of every non-dominated point seen) and ``v`` (n,) total violation;
+        None for drivers (multistart SQP, the gradient methods' restarts keep no population)
     """
 
     x: np.ndarray
@@ -196,6 +201,7 @@ class Result:
     details: pd.DataFrame | None = None
     front: dict | None = None
     objectives: np.ndarray | None = None
+    population: dict | None = None
 
     @property
     def status(self) -> str:
@@ -525,8 +531,16 @@ def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=No
         stop_reason=ctx.stop_reason, history=hist, algorithm=algorithm, settings=settings,
         seed=seed_seq.entropy if isinstance(seed, np.random.SeedSequence) else seed,
         wall_time_s=time.perf_counter() - ctx.t0, details=details, front=_front(ctx),
-        objectives=ctx.best_objectives,
+        objectives=ctx.best_objectives, population=_population(opt),
     )
+
+
+def _population(opt) -> dict | None:
+    """The final population of a population optimiser (copies), None for a driver."""
+    if not isinstance(opt, Optimizer):
+        return None
+    return dict(X=np.array(opt.X, dtype=np.float64), f=np.array(opt.f, dtype=np.float64),
+                v=np.array(opt.v, dtype=np.float64))
 
 
 def _front(ctx: RunContext) -> dict | None:

@@ -48,3 +48,24 @@ def test_simulate_raises_the_reason_evaluate_reports():
     with pytest.raises(DesignError) as info:
         prob.simulate(x)
     assert info.value.reason == "invalid_parameter"
+
+
+def test_result_carries_the_final_population():
+    """``Result.population``: a population optimiser's last population (the objective it selects
+    on: one column, or one per objective); None for a driver."""
+    import heurtune
+
+    def sphere(X):
+        return np.sum(X * X, axis=1)
+
+    def two(X):
+        return np.column_stack([X[:, 0], 1.0 - np.sqrt(np.clip(X[:, 0], 0, 1)) + X[:, 1:].sum(axis=1)])
+
+    res = heurtune.minimize(sphere, [-5.0] * 3, [5.0] * 3, "cs", max_evals=500, seed=1)
+    pop = res.population
+    assert pop["X"].shape == (25, 3) and pop["f"].shape == (25,) and pop["v"].shape == (25,)
+    np.testing.assert_array_equal(pop["f"], sphere(pop["X"]))  # the values belong to the points
+    assert pop["f"].min() >= res.f and np.all((pop["X"] >= -5) & (pop["X"] <= 5))
+    mo = heurtune.minimize(two, [0.0] * 4, [1.0] * 4, "nsga2", max_evals=800, seed=2, reference_point=[1.1, 5.0])
+    assert mo.population["f"].shape == (len(mo.population["X"]), 2) and mo.front["F"].shape[1] == 2
+    assert heurtune.minimize(sphere, [-5.0] * 3, [5.0] * 3, "sqp_multistart", max_evals=300, seed=1).population is None
