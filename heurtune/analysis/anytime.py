@@ -345,6 +345,13 @@ def _axes():
     return new_figure(figsize=(6.4, 4.2), layout="constrained")
 
 
+def _colors(labels) -> dict:
+    """The colour of each algorithm, as in the experiment's other figures."""
+    from heurtune.analysis.figures import algorithm_colors
+
+    return algorithm_colors(labels)
+
+
 def plot_ecdf(ecdf_table: pd.DataFrame, path, *, case: str, title: str | None = None):
     """Plot the aggregated ECDF of one case (fraction of (run, target) pairs vs budget).
 
@@ -360,8 +367,9 @@ def plot_ecdf(ecdf_table: pd.DataFrame, path, *, case: str, title: str | None = 
     d = ecdf_table[ecdf_table["case"] == case]
     d = d.assign(_label=_labels(d))
     fig, ax = _axes()
+    colors = _colors(d["_label"])
     for label, g in d.groupby("_label", sort=False):
-        ax.step(g["budget"], g["fraction"], where="post", label=label)
+        ax.step(g["budget"], g["fraction"], where="post", label=label, color=colors[str(label)])
     ax.set_xscale("log")
     ax.set_ylim(-0.02, 1.02)
     ax.set_xlabel("function evaluations")
@@ -381,9 +389,10 @@ def plot_fixed_target(ert_table: pd.DataFrame, path, *, case: str, title: str | 
     d = ert_table[ert_table["case"] == case]
     d = d.assign(_label=_labels(d))
     fig, ax = _axes()
+    colors = _colors(d["_label"])
     for label, g in d.groupby("_label", sort=False):
         g = g[np.isfinite(g["ert"])].sort_values("target")
-        ax.plot(g["target"], g["ert"], marker="o", markersize=3, label=label)
+        ax.plot(g["target"], g["ert"], marker="o", markersize=3, label=label, color=colors[str(label)])
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.invert_xaxis()  # harder targets to the right

@@ -25,7 +25,7 @@ from heurtune.core.io import atomic_path
 from heurtune.core.problem import DEFAULT_SIGNAL_LABELS, RANGE_RTOL
 
 __all__ = ["convergence_figure", "boxplot_figure", "response_figure", "plot_responses", "pareto_figure",
-           "new_figure", "FAILED_THRESHOLD"]
+           "new_figure", "algorithm_colors", "FAILED_THRESHOLD"]
 
 # Objective values at or above this are the problem's failure sentinel (FAILED_OBJECTIVE = 1e10,
 # see heurtune.objectives.qtp.problem): they are left out of medians and boxes, which they would otherwise swamp.
@@ -96,9 +96,22 @@ def _require(df: pd.DataFrame, cols, what: str) -> None:
         raise ValueError(f"{what} needs column(s) {', '.join(missing)}; got {', '.join(map(str, df.columns))}")
 
 
-def _algorithm_colors(algorithms):
+def algorithm_colors(algorithms) -> dict:
+    """One colour per algorithm label, the same in every figure of the same set of algorithms
+    (convergence, box plot, ECDF, ERT, fronts): tab10 in the labels' sorted order.
+
+    Parameters
+    ----------
+    algorithms : iterable of str
+        The labels (repeats are fine).
+
+    Returns
+    -------
+    dict
+        Label to an RGBA colour.
+    """
     cmap = matplotlib.colormaps["tab10"]
-    return {a: cmap(i % 10) for i, a in enumerate(algorithms)}
+    return {a: cmap(i % 10) for i, a in enumerate(sorted(set(map(str, algorithms))))}
 
 
 def _empty_reason(failures) -> str:
@@ -153,7 +166,7 @@ def convergence_figure(history: pd.DataFrame, path, case=None, *, failures=None,
     data = history[history["case"].isin(cases)]
     if data.empty:
         raise ValueError(f"convergence_figure: no history rows for case(s) {', '.join(map(str, cases))}")
-    colors = _algorithm_colors(list(pd.unique(data["algorithm"])))
+    colors = algorithm_colors(data["algorithm"])
     fig, axes = _panel_grid(len(cases))
     for ax, name in zip(axes, cases):
         d = data[data["case"] == name]
@@ -232,7 +245,7 @@ def boxplot_figure(runs: pd.DataFrame, path, metric: str = "best_f") -> None:
     if runs.empty:
         raise ValueError("boxplot_figure: no runs")
     cases = list(pd.unique(runs["case"]))
-    colors = _algorithm_colors(list(pd.unique(runs["algorithm"])))
+    colors = algorithm_colors(runs["algorithm"])
     rng = np.random.default_rng(0)  # jitter of the overlaid points: deterministic figures
     fig, axes = _panel_grid(len(cases), width=max(4.5, 1.1 * runs["algorithm"].nunique() + 2))
     for ax, name in zip(axes, cases):
@@ -421,10 +434,12 @@ def pareto_figure(fronts, path, objectives, title: str = "") -> None:
     """
     fig, ax = new_figure(figsize=(6.5, 5))
     a, b = (f"f_{name}" for name in objectives[:2])
+    colors = algorithm_colors(fronts["algorithm"])
     for (alg, run), front in fronts.groupby(["algorithm", "run"], sort=False):
         front = front.sort_values(a)
         ok = front["feasible"].to_numpy(bool)
-        line, = ax.plot(front[a][ok], front[b][ok], marker=".", lw=0.8, label=f"{alg} (run {run})")
+        line, = ax.plot(front[a][ok], front[b][ok], marker=".", lw=0.8, label=f"{alg} (run {run})",
+                        color=colors[str(alg)])
         if (~ok).any():
             ax.plot(front[a][~ok], front[b][~ok], "x", color=line.get_color(), label=f"{alg}: infeasible")
         chosen = front[front["chosen"]]

@@ -176,3 +176,32 @@ assert "matplotlib.pyplot" not in sys.modules
     done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "c.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_an_algorithm_has_one_colour_in_every_figure(tmp_path, monkeypatch):
+    """The convergence figure lists the algorithms in run order, the ECDF in its own: each
+    algorithm is drawn in the same colour in both (tab10 in sorted label order)."""
+    import matplotlib.colors as mcolors
+
+    from heurtune.analysis import anytime, figures
+
+    figs = keep_figures(monkeypatch, figures)
+    rows = []
+    for alg in ("pso", "cs", "apso"):  # not sorted
+        for run in range(2):
+            for epoch in range(4):
+                rows.append(dict(case="min", algorithm=alg, optimiser_index=["pso", "cs", "apso"].index(alg), run=run,
+                                 epoch=epoch, n_evals=10 * (epoch + 1), best_f=5.0 - epoch - run, best_violation=0.0))
+    h = pd.DataFrame(rows)
+    figures.convergence_figure(h, tmp_path / "c.png")
+    table = anytime.ecdf(anytime.fixed_target(h))
+    anytime.plot_ecdf(table.sort_values("algorithm", ascending=False), tmp_path / "e.png", case="min")
+
+    def colours(fig):
+        return {line.get_label().split(" ")[0]: mcolors.to_hex(line.get_color())
+                for ax in fig.axes for line in ax.get_lines() if not line.get_label().startswith("_")}
+
+    convergence, ecdf = colours(figs[0]), colours(figs[-1])
+    assert set(convergence) >= {"pso", "cs", "apso"} and set(ecdf) >= {"pso", "cs", "apso"}
+    assert all(convergence[a] == ecdf[a] for a in ("pso", "cs", "apso"))
+    assert figures.algorithm_colors(["cs", "apso"]) == figures.algorithm_colors(["apso", "cs", "cs"])
