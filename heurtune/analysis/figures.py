@@ -257,9 +257,12 @@ def boxplot_figure(runs: pd.DataFrame, path, metric: str = "best_f") -> None:
             v = g[metric].astype(float).to_numpy()
             feas = g["feasible"].astype(bool).to_numpy()
             ok = np.isfinite(v) & (v < FAILED_THRESHOLD)
+            # the counts of compare's table: a failed run (no stable, simulable candidate) is
+            # not an infeasible one
+            failed = (g["status"] == "failed").to_numpy() if "status" in g else ~ok
             boxes.append(v[ok])
             shown.append(v[ok])
-            labels.append(f"{alg}\nn={len(g)}, infeas.={int((~feas).sum())}")
+            labels.append(f"{alg}\nn={len(g)}, failed={int(failed.sum())}, infeas.={int((~feas & ~failed).sum())}")
             xj = k + rng.uniform(-0.15, 0.15, size=len(v))
             ax.scatter(xj[ok & feas], v[ok & feas], s=12, color=colors[alg], alpha=0.7, zorder=3)
             ax.scatter(xj[ok & ~feas], v[ok & ~feas], s=22, marker="x", color="red", zorder=4)

@@ -205,3 +205,16 @@ def test_an_algorithm_has_one_colour_in_every_figure(tmp_path, monkeypatch):
     assert set(convergence) >= {"pso", "cs", "apso"} and set(ecdf) >= {"pso", "cs", "apso"}
     assert all(convergence[a] == ecdf[a] for a in ("pso", "cs", "apso"))
     assert figures.algorithm_colors(["cs", "apso"]) == figures.algorithm_colors(["apso", "cs", "cs"])
+
+
+def test_boxplot_counts_failed_and_infeasible_runs_as_compare_does(tmp_path, monkeypatch):
+    """A failed run (no stable candidate: the 1e10 sentinel, status "failed") is counted as
+    failed, not as infeasible, in the box plot's labels, as in compare's table."""
+    from heurtune.analysis import figures
+
+    figs = keep_figures(monkeypatch, figures)
+    runs = pd.DataFrame(dict(case="min", algorithm="apso", run=[0, 1, 2], best_f=[1e10, 2.0, 3.0],
+                             feasible=[False, False, True], status=["failed", "infeasible", "feasible"]))
+    boxplot_figure(runs, tmp_path / "box.png")
+    label = figs[0].axes[0].get_xticklabels()[0].get_text()
+    assert label == "apso\nn=3, failed=1, infeas.=1"
