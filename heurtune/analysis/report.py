@@ -177,14 +177,16 @@ def _responses(runs, case, metas, tmp: Path, cache) -> list:
             if missing:
                 raise ConfigError(f"runs.parquet lacks the tuning column(s) {', '.join(missing)}")
             x = np.array([float(best[n]) for n in prob.names])
-            title = f"{case}: best of {alg} (run {int(best['run'])})"
+            status = str(best.get("status", "feasible"))
+            state = "" if status == "feasible" else f", {status}: not a solution"  # a failed run says so
+            title = f"{case}: best of {alg} (run {int(best['run'])}{state})"
             path = tmp / f"responses_{_slug(case)}_{len(parts)}.png"
             figures.response_figure(prob, x, path, scenarios=tuple(prob.scenarios), title=title)
         except Exception as exc:  # any failure costs only this figure; the note says why
             parts.append(_skip(what, exc))
             continue
         parts.append(_img(path, f"Case {case}: responses of the best {alg} controller (run "
-                                f"{int(best['run'])}) under every scenario"))
+                                f"{int(best['run'])}{state}) under every scenario"))
     return parts
 
 

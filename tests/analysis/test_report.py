@@ -146,3 +146,24 @@ def test_labels_name_variants_of_one_experiment(smoke_report, tmp_path, capsys):
     assert report.run([str(cs), str(cs), "--out", str(tmp_path / "r")]) == 2  # the same folder twice
     assert report.run([str(cs), "--out", str(tmp_path / "r"), "--label", "noequals"]) == 2
     assert "NAME=DIR" in capsys.readouterr().err
+
+
+def test_the_best_run_of_a_case_says_when_it_failed(smoke_report, tmp_path):
+    """A case whose runs all failed (here made so in a copy of the cs smoke folder) is drawn
+    from its best run, and the caption says that run failed; a case with a feasible best does
+    not say so."""
+    import re
+    import shutil
+
+    _, dirs = smoke_report
+    folder = tmp_path / "cs_folqi_qtp"
+    shutil.copytree(dirs[0], folder)
+    runs = pd.read_parquet(folder / "runs.parquet")
+    nmp = runs["case"] == "nmp"
+    runs.loc[nmp, "status"], runs.loc[nmp, "feasible"], runs.loc[nmp, "best_f"] = "failed", False, 1e10
+    runs.to_parquet(folder / "runs.parquet")
+    assert report.run([str(folder), "--out", str(tmp_path / "html")]) == 0
+    text = (tmp_path / "html" / "index.html").read_text(encoding="utf-8")
+    assert re.search(r"Case nmp: responses of the best cs controller \(run \d, failed: not a solution\)", text)
+    assert "Case min: responses of the best cs controller (run" in text and "min: best of cs" not in text
+    assert not [line for line in text.split("Case min: responses")[1:] if line.split(")")[0].endswith("solution")]
