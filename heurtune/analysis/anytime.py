@@ -345,6 +345,11 @@ def _axes():
     return new_figure(figsize=(6.4, 4.2), layout="constrained")
 
 
+def _say_why_empty(ax, why: str) -> None:
+    """An empty panel says why it is empty, in its middle."""
+    ax.text(0.5, 0.5, why, transform=ax.transAxes, ha="center", va="center", fontsize=9, wrap=True)
+
+
 def _colors(labels) -> dict:
     """The colour of each algorithm, as in the experiment's other figures."""
     from heurtune.analysis.figures import algorithm_colors
@@ -370,13 +375,18 @@ def plot_ecdf(ecdf_table: pd.DataFrame, path, *, case: str, title: str | None = 
     colors = _colors(d["_label"])
     for label, g in d.groupby("_label", sort=False):
         ax.step(g["budget"], g["fraction"], where="post", label=label, color=colors[str(label)])
-    ax.set_xscale("log")
+    if d.empty or not (d["fraction"] > 0).any():
+        _say_why_empty(ax, "no run reached any target (no feasible value at or below the targets)"
+                       if len(d) else f"no run of case {case} has a feasible value: no target to reach")
+    if len(d):
+        ax.set_xscale("log")
     ax.set_ylim(-0.02, 1.02)
     ax.set_xlabel("function evaluations")
     ax.set_ylabel("fraction of (run, target) pairs")
     ax.set_title(title or f"{case}: ECDF aggregated over targets")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize="small")
+    if len(d):
+        ax.legend(fontsize="small")
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=120, format="png")
 
@@ -393,14 +403,18 @@ def plot_fixed_target(ert_table: pd.DataFrame, path, *, case: str, title: str | 
     for label, g in d.groupby("_label", sort=False):
         g = g[np.isfinite(g["ert"])].sort_values("target")
         ax.plot(g["target"], g["ert"], marker="o", markersize=3, label=label, color=colors[str(label)])
-    ax.set_xscale("log")
-    ax.set_yscale("log")
+    if not np.isfinite(d["ert"]).any():
+        _say_why_empty(ax, "no run reached any target: every ERT is infinite" if len(d) else
+                       f"no run of case {case} has a feasible value: no target to reach")
+    if np.isfinite(d["ert"]).any():  # a log axis needs values
+        ax.set_xscale("log")
+        ax.set_yscale("log")
     ax.invert_xaxis()  # harder targets to the right
     ax.set_xlabel("target (best feasible objective)")
     ax.set_ylabel("ERT (function evaluations)")
     ax.set_title(title or f"{case}: expected running time per target")
     ax.grid(True, which="both", alpha=0.3)
-    if len(d):
+    if np.isfinite(d["ert"]).any():
         ax.legend(fontsize="small")
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=120, format="png")

@@ -129,3 +129,20 @@ def test_cli(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("error:") and err.count("\n") == 1
     assert anytime.run([str(tmp_path), "--targets", "0"]) == 2
+
+
+def test_an_empty_ecdf_or_ert_panel_says_why(tmp_path, monkeypatch):
+    """A case none of whose runs has a feasible value has nothing to draw: the panel says so."""
+    import pandas as pd
+    from figure_helpers import keep_figures
+
+    from heurtune.analysis import anytime, figures
+
+    figs = keep_figures(monkeypatch, figures)
+    empty_ecdf = pd.DataFrame(columns=["case", "algorithm", "optimiser_index", "budget", "fraction"])
+    anytime.plot_ecdf(empty_ecdf, tmp_path / "e.png", case="nmp")
+    empty_ert = pd.DataFrame(dict(case=["nmp"], algorithm=["cs"], optimiser_index=[0], target=[1.0], ert=[float("inf")]))
+    anytime.plot_fixed_target(empty_ert, tmp_path / "f.png", case="nmp")
+    texts = [[t.get_text() for t in fig.axes[0].texts] for fig in figs]
+    assert texts[0] == ["no run of case nmp has a feasible value: no target to reach"]
+    assert texts[1] == ["no run reached any target: every ERT is infinite"]
