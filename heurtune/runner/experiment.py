@@ -75,7 +75,8 @@ from heurtune.runner.resultdir import (
     check_parts,
     clear_folder,
     differing_keys,
-    fingerprint_of,
+    fingerprint_digest,
+    matching_parts,
     read_part,
     run_fingerprint,
     set_aside_file,
@@ -530,28 +531,6 @@ def _versions() -> dict:
 PLANNED_FILE = "planned.json"
 
 
-def _digest(fingerprint: dict) -> str:
-    """A short hash of a run's fingerprint (``planned.json`` keeps these for ``--status``)."""
-    return hashlib.sha256(json.dumps(fingerprint, sort_keys=True).encode()).hexdigest()[:16]
-
-
-def _counted(parts: Path, names, digests: dict | None) -> set:
-    """The runs among ``names`` whose run part reads and, where ``digests`` says what the plan
-    expects, carries that fingerprint."""
-    out = set()
-    for name in names:
-        path = parts / f"{name}.run.parquet"
-        if not path.exists():
-            continue
-        try:
-            found = fingerprint_of(path)
-        except Exception:  # damaged: not counted (the next run sets it aside)
-            continue
-        if digests is None or (found is not None and _digest(found) == digests.get(name)):
-            out.add(name)
-    return out
-
-
 def status_table(root, name: str | None = None) -> pd.DataFrame:
     """The result folders under ``root`` (those with a ``parts/`` folder; only ``root/name``
     when a name is given): runs done, runs planned by the last command that ran there, and
@@ -579,7 +558,7 @@ def status_table(root, name: str | None = None) -> pd.DataFrame:
             print(f"warning: {planned_file} is damaged; counting the run parts alone", file=sys.stderr)
             planned, runs = None, None
         names = sorted(_finished(folder / "parts")) if runs is None else runs
-        done = _counted(folder / "parts", names, None if planned is None else planned.get("fingerprints"))
+        done = matching_parts(folder / "parts", names, None if planned is None else planned.get("fingerprints"))
         rows.append(dict(folder=str(folder), experiment=planned["experiment"] if planned else folder.name,
                          done=len(done),
                          planned=None if runs is None else len(runs),
@@ -697,7 +676,7 @@ def _run_locked(exp, config, specs, fingerprints, ids, out_dir, parts, *, fresh,
         tmp.write_text(json.dumps(plan_key))
     with atomic_path(out_dir / PLANNED_FILE) as tmp:  # what --status compares the parts with
         tmp.write_text(json.dumps(dict(experiment=exp.name, runs=[s.part_name for s in specs],
-                                       fingerprints={s.part_name: _digest(fingerprints[s.part_name]) for s in specs},
+                                       fingerprints={s.part_name: fingerprint_digest(fingerprints[s.part_name]) for s in specs},
                                        smoke=bool(plan_key.get("smoke")))))
     structure_warnings = exp.structure_warnings()
     for case, msg in structure_warnings.items():

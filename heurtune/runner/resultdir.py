@@ -20,6 +20,7 @@ fingerprint is the one the current config plans for that name:
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import json
 import os
 import shutil
@@ -32,7 +33,7 @@ import pyarrow.parquet as pq
 
 from heurtune.core.errors import ConfigError
 
-__all__ = ["run_fingerprint", "fingerprint_of", "differing_keys", "read_part", "PartCheck", "check_parts",
+__all__ = ["run_fingerprint", "fingerprint_of", "fingerprint_digest", "matching_parts", "differing_keys", "read_part", "PartCheck", "check_parts",
            "set_aside", "set_aside_file", "clear_folder", "FolderLock", "METADATA_KEY", "LOCK_FILE", "CORRUPT_DIR"]
 
 # The parquet metadata key of a part's fingerprint.
@@ -78,6 +79,28 @@ def fingerprint_of(path) -> dict | None:
     meta = pq.read_schema(path).metadata or {}
     text = meta.get(METADATA_KEY)
     return None if text is None else json.loads(text)
+
+
+def fingerprint_digest(fingerprint: dict) -> str:
+    """A short hash of a run's fingerprint (``planned.json`` keeps these for ``--status``)."""
+    return hashlib.sha256(json.dumps(fingerprint, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def matching_parts(parts: Path, names, digests: dict | None) -> set:
+    """The runs among ``names`` whose run part reads and, where ``digests`` says what the plan
+    expects (:func:`fingerprint_digest` by run), carries that fingerprint."""
+    out = set()
+    for name in names:
+        path = Path(parts) / f"{name}.run.parquet"
+        if not path.exists():
+            continue
+        try:
+            found = fingerprint_of(path)
+        except Exception:  # damaged: not counted (the next run sets it aside)
+            continue
+        if digests is None or (found is not None and fingerprint_digest(found) == digests.get(name)):
+            out.add(name)
+    return out
 
 
 def differing_keys(found: dict, expected: dict, prefix: str = "") -> list:
