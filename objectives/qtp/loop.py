@@ -480,7 +480,7 @@ class ClosedLoop:
         dc = ctrl.discretise(scenario.dt) if discrete is None else discrete
         out_dist, in_dist, noise = self._scenario_arrays(scenario)
         pressure = self.plant_model == "qtp_bond_graph"
-        x_op = self.op.h * self._rho_g if pressure else self.op.h  # initial plant state
+        x_op = self._state_op()  # initial plant state
         # substeps only when needed: the call without them is the kernel specialised to one step
         extra = (scenario.plant_substeps,) if scenario.plant_substeps > 1 else ()
         status, _ = _kernels.simulate_loop(
@@ -501,7 +501,7 @@ class ClosedLoop:
     def _run_continuous(self, ctrl, scenario: Scenario, settling_band: float, record: bool,
                         record_levels: bool) -> SimulationResult:
         """:meth:`run` of a continuous-time scenario (kernel ``simulate_continuous``)."""
-        coef, u_op, (saturate, u_lo, u_hi), clip, h_max = self._kernel_inputs(scenario)
+        coef, u_op, t_dist, horizon, saturate, u_lo, u_hi, clip, h_max = self._continuous_inputs(scenario)
         cc = _continuous.ContinuousController.from_linear(ctrl)
         plan = scenario.step_plan(self.kind)
         n_out = int(round(scenario.horizon / scenario.output_dt))
@@ -513,18 +513,28 @@ class ClosedLoop:
         y, u, h = np.empty((rows, 2)), np.empty((rows, 2)), np.empty((rows, 4))
         metrics = np.empty(_kernels.N_METRICS)
         pressure = self.plant_model == "qtp_bond_graph"
-        x_op = self.op.h * self._rho_g if pressure else self.op.h
         status, _ = _continuous_kernels.simulate_continuous(
-            coef, self._level_per_state, x_op, self.op.h, u_op, cc.lam, cc.b, cc.col, cc.Cm, cc.Aq, cc.Bq, cc.Cq,
-            cc.D, cc.channel, plan.t0, plan.h, plan.steps, plan.graded, plan.dist, plan.uin, plan.post,
-            float(scenario.disturbance_time), float(scenario.horizon), bool(saturate), float(u_lo), float(u_hi),
-            bool(clip), np.asarray(h_max, dtype=np.float64), float(settling_band), metrics,
+            coef, self._level_per_state, self._state_op(), self.op.h, u_op, cc.lam, cc.b, cc.col, cc.Cm, cc.Aq,
+            cc.Bq, cc.Cq, cc.D, cc.channel, plan.t0, plan.h, plan.steps, plan.graded, plan.dist, plan.uin, plan.post,
+            t_dist, horizon, saturate, u_lo, u_hi, clip, h_max, float(settling_band), metrics,
             float(scenario.output_dt), y, u, h)
         P = None
         if record_levels and pressure:
             P, h = h, h * self._level_per_state
         return SimulationResult(t, y if record else None, u if record else None, h if record_levels else None,
                                 status != _kernels.STATUS_OK, self.op.h.copy(), u_op.copy(), metrics, P)
+
+    def _continuous_inputs(self, scenario: Scenario) -> tuple:
+        """The scenario's inputs of the continuous kernels, in their order and types (one lane's
+        of :func:`continuous.pack_lanes`): plant coefficients, operating voltages, disturbance
+        time, horizon, saturation (on, low, high), level clipping and the heights it clips at."""
+        coef, u_op, (saturate, u_lo, u_hi), clip, h_max = self._kernel_inputs(scenario)
+        return (coef, u_op, float(scenario.disturbance_time), float(scenario.horizon), bool(saturate),
+                float(u_lo), float(u_hi), bool(clip), np.asarray(h_max, dtype=np.float64))
+
+    def _state_op(self) -> np.ndarray:
+        """The operating point in the kernels' state: levels, or pressures for the bond graph."""
+        return self.op.h * self._rho_g if self.plant_model == "qtp_bond_graph" else self.op.h
 
     def _kernel_inputs(self, scenario: Scenario):
         """The scenario-dependent kernel inputs of :meth:`run`: plant coefficients, operating
@@ -570,7 +580,7 @@ class ClosedLoop:
             arrays = [self._scenario_arrays(sc) for sc in group]
             metrics = np.empty((len(group), _kernels.N_METRICS))
             status = np.empty(len(group), dtype=np.int64)
-            x_op = self.op.h * self._rho_g if self.plant_model == "qtp_bond_graph" else self.op.h
+            x_op = self._state_op()
             _kernels.simulate_scenarios(
                 np.array([i[0] for i in inputs]), self._level_per_state, x_op, self.op.h,
                 np.array([i[1] for i in inputs]), dc.ad, dc.bd, dc.state_input, dc.Ad, dc.Bd, dc.Cc, dc.Dc,
@@ -655,15 +665,11 @@ class ClosedLoop:
         ``diverged`` and ``metrics`` in place."""
         forms = [_continuous.ContinuousController.from_linear(c) for c in ctrls]
         plans = {s: scenarios[s].step_plan(self.kind) for s in members}
-        inputs = {}
-        for s in members:
-            coef, u_op, (saturate, u_lo, u_hi), clip, h_max = self._kernel_inputs(scenarios[s])
-            inputs[s] = (coef, u_op, float(scenarios[s].disturbance_time), float(scenarios[s].horizon),
-                         bool(saturate), float(u_lo), float(u_hi), bool(clip), np.asarray(h_max, dtype=np.float64))
+        inputs = {s: self._continuous_inputs(scenarios[s]) for s in members}
         groups = {}
         for i, cc in enumerate(forms):
             groups.setdefault((cc.lam.size, cc.Aq.shape[0]), []).append(i)
-        x_op = self.op.h * self._rho_g if self.plant_model == "qtp_bond_graph" else self.op.h
+        x_op = self._state_op()
         for members_i in groups.values():
             pairs = [(i, s) for i in members_i for s in members]
             lanes = _continuous.pack_lanes([forms[i] for i, _ in pairs], [plans[s] for _, s in pairs],
@@ -702,7 +708,7 @@ class ClosedLoop:
 
         args = dict(
             P=P, level_per_state=self._level_per_state,
-            h_init=self.op.h * self._rho_g if self.plant_model == "qtp_bond_graph" else self.op.h, h_op=self.op.h,
+            h_init=self._state_op(), h_op=self.op.h,
             ad=lanes("ad"), bd=lanes("bd"), state_input=first.state_input, Ad=lanes("Ad"), Bd=lanes("Bd"),
             Cc=lanes("Cc"), Dc=lanes("Dc"), state_channel=first.state_channel, segments=first.segments,
             dt=float(dt), n_steps=int(n_steps), noise=noise,
