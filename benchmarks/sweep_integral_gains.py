@@ -23,11 +23,11 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from heurtune.objectives.qtp.controllers import decision_names, default_bounds  # noqa: E402
 from heurtune.objectives.qtp.family import DEFAULT_CONSTRAINTS  # noqa: E402
 from heurtune.objectives.qtp.loop import ClosedLoop, Scenario  # noqa: E402
 from heurtune.objectives.qtp.model import preset  # noqa: E402
 from heurtune.objectives.qtp.problem import Problem  # noqa: E402
+from heurtune.objectives.qtp.structures import decision_names, default_bounds  # noqa: E402
 
 SETUPS = (
     ("min", "iolqi", "diagonal"),

@@ -26,7 +26,7 @@ TV_RTOL = 1e-10
 
 def stable_controllers(loop, n, seed):
     """n designable controllers with a stable linearised loop, drawn in the thesis bounds."""
-    from heurtune.objectives.qtp.controllers import decision_names, default_bounds
+    from heurtune.objectives.qtp.structures import decision_names, default_bounds
 
     names = decision_names(loop.kind)
     bounds = np.array([default_bounds(loop.kind)[k] for k in names])

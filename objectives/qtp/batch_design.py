@@ -1,6 +1,6 @@
 """Controller design of a whole batch of candidates with stacked numpy calls (device ``cpu-batch`` and ``gpu``).
 
-One candidate's design (:func:`heurtune.objectives.qtp.controllers.build_controller`, the
+One candidate's design (:func:`heurtune.objectives.qtp.structures.build_controller`, the
 stability check, the discretisation) is some forty small numpy and LAPACK calls, about 0.7 ms
 of which little is arithmetic. Here each step runs once for the batch on arrays with a leading
 candidate axis:
@@ -39,7 +39,7 @@ from heurtune.objectives.qtp.controllers import (
     DiscreteController,
     LinearController,
     _error_of_pump,
-    build_controller,
+    folqi_design,
     lqr_gain,
 )
 from heurtune.objectives.qtp.oustaloup import _INTEGER_TOL
@@ -135,7 +135,7 @@ def folqi_controllers(kind: str, values: np.ndarray, names, A, B, *, oustaloup_o
                       realisation="direct", pairing="diagonal") -> list:
     """FOLQI or IOLQI controllers of ``values`` (k, d) named ``names``; each entry a
     LinearController or the ControllerDesignError of that candidate (as
-    :func:`build_controller` raises it). Candidates whose integrators share a modal layout are
+    :func:`~heurtune.objectives.qtp.controllers.folqi_design` raises it). Candidates whose integrators share a modal layout are
     built together; the others (two integrators, alpha out of range, non-positive weights) one
     by one."""
     col = {name: i for i, name in enumerate(names)}
@@ -187,11 +187,17 @@ def folqi_controllers(kind: str, values: np.ndarray, names, A, B, *, oustaloup_o
 
 
 def _one(kind, values, A, B, order, band, realisation, pairing):
-    """build_controller, its error returned instead of raised (a ConfigError of a candidate's
-    values as ``invalid_parameter``, as :meth:`Problem._design` counts it)."""
+    """One FOLQI or IOLQI design, its error returned instead of raised (a ConfigError of a
+    candidate's values as ``invalid_parameter``, as :meth:`Problem._design` counts it)."""
+    alphas = (values["alpha1"], values["alpha2"]) if kind == "folqi" else (1.0, 1.0)
+    return _returned(lambda: folqi_design(values, A, B, alphas, order, band, realisation, pairing))
+
+
+def _returned(design):
+    """``design()``, or its ControllerDesignError returned (a ConfigError as
+    ``invalid_parameter``)."""
     try:
-        return build_controller(kind, values, A, B, oustaloup_order=order, band=band, realisation=realisation,
-                                pairing=pairing)
+        return design()
     except ControllerDesignError as exc:
         return exc
     except ConfigError:
@@ -284,12 +290,11 @@ def design_batch(loop, names, X) -> tuple:
     finite = np.all(np.isfinite(X), axis=1)
     reasons[~finite] = "invalid_parameter"
     rows = np.flatnonzero(finite)
-    if loop.kind in ("folqi", "iolqi"):
-        built = folqi_controllers(loop.kind, X[rows], names, loop.A, loop.B, **loop.options)
-    else:
-        o = loop.options
-        built = [_one(loop.kind, dict(zip(names, X[i].tolist())), loop.A, loop.B, o["oustaloup_order"], o["band"],
-                      o["realisation"], o["pairing"]) for i in rows]
+    batched = loop.structure.batch_design
+    if batched is not None:
+        built = batched(X[rows], names, loop.plant_linearisation, loop.options)
+    else:  # one by one, as Problem._design does
+        built = [_returned(lambda i=i: loop.controller(dict(zip(names, X[i].tolist())))) for i in rows]
     designed = []
     for i, c in zip(rows, built):
         if isinstance(c, ControllerDesignError):

@@ -15,8 +15,10 @@ import math
 
 import numpy as np
 
+from heurtune.core.structures import structures_of
+
 # The step rule: the step that keeps the largest level error under ``tolerance`` cm. The
-# method is fourth order, so the error scales as h^4: h = STEP_AT_REFERENCE[kind] (tolerance /
+# method is fourth order, so the error scales as h^4: h = step_at_reference(kind) (tolerance /
 # REFERENCE_TOLERANCE)^(1/4), within [MIN_STEP, MAX_STEP]. The constants are validated in
 # tests/objectives/qtp/test_continuous.py and benchmarks/work_precision.py (docs/model.md):
 # at 0.125 s the thesis' FOLQI gains and the weakly damped candidate are 3e-4 cm or better off.
@@ -27,8 +29,15 @@ REFERENCE_TOLERANCE = 0.005
 # The tolerance of a scenario that sets none of dt, tolerance, step: the continuous loop is the
 # default, to 0.005 cm on the levels.
 DEFAULT_TOLERANCE = 0.005
-STEP_AT_REFERENCE = {"folqi": 0.125, "iolqi": 0.125, "lqi": 0.125, "ladr": 0.05}
-DEFAULT_STEP_AT_REFERENCE = min(STEP_AT_REFERENCE.values())
+# Each controller structure declares its step at the reference tolerance
+# (``extras["step_at_reference"]``, heurtune.objectives.qtp.structures): 0.125 s for FOLQI, IOLQI,
+# LQI, PID and FOPID, 0.05 s for LADR. A type that declares none gets the smallest registered.
+DEFAULT_STEP_AT_REFERENCE = 0.05
+# A structure with ``extras["explicit_step"]`` (PID, FOPID: a static feedback that can be large)
+# also keeps h |lambda| <= EXPLICIT_STEP_RADIUS (tolerance / REFERENCE_TOLERANCE)^(1/4) for the
+# eigenvalues lambda of the plant under that static feedback, A + B D, which the explicit
+# part of the method integrates (see explicit_step; validated in test_pid.py).
+EXPLICIT_STEP_RADIUS = 0.25
 MAX_STEP = 1.0
 MIN_STEP = 1e-4
 # A scenario whose step rule needs more steps than this over its horizon is refused.
@@ -93,11 +102,32 @@ class ContinuousController:
                    channel=np.concatenate(ch_m + ch_q) if ch_m or ch_q else np.zeros(0, dtype=np.int64))
 
 
+def step_at_reference(kind: str | None) -> float:
+    """The step a controller type declares at the reference tolerance (None, or a type that
+    declares none: the smallest any registered type declares)."""
+    declared = {s.name: s.extras["step_at_reference"] for s in structures_of("qtp")
+                if "step_at_reference" in s.extras}
+    if kind in declared:
+        return float(declared[kind])
+    return float(min(declared.values(), default=DEFAULT_STEP_AT_REFERENCE))
+
+
 def step_for_tolerance(tolerance: float, kind: str | None = None) -> float:
     """The step of the continuous loop for a largest level error of ``tolerance`` cm under a
     controller of type ``kind`` (None: the smallest of the known types' steps)."""
-    h0 = STEP_AT_REFERENCE.get(kind, DEFAULT_STEP_AT_REFERENCE)
-    h = h0 * (tolerance / REFERENCE_TOLERANCE) ** 0.25
+    h = step_at_reference(kind) * (tolerance / REFERENCE_TOLERANCE) ** 0.25
+    return float(min(max(h, MIN_STEP), MAX_STEP))
+
+
+def explicit_step(A: np.ndarray, B: np.ndarray, D: np.ndarray, tolerance: float) -> float:
+    """The longest step the explicit part allows a controller whose static feedback is ``D``
+    (2, 4): ``EXPLICIT_STEP_RADIUS (tolerance / REFERENCE_TOLERANCE)^(1/4) / rho``, ``rho`` the
+    spectral radius of ``A + B D`` (the linearised plant under that feedback, whose fast modes
+    the method does not integrate exactly), within [MIN_STEP, MAX_STEP]."""
+    rho = float(np.max(np.abs(np.linalg.eigvals(A + B @ D))))
+    if not math.isfinite(rho):
+        return MIN_STEP
+    h = EXPLICIT_STEP_RADIUS * (tolerance / REFERENCE_TOLERANCE) ** 0.25 / max(rho, 1e-12)
     return float(min(max(h, MIN_STEP), MAX_STEP))
 
 

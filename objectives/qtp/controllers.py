@@ -23,25 +23,26 @@ sign.
 from __future__ import annotations
 
 import dataclasses
-import math
+import typing
 
 import numpy as np
 import scipy.linalg
 import scipy.linalg.lapack
 
-from heurtune.core.errors import ConfigError, DesignError
-from heurtune.objectives.qtp.oustaloup import REALISATIONS, fractional_integrator
+from heurtune.core.errors import DesignError
+from heurtune.core.structures import get_structure
+from heurtune.objectives.qtp.oustaloup import fractional_integrator
 
 __all__ = [
     "LinearController",
     "DiscreteController",
     "ControllerDesignError",
     "lqr_gain",
-    "CONTROLLER_TYPES",
-    "decision_names",
-    "default_bounds",
-    "variable_domain",
-    "build_controller",
+    "PlantLinearisation",
+    "folqi_design",
+    "lqi_design",
+    "ladr_design",
+    "LADR_NAMES",
     "PAIRINGS",
     "dc_gain",
     "integral_action_obstruction",
@@ -320,71 +321,23 @@ def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.n
     return K
 
 
-CONTROLLER_TYPES = ("folqi", "iolqi", "ladr", "lqi")
 # Which error each pump integrates: "diagonal" (thesis eq. 3.9: pump r integrates e_r) or
 # "anti-diagonal" (pump 1 integrates e2, pump 2 integrates e1).
 PAIRINGS = ("diagonal", "anti-diagonal")
-# Controller types whose integral action follows a pairing (LQI's 2 x 2 integral gain comes from
-# the Riccati solution and couples both errors to both pumps).
-PAIRED_TYPES = ("folqi", "iolqi", "ladr")
+# What integral_action_obstruction can check (see there).
+_INTEGRAL_CHECKS = ("signs", "det", None)
 
-_LQI_NAMES = ("Q11", "Q22", "Q33", "Q44", "R11", "R22", "Ki1", "Ki2")
-_AUGMENTED_LQI_NAMES = ("Q11", "Q22", "Q33", "Q44", "Qi1", "Qi2", "R11", "R22")
 _LADR_BETAS = tuple(f"beta{i}{j}" for j in (1, 2, 3) for i in (1, 2, 3, 4))
-_LADR_NAMES = _LADR_BETAS + ("b1", "b2", "b3", "b4", "r1", "r2", "r3", "r4")
+LADR_NAMES = _LADR_BETAS + ("b1", "b2", "b3", "b4", "r1", "r2", "r3", "r4")
 
 
-def decision_names(kind: str) -> tuple:
-    """Names of the tuning variables of a controller type, in decision-vector order."""
-    if kind == "folqi":
-        return _LQI_NAMES + ("alpha1", "alpha2")
-    if kind == "iolqi":
-        return _LQI_NAMES
-    if kind == "ladr":
-        return _LADR_NAMES
-    if kind == "lqi":
-        return _AUGMENTED_LQI_NAMES
-    raise ConfigError(f"unknown controller type {kind!r}; allowed: {', '.join(CONTROLLER_TYPES)}")
+class PlantLinearisation(typing.NamedTuple):
+    """The nominal plant's linearisation a structure designs on: ``dx' = A dx + B du``,
+    measured outputs ``dy = C dx`` (the two lower levels)."""
 
-
-# Bounds of the LQI's weights on the integrated errors (see docs/model.md, "Integral action"
-# for the sweep they come from).
-LQI_INTEGRAL_WEIGHT_BOUNDS = (1e-4, 10.0)
-
-
-def variable_domain(name: str) -> tuple:
-    """Where a tuning variable is meaningful: ``(low, strict)``, the variable at least ``low``
-    (above it when ``strict``). LQR state weights (Q, Qi) and LADR's observer and gain
-    parameters (beta, b, r) cannot be negative; input weights (R), integral gains (Ki) and
-    fractional orders (alpha) must be positive."""
-    if name.startswith(("R", "Ki", "alpha")):
-        return 0.0, True
-    if name.startswith(("Q", "beta", "b", "r")):
-        return 0.0, False
-    return -math.inf, False
-
-
-def default_bounds(kind: str) -> dict:
-    """Thesis bounds (sec. 4.3 and 5.3): Q in [0.01, 2.5], R in [0.1, 5], Ki in [0.1, 10],
-    alpha in [0.1, 2]; LADR beta in [0, 150], b and r in [0, 10]; the LQI's integral weights
-    Qi in ``LQI_INTEGRAL_WEIGHT_BOUNDS``."""
-    out = {}
-    for name in decision_names(kind):
-        if name.startswith("Qi"):
-            out[name] = LQI_INTEGRAL_WEIGHT_BOUNDS
-        elif name.startswith("Q"):
-            out[name] = (0.01, 2.5)
-        elif name.startswith("R"):
-            out[name] = (0.1, 5.0)
-        elif name.startswith("Ki"):
-            out[name] = (0.1, 10.0)
-        elif name.startswith("alpha"):
-            out[name] = (0.1, 2.0)
-        elif name.startswith("beta"):
-            out[name] = (0.0, 150.0)
-        else:
-            out[name] = (0.0, 10.0)
-    return out
+    A: np.ndarray
+    B: np.ndarray
+    C: np.ndarray
 
 
 def _error_of_pump(pairing: str, pump: int) -> int:
@@ -392,7 +345,10 @@ def _error_of_pump(pairing: str, pump: int) -> int:
     return pump if pairing == "diagonal" else 1 - pump
 
 
-def _folqi(values: dict, A, B, alphas, order, band, realisation, pairing="diagonal") -> LinearController:
+def folqi_design(values: dict, A, B, alphas, order, band, realisation, pairing="diagonal") -> LinearController:
+    """FOLQI (IOLQI with ``alphas = (1, 1)``) of thesis eq. 3.9: ``du = -K dx + diag(Ki_r / s^alpha_r) e``
+    with ``K`` from the Riccati equation of the weights and each pump integrating the error
+    ``pairing`` gives it."""
     Q = np.diag([values["Q11"], values["Q22"], values["Q33"], values["Q44"]])
     R = np.diag([values["R11"], values["R22"]])
     K = lqr_gain(A, B, Q, R)
@@ -425,7 +381,7 @@ def _folqi(values: dict, A, B, alphas, order, band, realisation, pairing="diagon
     return LinearController(Ac, Bc, Cc, Dc, tuple(blocks), (0, 1))
 
 
-def _ladr(values: dict, pairing: str = "diagonal") -> LinearController:
+def ladr_design(values: dict, pairing: str = "diagonal") -> LinearController:
     """LADR of the thesis Appendix A (eq. A.1-A.22), implemented as printed.
 
     Channel 1 (pump 1) observes tanks 1 and 4 with states (Z1, Z4, Z5, Z7); channel 2 observes
@@ -485,7 +441,7 @@ def _ladr(values: dict, pairing: str = "diagonal") -> LinearController:
     return LinearController(Ac, Bc, Cc, Dc, tuple(blocks), (0, 1), minimal=False)
 
 
-def _lqi(values: dict, A, B) -> LinearController:
+def lqi_design(values: dict, A, B) -> LinearController:
     """Textbook LQI: the integrated errors augment the plant state in the Riccati design.
 
     With ``xi' = e = r - y = -C x`` (regulation) the augmented plant is
@@ -516,7 +472,8 @@ def dc_gain(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
     return -C @ np.linalg.solve(A, B)
 
 
-def integral_action_obstruction(kind: str, pairing: str, A, B, C, ki_bounds=((0.1, 10.0), (0.1, 10.0))):
+def integral_action_obstruction(check, pairing: str, A, B, C, ki_bounds=((0.1, 10.0), (0.1, 10.0)),
+                                 gain_sign: int = 1):
     """Why no controller of this structure can hold integral action on this plant, or None.
 
     For state feedback ``-K x`` that stabilises a stable plant, ``det(I + K (-A)^-1 B) > 0``, so
@@ -529,21 +486,30 @@ def integral_action_obstruction(kind: str, pairing: str, A, B, C, ki_bounds=((0.
 
     Parameters
     ----------
-    kind : str
-        Controller type; ``lqi`` needs only ``det G(0) != 0``, ``ladr`` is not checked (its
+    check : {"signs", "det", None} or str
+        What the structure's integral action needs (its ``extras["integral_check"]``; a
+        registered controller type stands for the check it declares):
+        ``"signs"`` integrators ``Ki_r / s`` on paired errors (FOLQI, IOLQI, PID), ``"det"`` a
+        full integral gain that only needs ``det G(0) != 0`` (LQI), None no check (LADR, whose
         extended-state observer is not an integrator on the errors).
     pairing : {"diagonal", "anti-diagonal"}
     A, B, C : ndarray
         Linearised plant.
     ki_bounds : pair of (low, high)
         Bounds of Ki1 and Ki2: the signs they allow.
+    gain_sign : {1, -1}
+        The sign of the determinant of a static gain between the integrators and the pumps
+        (a PID's decoupler), 1 when there is none.
 
     Returns
     -------
     str or None
         A one-line explanation naming the fix, or None when the structure can work.
     """
-    if kind == "ladr":
+    if check not in _INTEGRAL_CHECKS:  # a controller type: the check it declares
+        structure = get_structure("qtp", check)
+        check = structure.extras.get("integral_check", "signs" if structure.paired else None)
+    if check is None:
         return None
     G0 = dc_gain(A, B, C)
     det = float(np.linalg.det(G0))
@@ -551,10 +517,10 @@ def integral_action_obstruction(kind: str, pairing: str, A, B, C, ki_bounds=((0.
     if abs(det) <= 1e-9 * scale:
         return (f"det G(0) = {det:.3g}: the plant has a transmission zero at s = 0, so no controller "
                 "can hold integral action on both outputs; change the valve splits (gamma1 + gamma2 != 1)")
-    if kind == "lqi":
+    if check == "det":
         return None
     signs = [{s for s, ok in ((1, hi > 0), (-1, lo < 0)) if ok} for lo, hi in ki_bounds]
-    flip = 1 if pairing == "diagonal" else -1
+    flip = (1 if pairing == "diagonal" else -1) * (1 if gain_sign > 0 else -1)
     possible = {flip * a * b for a in signs[0] for b in signs[1]}
     needed = 1 if det > 0 else -1
     if needed in possible:
@@ -564,42 +530,3 @@ def integral_action_obstruction(kind: str, pairing: str, A, B, C, ki_bounds=((0.
             f"det(Kint) of sign {-needed:+d}: every such loop with exact integral action has a real "
             f"right-half-plane pole (see docs/model.md); use [controller] pairing = \"{other}\" "
             "or type = \"lqi\"")
-
-
-def build_controller(kind: str, values: dict, A: np.ndarray, B: np.ndarray, *,
-                     oustaloup_order: int = 5, band: tuple = (1e-3, 1e3),
-                     realisation: str = "direct", pairing: str = "diagonal") -> LinearController:
-    """Build a controller from its named tuning variables and the linearised plant.
-
-    Parameters
-    ----------
-    kind : {"folqi", "iolqi", "ladr", "lqi"}
-    values : dict
-        Tuning variables by name (see :func:`decision_names`).
-    A, B : ndarray
-        Linearised plant used for the LQR design (nominal model).
-    oustaloup_order, band, realisation :
-        Fractional-integrator options (FOLQI only).
-    pairing : {"diagonal", "anti-diagonal"}
-        Which error each pump integrates (FOLQI, IOLQI) or which lower tank each LADR channel
-        regulates; LQI ignores it (its integral gain is a full 2 x 2 matrix).
-
-    Raises
-    ------
-    ControllerDesignError
-        The design fails for this candidate (reason in ``.reason``).
-    """
-    if realisation not in REALISATIONS:
-        raise ConfigError(f"unknown realisation {realisation!r}; allowed: {', '.join(REALISATIONS)}")
-    if pairing not in PAIRINGS:
-        raise ConfigError(f"unknown pairing {pairing!r}; allowed: {', '.join(PAIRINGS)}")
-    if kind == "folqi":
-        return _folqi(values, A, B, (values["alpha1"], values["alpha2"]),
-                      oustaloup_order, band, realisation, pairing)
-    if kind == "iolqi":
-        return _folqi(values, A, B, (1.0, 1.0), oustaloup_order, band, realisation, pairing)
-    if kind == "ladr":
-        return _ladr(values, pairing)
-    if kind == "lqi":
-        return _lqi(values, A, B)
-    raise ConfigError(f"unknown controller type {kind!r}; allowed: {', '.join(CONTROLLER_TYPES)}")

@@ -1,8 +1,9 @@
-"""The quadruple-tank family: experiment configs of the QTP under FOLQI, IOLQI, LQI or LADR.
+"""The quadruple-tank family: experiment configs of the QTP under any registered controller structure.
 
 ``[plant] model = "qtp"`` (the default) or ``"qtp_bond_graph"`` (the thesis' chapter-6
 bond-graph form). Each case is a plant preset (``min``, ``nmp``) or a ``plant.custom`` table,
-times each configured controller type; :meth:`Experiment.problem` builds its
+times each configured controller type (:mod:`heurtune.objectives.qtp.structures`: FOLQI,
+IOLQI, LQI, LADR, PID, FOPID and plugins'); :meth:`Experiment.problem` builds its
 :class:`heurtune.objectives.qtp.problem.Problem`.
 """
 
@@ -17,20 +18,14 @@ from heurtune.core.errors import ConfigError
 from heurtune.core.families import register_family
 from heurtune.core.problem import ExperimentBase
 from heurtune.core.robust import ROBUST_SCHEMA, robust_tuning
-from heurtune.core.schema import COMMON_SCHEMA, MULTI_OBJECTIVE_SCHEMA, NUMBER, PAIR, within
-from heurtune.objectives.qtp.controllers import (
-    CONTROLLER_TYPES,
-    PAIRED_TYPES,
-    dc_gain,
-    decision_names,
-    default_bounds,
-    integral_action_obstruction,
-    variable_domain,
-)
+from heurtune.core.schema import COMMON_SCHEMA, MULTI_OBJECTIVE_SCHEMA, NUMBER, PAIR
+from heurtune.core.structures import on_register
+from heurtune.objectives.qtp import structures
+from heurtune.objectives.qtp.controllers import dc_gain, integral_action_obstruction
 from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
 from heurtune.objectives.qtp.model import QTPParams, linearise, preset
-from heurtune.objectives.qtp.oustaloup import MAX_OUSTALOUP_ORDER
 from heurtune.objectives.qtp.problem import OBJECTIVES, WEIGHTED_METRICS, Problem
+from heurtune.objectives.qtp.structures import decision_names, default_bounds, paired_types
 from heurtune.objectives.qtp.thesis.printed import printed_row
 from heurtune.objectives.qtp.thesis.tables import write_chapter
 
@@ -54,10 +49,10 @@ SCHEMA = dict(COMMON_SCHEMA, **{
         }),
     },
     "controller": {
-        "type": ("choices", ("folqi", "iolqi", "ladr", "lqi")),  # one, or a list (one case per type)
-        "oustaloup_order": within(int, 1, MAX_OUSTALOUP_ORDER),
-        "band": PAIR,
-        "realisation": ("direct", "integer_split"),
+        # one registered structure, or a list (one case per type); the choices and each
+        # structure's options (FOLQI's oustaloup_order, band, realisation; PID's
+        # derivative_filter, decoupler; a plugin's) are added as structures register (below)
+        "type": ("choices", ()),
         # a digital controller: sampled with zero-order hold every sample_time s (the sampled loop)
         "sample_time": NUMBER,
         # One pairing for every case, "auto" (the one the sign of det G(0) allows), or a table
@@ -101,9 +96,35 @@ SCHEMA = dict(COMMON_SCHEMA, **{
 })
 
 
+
+
+def _add_structure(structure) -> None:
+    """Keep the schema's ``controller`` table up to date with the registered structures: their
+    names as the choices of ``type``, their options as keys (one spec per key: two structures
+    that read one key must agree on it)."""
+    table = SCHEMA["controller"]
+    for key, (spec, _) in structure.options.items():
+        if key in table and table[key] != spec:
+            raise ConfigError(f"controller structure {structure.name!r}: option {key!r} is declared with "
+                              f"another schema by another structure")
+    # type, the structures' options, then the keys of every type (the order error messages list)
+    fixed = {key: table[key] for key in _EVERY_TYPE_KEYS}
+    options = {key: spec for key, spec in table.items() if key not in fixed and key != "type"}
+    options.update({key: spec for key, (spec, _) in structure.options.items()})
+    table.clear()
+    table.update({"type": ("choices", structures.names()), **options, **fixed})
+
+
+# The [controller] keys every type reads (the others are the structures' options).
+_EVERY_TYPE_KEYS = ("sample_time", "pairing")
+
+
+on_register(structures.FAMILY, _add_structure)
+
+
 @register_family("qtp", models=MODELS, schema=SCHEMA,
                  description="quadruple tank process (nonlinear, minimum and non-minimum phase) under "
-                             "FOLQI, IOLQI, LQI or LADR")
+                             "FOLQI, IOLQI, LQI, LADR, PID, FOPID or a plugin structure")
 class Experiment(ExperimentBase):
     """A named experiment config: plant cases, controller, scenario, problem (and optimisers).
 
@@ -126,24 +147,29 @@ class Experiment(ExperimentBase):
             self._plant(case)  # validate early
         ctrl = config.get("controller", {})
         self._set_cases(plant_cases, ctrl.get("type", "folqi"))
-        self.controller_options = dict(
-            oustaloup_order=ctrl.get("oustaloup_order", 5),
-            band=tuple(ctrl.get("band", (1e-3, 1e3))),
-            realisation=ctrl.get("realisation", "direct"),
-        )
-        lo, hi = self.controller_options["band"]
-        if not (0.0 < lo < hi < math.inf):
-            raise ConfigError(f"{self.name}: controller.band must be [low, high] rad/s with 0 < low < high, "
-                              f"both finite, got {[lo, hi]}")
+        read = {key for kind in self.controllers for key in structures.structure(kind).options}
+        unread = [key for key in ctrl if key not in read and key not in ("type", "sample_time", "pairing")]
+        if unread:
+            raise ConfigError(f"{self.name}: controller.{unread[0]} is not an option of "
+                              f"{', '.join(self.controllers)} (they read: {', '.join(sorted(read)) or 'none'})")
+        # each type's own options, from the config where given (their defaults otherwise)
+        self.controller_options = {
+            kind: {key: ctrl[key] for key in structures.structure(kind).options if key in ctrl}
+            for kind in self.controllers}
+        if "band" in ctrl:
+            lo, hi = ctrl["band"]
+            if not (0.0 < lo < hi < math.inf):
+                raise ConfigError(f"{self.name}: controller.band must be [low, high] rad/s with 0 < low < high, "
+                                  f"both finite, got {[lo, hi]}")
         self.pairing = ctrl.get("pairing", "diagonal")
         if isinstance(self.pairing, dict):
             unknown = [c for c in self.pairing if c not in plant_cases]
             if unknown:
                 raise ConfigError(f"{self.name}: controller.pairing: unknown case {unknown[0]!r}; "
                                   f"allowed: {', '.join(plant_cases)}")
-        unpaired = [k for k in self.controllers if k not in PAIRED_TYPES]
+        unpaired = [k for k in self.controllers if k not in paired_types()]
         if unpaired and self.pairing != "diagonal" and len(self.controllers) == len(unpaired):
-            raise ConfigError(f"{self.name}: controller.pairing applies to {', '.join(PAIRED_TYPES)}; "
+            raise ConfigError(f"{self.name}: controller.pairing applies to {', '.join(paired_types())}; "
                               f"{unpaired[0]} designs its full integral gain (leave pairing out)")
         sc = dict(config.get("scenario", {}))
         self._digital_controller(ctrl.get("sample_time"), sc)
@@ -191,14 +217,15 @@ class Experiment(ExperimentBase):
             bounds.update(default_bounds(kind))
         # Bounds of variables no configured controller uses (e.g. alpha inherited by an IOLQI
         # config extending a FOLQI one) are ignored; a name no controller knows is an error.
-        known = {n for kind in CONTROLLER_TYPES for n in decision_names(kind)}
+        known = {n for kind in structures.names() for n in decision_names(kind)}
         self.bounds = self._override_bounds(bounds, prob.get("bounds", {}), known, names)
         for name, (lo, _) in self.bounds.items():
-            low, strict = variable_domain(name)
-            if lo < low or (strict and lo == low):
-                raise ConfigError(f"{self.name}: problem.bounds.{name}: the lower bound must be "
-                                  f"{'>' if strict else '>='} {low:g}, got {lo} (R, Ki and alpha are positive; "
-                                  "Q, Qi, beta, b and r are not negative)")
+            for kind in self.controllers:
+                low, strict = structures.structure(kind).domain(name)
+                if lo < low or (strict and lo == low):
+                    raise ConfigError(f"{self.name}: problem.bounds.{name}: the lower bound must be "
+                                      f"{'>' if strict else '>='} {low:g}, got {lo} (R, Ki and alpha "
+                                      "are positive; Q, Qi, beta, b, r, Kp and Kd are not negative)")
         self._load_optimisers(config)
         self._check_multi_objective_optimisers()
         self.baselines = self._fixed_controllers(config.get("baselines", []))
@@ -301,7 +328,7 @@ class Experiment(ExperimentBase):
         """
         plant_case, kind = self._variant(case)
         choice = self.pairing.get(plant_case, "diagonal") if isinstance(self.pairing, dict) else self.pairing
-        if kind not in PAIRED_TYPES:
+        if kind not in paired_types():
             return "diagonal"
         if choice == "auto":
             A, B, C = linearise(self._plant(plant_case))
@@ -314,12 +341,15 @@ class Experiment(ExperimentBase):
         plant_case, kind = self._variant(case)
         pairing = self.pairing_of(case)
         model = {} if self.plant_model == "qtp" else {"plant_model": self.plant_model}
-        loop = ClosedLoop(self._plant(plant_case), kind, **self.controller_options, pairing=pairing, **model)
+        loop = ClosedLoop(self._plant(plant_case), kind, **self.controller_options[kind], pairing=pairing, **model)
         names = decision_names(kind)
         lower = [self.bounds[n][0] for n in names]
         upper = [self.bounds[n][1] for n in names]
         ki = tuple(self.bounds.get(k, (1.0, 1.0)) for k in ("Ki1", "Ki2"))
-        warning = integral_action_obstruction(kind, pairing, loop.A, loop.B, loop.C, ki)
+        extras = loop.structure.extras
+        sign = extras["gain_sign"](loop.plant_linearisation, loop.options) if "gain_sign" in extras else 1
+        warning = integral_action_obstruction(extras.get("integral_check", "signs" if loop.structure.paired else None),
+                                              pairing, loop.A, loop.B, loop.C, ki, gain_sign=sign)
         prob = Problem(case, loop, names, lower, upper, objective=self.objective,
                        constraints=self.constraints, settling_band=self.settling_band,
                        scenarios=self.scenarios, tuning_scenario=self.tuning_scenario,

@@ -19,9 +19,10 @@ from heurtune.objectives.qtp import batch_kernels as _batch_kernels
 from heurtune.objectives.qtp import continuous as _continuous
 from heurtune.objectives.qtp import continuous_kernels as _continuous_kernels
 from heurtune.objectives.qtp import kernels as _kernels
+from heurtune.objectives.qtp import structures as _structures
 from heurtune.objectives.qtp.batch_design import discretise_many
 from heurtune.objectives.qtp.bond_graph import BondGraphElements, pressure_coefficients
-from heurtune.objectives.qtp.controllers import LinearController, build_controller
+from heurtune.objectives.qtp.controllers import LinearController, PlantLinearisation
 from heurtune.objectives.qtp.model import QTPParams, linearise, operating_point
 
 _DGEEV = scipy.linalg.lapack.get_lapack_funcs("geev", dtype=np.float64)
@@ -237,9 +238,11 @@ class Scenario:
         """:meth:`continuous_step_for` the controller type with the smallest step."""
         return self.continuous_step_for(None)
 
-    def step_plan(self, kind: str | None = None):
-        """The segments and steps of the continuous loop (:func:`continuous.plan_steps`)."""
-        return _continuous.plan_steps(self.horizon, self.continuous_step_for(kind), self.output_disturbance,
+    def step_plan(self, kind: str | None = None, step: float | None = None):
+        """The segments and steps of the continuous loop (:func:`continuous.plan_steps`), with
+        steps of at most ``step`` when given, else :meth:`continuous_step_for` ``kind``."""
+        h = self.continuous_step_for(kind) if step is None else float(step)
+        return _continuous.plan_steps(self.horizon, h, self.output_disturbance,
                                       self.disturbance_time, self.input_disturbance, self.input_disturbance_time)
 
     @property
@@ -314,11 +317,15 @@ class ClosedLoop:
     ----------
     plant : QTPParams
         The nominal plant; controllers are designed on its linearisation.
-    kind : {"folqi", "iolqi", "ladr", "lqi"}
-    oustaloup_order, band, realisation :
-        Fractional-integrator options (FOLQI).
+    kind : str
+        A registered controller structure (:func:`heurtune.objectives.qtp.structures.names`:
+        folqi, fopid, iolqi, ladr, lqi, pid and plugins').
     pairing : {"diagonal", "anti-diagonal"}
-        Which error each pump integrates (see :func:`build_controller`).
+        Which error each pump integrates (see :func:`~heurtune.objectives.qtp.structures.build_controller`).
+    **options
+        The structure's options (FOLQI: ``oustaloup_order``, ``band``, ``realisation``; PID:
+        ``derivative_filter``, ``decoupler``), each at the structure's default when left out;
+        kept in :attr:`options` with ``pairing`` last (the problem id reads them).
     plant_model : {"qtp", "qtp_bond_graph"}
         The simulated plant: ``"qtp"`` integrates the four levels (cm); ``"qtp_bond_graph"``
         integrates the four tank pressures P = rho g h (dyn/cm^2, water, see
@@ -332,17 +339,16 @@ class ClosedLoop:
         For an unknown ``plant_model``.
     """
 
-    def __init__(self, plant: QTPParams, kind: str, *, oustaloup_order: int = 5,
-                 band: tuple = (1e-3, 1e3), realisation: str = "direct", pairing: str = "diagonal",
-                 plant_model: str = "qtp"):
+    def __init__(self, plant: QTPParams, kind: str, *, pairing: str = "diagonal", plant_model: str = "qtp",
+                 **options):
         if not isinstance(plant_model, str) or plant_model not in PLANT_MODELS:
             raise ConfigError(f"plant.model must be one of {', '.join(map(repr, PLANT_MODELS))}, "
                               f"got {plant_model!r}")
         self.plant = plant
         self.kind = kind
+        _structures.structure(kind)  # a one-line error for an unknown type, here
         self.plant_model = plant_model
-        self.options = dict(oustaloup_order=oustaloup_order, band=tuple(band), realisation=realisation,
-                            pairing=pairing)
+        self.options = _structures.loop_options(kind, dict(options, pairing=pairing))
         self.op = operating_point(plant)
         self.A, self.B, self.C = linearise(plant, self.op)
         # Plant state per level: the pressure model's state is rho g h (rho and g do not change
@@ -374,9 +380,32 @@ class ClosedLoop:
         self.__dict__.update(state)
 
     # -- design ---------------------------------------------------------------------------
+    @property
+    def structure(self):
+        """The registered controller structure of :attr:`kind` (looked up, not pickled: a
+        worker finds it in its own registry, plugins loaded first)."""
+        return _structures.structure(self.kind)
+
+    @property
+    def plant_linearisation(self) -> PlantLinearisation:
+        """The nominal linearisation ``(A, B, C)`` the structure designs on."""
+        return PlantLinearisation(self.A, self.B, self.C)
+
     def controller(self, values: dict) -> LinearController:
         """Design the controller for named tuning ``values`` (raises ControllerDesignError)."""
-        return build_controller(self.kind, values, self.A, self.B, **self.options)
+        return self.structure.design(values, self.plant_linearisation, self.options)
+
+    def step_plan(self, ctrl: LinearController, scenario: Scenario):
+        """The continuous loop's step plan of ``ctrl`` under ``scenario``: the scenario's
+        (:meth:`Scenario.step_plan` of this type), shortened for a structure that declares
+        ``explicit_step`` to the step its static feedback allows
+        (:func:`~heurtune.objectives.qtp.continuous.explicit_step`) unless the scenario gives
+        ``step``."""
+        if scenario.step is None and self.structure.extras.get("explicit_step"):
+            h = min(scenario.continuous_step_for(self.kind),
+                    _continuous.explicit_step(self.A, self.B, ctrl.D, float(scenario.tolerance)))
+            return scenario.step_plan(self.kind, step=h)
+        return scenario.step_plan(self.kind)
 
     def stability_margin(self, ctrl: LinearController) -> float:
         """Largest real part of the linearised closed-loop eigenvalues (negative = stable)."""
@@ -503,7 +532,7 @@ class ClosedLoop:
         """:meth:`run` of a continuous-time scenario (kernel ``simulate_continuous``)."""
         coef, u_op, t_dist, horizon, saturate, u_lo, u_hi, clip, h_max = self._continuous_inputs(scenario)
         cc = _continuous.ContinuousController.from_linear(ctrl)
-        plan = scenario.step_plan(self.kind)
+        plan = self.step_plan(ctrl, scenario)
         n_out = int(round(scenario.horizon / scenario.output_dt))
         t = None
         if record or record_levels:
@@ -644,7 +673,7 @@ class ClosedLoop:
         for (dt, n_steps), members in steps.items():
             groups = {}
             for i, dc in enumerate(discretise_many(ctrls, dt)):
-                groups.setdefault(_structure(dc), []).append((i, dc))
+                groups.setdefault(_lane_shape(dc), []).append((i, dc))
             for lanes in groups.values():
                 pairs = [(i, dc, s) for i, dc in lanes for s in members]
                 # On the CPU in tiles whose state stays in cache (measured best near 128-256 lanes)
@@ -664,7 +693,11 @@ class ClosedLoop:
         CUDA kernel with ``device="gpu"``), lanes of one controller structure per call; fills
         ``diverged`` and ``metrics`` in place."""
         forms = [_continuous.ContinuousController.from_linear(c) for c in ctrls]
-        plans = {s: scenarios[s].step_plan(self.kind) for s in members}
+        if self.structure.extras.get("explicit_step"):
+            plans = {(i, s): self.step_plan(c, scenarios[s]) for i, c in enumerate(ctrls) for s in members}
+        else:
+            shared = {s: scenarios[s].step_plan(self.kind) for s in members}
+            plans = {(i, s): shared[s] for i in range(len(ctrls)) for s in members}
         inputs = {s: self._continuous_inputs(scenarios[s]) for s in members}
         groups = {}
         for i, cc in enumerate(forms):
@@ -672,7 +705,7 @@ class ClosedLoop:
         x_op = self._state_op()
         for members_i in groups.values():
             pairs = [(i, s) for i in members_i for s in members]
-            lanes = _continuous.pack_lanes([forms[i] for i, _ in pairs], [plans[s] for _, s in pairs],
+            lanes = _continuous.pack_lanes([forms[i] for i, _ in pairs], [plans[p] for p in pairs],
                                            [inputs[s] for _, s in pairs])
             if device == "gpu":
                 from heurtune.objectives.qtp import gpu
@@ -746,7 +779,7 @@ class ClosedLoop:
         self.run(ctrl, sc, record=False)
 
 
-def _structure(dc) -> tuple:
+def _lane_shape(dc) -> tuple:
     """What the lanes of one batched kernel call share: the discrete controller's shape, the
     inputs and pumps of its states and its ``segments``."""
     return (dc.ad.size, dc.Ad.shape[0], dc.state_input.tobytes(), dc.state_channel.tobytes(), dc.segments.tobytes())

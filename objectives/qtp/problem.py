@@ -46,7 +46,6 @@ WEIGHTED_METRICS = ("J", "Jdev", "IAE", "ISE", "ITAE", "TV")
 # stable and its simulation finished (g = 0), else it carries the failure's violation.
 STABILITY_CONSTRAINT = "stability"
 # Controller types with an LQI structure, whose interaction-loop margins the problem reports.
-LQI_TYPES = ("folqi", "iolqi", "lqi")
 
 
 class IntegralActionWarning(StructureWarning):
@@ -317,9 +316,11 @@ class Problem(TuningProblem):
         return payload
 
     def margins(self, x) -> pd.DataFrame | None:
-        """Margins of the four interaction loops of an LQI-type design
-        (:func:`heurtune.objectives.qtp.margins.loop_margins`); None for LADR."""
-        if self.loop.kind not in LQI_TYPES:
+        """Margins of the four interaction loops of the design
+        (:func:`heurtune.objectives.qtp.margins.loop_margins`), for every structure whose
+        realisation is minimal; None for one that declares ``extras["margins"] = False`` (LADR,
+        whose observer has structural zero eigenvalues)."""
+        if not self.loop.structure.extras.get("margins", True):
             return None
         return loop_margins(self, np.array([self.values(x)[n] for n in self.names]))
 

@@ -25,12 +25,13 @@ import pandas as pd
 from heurtune.analysis.compare import best_run_index
 from heurtune.analysis.figures import _save, convergence_figure, new_figure
 from heurtune.objectives.qtp.margins import element_loop, frequency_grid, loop_margins
+from heurtune.objectives.qtp.structures import controller_label
 
 __all__ = ["response_overlay_figure", "bode_figure", "chapter_figures"]
 
 _CH_ALGS = {5: ("cs", "apso", "firefly"), 6: ("newton_raphson", "dfp", "steepest_descent", "bfgs")}
 _LABEL = {"cs": "CS", "apso": "APSO", "firefly": "FF", "newton_raphson": "NR", "dfp": "DFP",
-          "steepest_descent": "SD", "bfgs": "BFGS", "folqi": "FOLQI", "iolqi": "IOLQI", "ladr": "LADR"}
+          "steepest_descent": "SD", "bfgs": "BFGS"}
 _COND = {"min": "minimum phase", "nmp": "non-minimum phase"}
 # The measured levels (the thesis' h1(t), h2(t) under the output disturbance d(t)) and the pumps.
 _SIGNALS = ("y1", "y2", "u1", "u2")
@@ -214,7 +215,7 @@ def chapter_figures(chapter: int, exp, out_dir, *, runs=None, history=None) -> l
                 case = _case(exp, plant, ctrl)
                 d = _design(exp, runs, case) if case else None
                 if d is not None:
-                    designs[_LABEL[ctrl]] = d
+                    designs[controller_label(ctrl)] = d
             if designs:
                 p = out_dir / f"figure_{fig_no}_{plant}.png"
                 response_overlay_figure(designs, p, title=f"Responses under d(t), {_COND[plant]} (heurtune's best runs)")
@@ -242,7 +243,7 @@ def chapter_figures(chapter: int, exp, out_dir, *, runs=None, history=None) -> l
                         designs[_LABEL[alg]] = d
                 if designs:
                     p = out_dir / f"figure_{chapter}_responses_{plant}-{ctrl}.png"
-                    response_overlay_figure(designs, p, title=f"{_LABEL[ctrl]}, {_COND[plant]}: best run per algorithm")
+                    response_overlay_figure(designs, p, title=f"{controller_label(ctrl)}, {_COND[plant]}: best run per algorithm")
                     written.append(p)
     if history is not None and not history.empty and {"case", "algorithm", "run", "epoch", "best_f"} <= set(history):
         p = out_dir / f"figure_{chapter}_convergence.png"

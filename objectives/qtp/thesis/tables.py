@@ -61,6 +61,7 @@ from heurtune.analysis.compare import best_run_index, successful_runs
 from heurtune.core.errors import ConfigError
 from heurtune.core.io import atomic_path
 from heurtune.objectives.qtp.margins import loop_margins
+from heurtune.objectives.qtp.structures import controller_label
 from heurtune.objectives.qtp.thesis.figures import chapter_figures
 from heurtune.objectives.qtp.thesis.printed import TABLES, printed_table
 
@@ -72,7 +73,6 @@ LADR = tuple(f"beta{i}{j}" for j in (1, 2, 3) for i in (1, 2, 3, 4)) + tuple(f"b
     f"r{i}" for i in range(1, 5))
 ALG_LABEL = {"cs": "CS", "apso": "APSO", "firefly": "FF", "newton_raphson": "NR", "dfp": "DFP",
              "steepest_descent": "SD", "bfgs": "BFGS", "sqp_multistart": "SQP"}
-CTRL_LABEL = {"folqi": "FOLQI", "iolqi": "IOLQI", "ladr": "LADR"}
 COND_LABEL = {"min": "Minimum", "nmp": "Non-minimum"}
 # Which tables each chapter writes, in order ("starts" is the distribution of SQP solutions).
 CHAPTER_TABLES = {
@@ -504,7 +504,7 @@ def _gain_table(inp: _Inputs, chapter: int, table: str) -> ThesisTable:
         best = inp.best(hcase, alg if chapter != 4 else None)
         if best is None and inp.case_runs(hcase, alg if chapter != 4 else None).empty:
             notes.append(f"no run of {hcase}" + (f" by {alg}" if alg else "") + ": heurtune cells empty")
-        keys = dict(controller=f"{CTRL_LABEL.get(ctrl, ctrl)} / {COND_LABEL.get(plant, plant)}")
+        keys = dict(controller=f"{controller_label(ctrl)} / {COND_LABEL.get(plant, plant)}")
         if alg:
             keys = dict(algorithm=ALG_LABEL.get(alg, alg), **keys)
         disp, vals = _keys(**keys)
@@ -564,7 +564,7 @@ def _metric_table(inp: _Inputs, chapter: int, table: str) -> ThesisTable:
         hcase = _case(inp, plant, ctrl)
         alg = r["algorithm"] if "algorithm" in raw else fixed_alg
         scenario = r["scenario"] if "scenario" in raw else "nominal"
-        keys = dict(controller=f"{CTRL_LABEL.get(ctrl, ctrl)} / {COND_LABEL.get(plant, plant)}")
+        keys = dict(controller=f"{controller_label(ctrl)} / {COND_LABEL.get(plant, plant)}")
         if "algorithm" in raw:
             keys["algorithm"] = ALG_LABEL.get(alg, alg)
         if "scenario" in raw:
@@ -602,7 +602,7 @@ def _effort_table(inp: _Inputs) -> ThesisTable:
         plant, ctrl = _split(case)
         hcase = _case(inp, plant, ctrl)
         keys = dict(algorithm=ALG_LABEL.get(alg, alg),
-                    controller=f"{CTRL_LABEL.get(ctrl, ctrl)} / {COND_LABEL.get(plant, plant)}")
+                    controller=f"{controller_label(ctrl)} / {COND_LABEL.get(plant, plant)}")
         src = _printed_gains(6, case, alg)
         rep = inp.report(hcase, src[2], scen) if src else None
         best = inp.best(hcase, alg)
@@ -638,7 +638,7 @@ def _margin_table(inp: _Inputs, chapter: int, table: str) -> ThesisTable:
         mb = inp.best_margins(hcase, best_alg)
         if mb is None and chapter == 4 and ctrl != "ladr":
             mb = inp.best_margins(hcase)
-        keys = dict(controller=f"{CTRL_LABEL.get(ctrl, ctrl)} / {COND_LABEL.get(plant, plant)}",
+        keys = dict(controller=f"{controller_label(ctrl)} / {COND_LABEL.get(plant, plant)}",
                     input=str(r["input"]), output=str(r["output"]))
         for m, rows in ((ma, rows_a), (mb, rows_b)):
             disp, vals = _keys(**keys)
@@ -680,7 +680,7 @@ def _convergence_table(inp: _Inputs) -> ThesisTable:
         else:
             notes.append(f"no run of {hcase} by {alg}: heurtune cells empty")
         disp, vals = _keys(algorithm=ALG_LABEL.get(alg, alg),
-                           controller=f"{CTRL_LABEL.get(ctrl, ctrl)} / {COND_LABEL.get(plant, plant)}",
+                           controller=f"{controller_label(ctrl)} / {COND_LABEL.get(plant, plant)}",
                            runs=str(len(g)))
         vals["runs"] = float(len(g))
         _triple((disp, vals), "convergence_epoch", "epoch", r["convergence_epoch"], ce)

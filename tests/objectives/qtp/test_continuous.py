@@ -232,7 +232,7 @@ SCENARIOS = {"folqi-weak": (dict(tolerance=TOL / 16), 5e-4)}
 @pytest.fixture(scope="module")
 def ladr_gains():
     """Thesis Table 4.7's LADR of the minimum-phase plant (observer blocks: dense, complex)."""
-    from heurtune.objectives.qtp.controllers import decision_names
+    from heurtune.objectives.qtp.structures import decision_names
     from heurtune.objectives.qtp.thesis.printed import printed_row
 
     row = printed_row("4.7", "min-ladr")

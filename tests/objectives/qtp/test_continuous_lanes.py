@@ -65,7 +65,7 @@ def test_cpu_lanes_equal_the_one_candidate_path_bit_for_bit(kind, options):
 
 def test_cpu_lanes_with_dense_observers_and_mixed_devices():
     """LADR (dense observer blocks) in lanes, beside sampled scenarios in the same call."""
-    from heurtune.objectives.qtp.controllers import decision_names
+    from heurtune.objectives.qtp.structures import decision_names
     from heurtune.objectives.qtp.thesis.printed import printed_row
 
     row = printed_row("4.7", "min-ladr")

@@ -5,15 +5,10 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from heurtune.objectives.qtp.controllers import (
-    ControllerDesignError,
-    build_controller,
-    decision_names,
-    default_bounds,
-    lqr_gain,
-)
+from heurtune.objectives.qtp.controllers import ControllerDesignError, lqr_gain
 from heurtune.objectives.qtp.model import linearise, preset
 from heurtune.objectives.qtp.oustaloup import fractional_integrator
+from heurtune.objectives.qtp.structures import build_controller, decision_names, default_bounds
 
 THESIS_CS_FOLQI_MIN = dict(Q11=0.4431, Q22=0.3027, Q33=0.4434, Q44=1.5722, R11=4.2253, R22=2.5994,
                            Ki1=1.7411, Ki2=7.1716, alpha1=0.9814, alpha2=0.8437)

@@ -11,17 +11,11 @@ import heurtune
 from heurtune.core.errors import ConfigError
 from heurtune.core.families import make_experiment
 from heurtune.core.problem import FAILED_OBJECTIVE
-from heurtune.objectives.qtp.controllers import (
-    build_controller,
-    dc_gain,
-    decision_names,
-    default_bounds,
-    integral_action_obstruction,
-    lqr_gain,
-)
+from heurtune.objectives.qtp.controllers import dc_gain, integral_action_obstruction, lqr_gain
 from heurtune.objectives.qtp.loop import ClosedLoop
 from heurtune.objectives.qtp.model import linearise, preset
 from heurtune.objectives.qtp.problem import IntegralActionWarning
+from heurtune.objectives.qtp.structures import build_controller, decision_names, default_bounds
 from heurtune.objectives.qtp.thesis.printed import printed_row
 from heurtune.runner.config import load_config
 from heurtune.runner.evaluate import run as evaluate_cli

@@ -30,9 +30,10 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from heurtune.objectives.qtp.controllers import ControllerDesignError, decision_names, default_bounds
+from heurtune.objectives.qtp.controllers import ControllerDesignError
 from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
 from heurtune.objectives.qtp.model import preset
+from heurtune.objectives.qtp.structures import decision_names, default_bounds
 
 # ---------------------------------------------------------------------------------------------
 # Independent plant (REFERENCE.md section 1; thesis Table 4.1)
