@@ -138,3 +138,86 @@ def reference_loop(P, gains, t_eval, *, d=(1.0, 1.0), t_d=50.0, factor=1.0,
             u[idx], _ = control_law(h.copy(), xc, dist)
         s0 = sol.y[:, -1]
     return y, u
+
+
+def fractional_ss(r, N=5, wb=1e-3, wh=1e3):
+    """``s^r`` (-1 < r < 1) by Oustaloup's filter as (A, B, C, D), via scipy.signal.zpk2ss."""
+    mu = wh / wb
+    zeros = [-wb * mu ** ((kk + N + 0.5 * (1 - r)) / (2 * N + 1)) for kk in range(-N, N + 1)]
+    poles = [-wb * mu ** ((kk + N + 0.5 * (1 + r)) / (2 * N + 1)) for kk in range(-N, N + 1)]
+    A, B, C, D = scipy.signal.zpk2ss(zeros, poles, wh**r)
+    return A, B.ravel(), C.ravel(), float(np.squeeze(D))
+
+
+def reference_pid_loop(P, gains, t_eval, *, kind="pid", pairing="diagonal", decoupler="none", N=10.0,
+                       d=(1.0, 1.0), t_d=50.0, method="DOP853", rtol=1e-10, atol=1e-12):
+    """Continuous decentralised PID (``kind="pid"``: ``Kp + Ki/s + Kd N s/(s + N)``) or FOPID
+    (``"fopid"``: ``Kp + Ki/s^lambda + Kd s^mu``, Oustaloup by zpk2ss) loop on the levels,
+    written anew: pump r acts on the error of level r (diagonal) or of the other level
+    (anti-diagonal), through the decoupler ``G(0)^-1 M`` (``M`` the paired DC gains, G(0) from
+    finite-difference Jacobians) with ``decoupler="inverse_dc"``.
+
+    Returns
+    -------
+    y : (len(t_eval), 2) measured levels; iae : (2,) IAE of both levels over the run
+    """
+    h0, u0 = equilibrium(P)
+    A, B = jacobians(P, h0, u0)
+    err = (0, 1) if pairing == "diagonal" else (1, 0)
+    Dd = np.eye(2)
+    if decoupler == "inverse_dc":
+        G0 = -np.linalg.solve(A, B)[:2]
+        M = np.zeros((2, 2))
+        for r in range(2):
+            M[err[r], r] = G0[err[r], r]
+        Dd = np.linalg.solve(G0, M)
+    # per loop: a list of (A, B, C, D, gain) parts acting on its error, plus Kp
+    loops = []
+    for r in range(2):
+        g = {k: gains[f"{k}{r + 1}"] for k in ("Kp", "Ki", "Kd")}
+        if kind == "pid":
+            parts = [(np.zeros((1, 1)), np.ones(1), np.ones(1), 0.0, g["Ki"]),
+                     # Kd N (e - x_f), x_f' = N (e - x_f)
+                     (np.array([[-N]]), np.array([N]), np.array([-N]), N, g["Kd"])]
+        else:
+            parts = [frac_integrator_ss(gains[f"lambda{r + 1}"]) + (g["Ki"],),
+                     fractional_ss(gains[f"mu{r + 1}"]) + (g["Kd"],)]
+        loops.append((g["Kp"], parts))
+    sizes = [p[0].shape[0] for _, parts in loops for p in parts]
+
+    def law(h, xc, dist):
+        e_all = -(h[:2] + dist - h0[:2])
+        v = np.zeros(2)
+        dx = []
+        off = 0
+        k = 0
+        for r, (kp, parts) in enumerate(loops):
+            e = e_all[err[r]]
+            v[r] = kp * e
+            for Af, Bf, Cf, Df, gain in parts:
+                x = xc[off:off + sizes[k]]
+                v[r] += gain * (Cf @ x + Df * e)
+                dx.append(Af @ x + Bf * e)
+                off += sizes[k]
+                k += 1
+        return u0 + Dd @ v, np.concatenate(dx)
+
+    def rhs(t, s, dist):
+        h, xc = s[:4], s[4:-2]
+        u, dxc = law(h, xc, dist)
+        return np.concatenate([plant_rhs(h, u, P), dxc, np.abs(h[:2] + dist - h0[:2])])
+
+    s0 = np.concatenate([h0, np.zeros(sum(sizes) + 2)])
+    y = np.empty((len(t_eval), 2))
+    t_eval = np.asarray(t_eval)
+    T = t_eval[-1]
+    for t0, t1, dist in [(0.0, t_d, np.zeros(2)), (t_d, T, np.asarray(d, dtype=float))]:
+        mask = (t_eval >= t0) & ((t_eval < t1) if t1 < T else (t_eval <= t1))
+        te = t_eval[mask]
+        te_full = te if len(te) and te[-1] >= t1 else np.append(te, t1)
+        sol = solve_ivp(rhs, (t0, t1), s0, method=method, t_eval=te_full, args=(dist,), rtol=rtol, atol=atol)
+        if not sol.success:
+            raise RuntimeError(sol.message)
+        y[mask] = sol.y[:2, :mask.sum()].T + dist
+        s0 = sol.y[:, -1]
+    return y, s0[-2:]

@@ -37,7 +37,7 @@ DEFAULT_STEP_AT_REFERENCE = 0.05
 # also keeps h |lambda| <= EXPLICIT_STEP_RADIUS (tolerance / REFERENCE_TOLERANCE)^(1/4) for the
 # eigenvalues lambda of the plant under that static feedback, A + B D, which the explicit
 # part of the method integrates (see explicit_step; validated in test_pid.py).
-EXPLICIT_STEP_RADIUS = 0.25
+EXPLICIT_STEP_RADIUS = 0.5
 MAX_STEP = 1.0
 MIN_STEP = 1e-4
 # A scenario whose step rule needs more steps than this over its horizon is refused.

@@ -149,9 +149,10 @@ class Experiment(ExperimentBase):
         self._set_cases(plant_cases, ctrl.get("type", "folqi"))
         read = {key for kind in self.controllers for key in structures.structure(kind).options}
         unread = [key for key in ctrl if key not in read and key not in ("type", "sample_time", "pairing")]
-        if unread:
-            raise ConfigError(f"{self.name}: controller.{unread[0]} is not an option of "
-                              f"{', '.join(self.controllers)} (they read: {', '.join(sorted(read)) or 'none'})")
+        if unread:  # another structure's option (inherited through extends, as unused bounds are)
+            print(f"warning: {self.name}: controller.{', controller.'.join(unread)} not read by "
+                  f"{', '.join(self.controllers)} (it reads: {', '.join(sorted(read)) or 'no options'}); ignored",
+                  file=sys.stderr)
         # each type's own options, from the config where given (their defaults otherwise)
         self.controller_options = {
             kind: {key: ctrl[key] for key in structures.structure(kind).options if key in ctrl}

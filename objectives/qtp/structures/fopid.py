@@ -32,7 +32,7 @@ from heurtune.objectives.qtp.structures.lqi_family import FRACTIONAL_OPTIONS
 from heurtune.objectives.qtp.structures.pid import DECOUPLERS, decoupled, decoupler_sign
 
 FOPID_NAMES = ("Kp1", "Ki1", "Kd1", "lambda1", "mu1", "Kp2", "Ki2", "Kd2", "lambda2", "mu2")
-FOPID_BOUNDS = {"Kp": (0.0, 20.0), "Ki": (0.01, 2.0), "Kd": (0.0, 0.5), "la": (0.1, 2.0), "mu": (0.1, 0.9)}
+FOPID_BOUNDS = {"Kp": (0.0, 10.0), "Ki": (1e-4, 1.0), "Kd": (0.0, 0.5), "la": (0.1, 2.0), "mu": (0.1, 0.9)}
 
 
 def _realised(part):

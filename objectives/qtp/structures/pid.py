@@ -36,7 +36,7 @@ from heurtune.objectives.qtp.controllers import (
 DECOUPLERS = ("none", "inverse_dc")
 DEFAULT_DERIVATIVE_FILTER = 10.0
 PID_NAMES = ("Kp1", "Ki1", "Kd1", "Kp2", "Ki2", "Kd2")
-PID_BOUNDS = {"Kp": (0.0, 20.0), "Ki": (0.01, 2.0), "Kd": (0.0, 20.0)}
+PID_BOUNDS = {"Kp": (0.0, 10.0), "Ki": (1e-4, 1.0), "Kd": (0.0, 2.0)}
 
 
 def decoupler_gain(plant, pairing: str, decoupler: str):
