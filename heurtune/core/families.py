@@ -21,7 +21,7 @@ import pkgutil
 from pathlib import Path
 
 import heurtune.objectives as families_package
-from heurtune.core import registry
+from heurtune.core import registry, structures
 from heurtune.core.errors import ConfigError
 from heurtune.core.plugins import load_plugin, load_plugins, loaded
 from heurtune.core.problem import ExperimentBase
@@ -128,16 +128,24 @@ def load_registering_plugin(spec: str):
     key = str(Path(spec).resolve()) if spec.endswith(".py") else spec
     if key in loaded():
         return load_plugin(spec)
-    before = (tuple(registry.available()), tuple(sorted(_FAMILIES)))
+    before = (tuple(registry.available()), tuple(sorted(_FAMILIES)), _structure_keys())
     module = load_plugin(spec)
-    if (tuple(registry.available()), tuple(sorted(_FAMILIES))) == before and not _registered_from(module.__name__):
-        raise ConfigError(f"plugin {spec!r} registers no optimiser and no plant family "
-                          "(heurtune.core.registry.register, heurtune.core.families.register_family)")
+    now = (tuple(registry.available()), tuple(sorted(_FAMILIES)), _structure_keys())
+    if now == before and not _registered_from(module.__name__):
+        raise ConfigError(f"plugin {spec!r} registers no optimiser, no plant family and no controller structure "
+                          "(heurtune.core.registry.register, heurtune.core.families.register_family, "
+                          "heurtune.core.structures.register_structure)")
     return module
+
+
+def _structure_keys() -> tuple:
+    """Every registered controller structure as (family, name)."""
+    return tuple((s.family, s.name) for s in structures.all_structures())
 
 
 def _registered_from(module_name: str) -> bool:
     """Whether an optimiser or plant family comes from ``module_name`` or its submodules (a
     plugin imported before, whose import now adds nothing new)."""
     classes = [registry.get(n).cls for n in registry.available()] + [f.cls for f in _FAMILIES.values()]
-    return any(c.__module__ == module_name or c.__module__.startswith(module_name + ".") for c in classes)
+    modules = [c.__module__ for c in classes] + [s.source for s in structures.all_structures()]
+    return any(m == module_name or m.startswith(module_name + ".") for m in modules)

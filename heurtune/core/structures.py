@@ -26,7 +26,7 @@ import typing
 from heurtune.core.errors import ConfigError
 
 __all__ = ["ControllerStructure", "register_structure", "get_structure", "structure_names",
-           "structures_of", "on_register", "INTEGRAL_ACTIONS"]
+           "structures_of", "all_structures", "on_register", "register_checks", "check_structure", "INTEGRAL_ACTIONS"]
 
 # "paired": integrators on the errors, one per input, which error each input integrates set by
 # [controller] pairing; "full": an integral gain that couples every error to every input (the
@@ -35,6 +35,7 @@ INTEGRAL_ACTIONS = ("paired", "full", "none")
 
 _REGISTRY: dict = {}  # family -> {name: ControllerStructure}
 _LISTENERS: dict = {}  # family -> [callback(structure)]
+_CHECKERS: dict = {}  # family -> checks(structure) -> [(check, ok, reason)]
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
@@ -178,6 +179,27 @@ def structure_names(family: str) -> tuple:
     return tuple(sorted(_REGISTRY.get(family, {})))
 
 
+def all_structures() -> tuple:
+    """Every registered structure of every family."""
+    return tuple(s for family in sorted(_REGISTRY) for s in _REGISTRY[family].values())
+
+
 def structures_of(family: str) -> tuple:
     """The structures registered for ``family``, in registration order."""
     return tuple(_REGISTRY.get(family, {}).values())
+
+
+def register_checks(family: str, checks) -> None:
+    """Give ``family``'s contract for controller structures: ``checks(structure)`` returns
+    ``[(check name, passed, one-line reason), ...]`` (``python -m heurtune.check_plugin`` runs it
+    on a plugin's structures)."""
+    _CHECKERS[family] = checks
+
+
+def check_structure(structure: ControllerStructure) -> list:
+    """The contract checks of ``structure``'s family on it (a single failed check when the
+    family gives none)."""
+    checks = _CHECKERS.get(structure.family)
+    if checks is None:
+        return [("family", False, f"family {structure.family!r} gives no structure contract (register_checks)")]
+    return checks(structure)

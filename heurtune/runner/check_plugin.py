@@ -1,14 +1,20 @@
-"""Check an optimiser plugin against the optimiser contract.
+"""Check a plugin against the contracts of what it registers: optimisers and controller structures.
 
 Usage::
 
     python -m heurtune.check_plugin FILE_OR_MODULE [--settings '{"n": 10}']
 
-Loads the plugin (a ``.py`` file or a module name), finds the optimisers it registers and runs
-the contract checks of :mod:`heurtune.core.contract` on each (bounds, NaN/inf, seeds, exact
-budgets, constraints, one and two workers), printing one line per check. Exit status 0 when all
-pass, 1 when one fails, 2 for a mistake in the command (no such file, nothing registered, bad
-settings).
+Loads the plugin (a ``.py`` file or a module name) and finds what it registers:
+
+- each optimiser runs the contract checks of :mod:`heurtune.core.contract` (bounds, NaN/inf,
+  seeds, exact budgets, constraints, one and two workers), with ``--settings``;
+- each controller structure runs its plant family's contract
+  (:func:`heurtune.core.structures.check_structure`; the QTP's in
+  ``heurtune.objectives.qtp.structure_checks``: design, determinism, corners, simulation,
+  batch design, pickling).
+
+One line per check. Exit status 0 when all pass, 1 when one fails, 2 for a mistake in the
+command (no such file, nothing registered, bad settings).
 """
 
 from __future__ import annotations
@@ -20,10 +26,11 @@ import sys
 from pathlib import Path
 
 from heurtune import _startup
-from heurtune.core import registry
+from heurtune.core import registry, structures
 from heurtune.core.cli import exit_codes
-from heurtune.core.contract import CHECKS, run_checks
+from heurtune.core.contract import run_checks
 from heurtune.core.errors import ConfigError
+from heurtune.core.families import load_families
 from heurtune.core.plugins import load_plugin
 
 __all__ = ["run", "main"]
@@ -32,7 +39,8 @@ __all__ = ["run", "main"]
 def _parser():
     ap = argparse.ArgumentParser(prog="python -m heurtune.check_plugin", description=__doc__.split("\n")[0],
                                  epilog=exit_codes(c1="a check of the contract failed"))
-    ap.add_argument("plugin", help="a .py file or an importable module that registers optimisers")
+    ap.add_argument("plugin", help="a .py file or an importable module that registers optimisers or controller "
+                                   "structures")
     ap.add_argument("--settings", default="{}", help="settings for the checks, as JSON (default: the optimiser's)")
     return ap
 
@@ -48,20 +56,30 @@ def _shipped_module(spec: str) -> str | None:
     return f"{shipped.__name__}.{path.stem}" if path.parent in {Path(p).resolve() for p in shipped.__path__} else None
 
 
+def _structures() -> dict:
+    """Every registered controller structure by (family, name)."""
+    return {(s.family, s.name): s for s in structures.all_structures()}
+
+
 def run(argv=None, stream=None) -> int:
     """Entry point; returns the exit status (the lines go to ``stream``, default the
     ``sys.stdout`` of the call)."""
     stream = sys.stdout if stream is None else stream
     args = _parser().parse_args(argv)
     try:
+        load_families()  # their structure contracts, and the structures shipped with them
         before = set(registry.available())
+        before_structures = _structures()
         shipped = _shipped_module(args.plugin)
         module = importlib.import_module(shipped) if shipped else load_plugin(args.plugin)
         names = sorted(set(registry.available()) - before)
         if not names:  # a module imported before (a shipped optimiser): the ones it registered
             names = sorted(n for n in registry.available() if registry.get(n).cls.__module__ == module.__name__)
-        if not names:
-            raise ConfigError(f"{args.plugin} registers no optimiser (use heurtune.core.registry.register)")
+        new_structures = [s for key, s in _structures().items() if key not in before_structures
+                          or s.source == module.__name__]
+        if not names and not new_structures:
+            raise ConfigError(f"{args.plugin} registers no optimiser (heurtune.core.registry.register) and no "
+                              "controller structure (heurtune.core.structures.register_structure)")
         try:
             settings = json.loads(args.settings)
         except json.JSONDecodeError as exc:
@@ -71,12 +89,18 @@ def run(argv=None, stream=None) -> int:
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    failed = 0
+    failed = total = 0
     for name in names:
         for check, ok, reason in run_checks(name, settings):
             failed += not ok
+            total += 1
             print(f"{'PASS' if ok else 'FAIL'}  {name}: {check}" + ("" if ok else f": {reason}"), file=stream)
-    total = len(names) * len(CHECKS)
+    for s in new_structures:
+        for check, ok, reason in structures.check_structure(s):
+            failed += not ok
+            total += 1
+            print(f"{'PASS' if ok else 'FAIL'}  {s.family} structure {s.name}: {check}" + ("" if ok else f": {reason}"),
+                  file=stream)
     print(f"{total - failed} of {total} checks passed", file=stream)
     return 0 if failed == 0 else 1
 

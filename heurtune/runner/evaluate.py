@@ -47,7 +47,8 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--out", help="write trajectories (scenario, t, h1..h4 or r1, r2, y1, y2, u1, u2) to this parquet file")
     ap.add_argument("--plot", help="draw levels and pump voltages to this PNG file")
     ap.add_argument("--plugin", action="append", default=[],
-                    help="plugin (a plant family or optimisers): a .py file or module; repeatable")
+                    help="plugin (a plant family, controller structures or optimisers): a .py file or module; "
+                         "repeatable")
     ap.add_argument("--outside-bounds", action="store_true",
                     help="evaluate values outside the experiment's bounds as given (one warning per variable)")
     return ap

@@ -1035,7 +1035,7 @@ def _parser():
                     help="advance the runs together, each generation of all runs evaluated as one batch "
                          "(same results; default: on with --device cpu-batch or gpu)")
     ap.add_argument("--scheduler", help="Dask scheduler address, with --backend dask")
-    ap.add_argument("--plugin", action="append", default=[], help="plugin (optimisers or a plant family): a .py file or module; repeatable")
+    ap.add_argument("--plugin", action="append", default=[], help="plugin (optimisers, a plant family or controller structures): a .py file or module; repeatable")
     ap.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     ap.add_argument("--force", action="store_true",
                     help="run even when one evaluation is calibrated to take over a minute")

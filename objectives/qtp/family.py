@@ -20,7 +20,10 @@ from heurtune.core.problem import ExperimentBase
 from heurtune.core.robust import ROBUST_SCHEMA, robust_tuning
 from heurtune.core.schema import COMMON_SCHEMA, MULTI_OBJECTIVE_SCHEMA, NUMBER, PAIR
 from heurtune.core.structures import on_register
-from heurtune.objectives.qtp import structures
+from heurtune.objectives.qtp import (
+    structure_checks,  # noqa: F401  (registers the structure contract)
+    structures,
+)
 from heurtune.objectives.qtp.controllers import dc_gain, integral_action_obstruction
 from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
 from heurtune.objectives.qtp.model import QTPParams, linearise, preset
