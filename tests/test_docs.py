@@ -95,3 +95,15 @@ def test_every_import_in_the_docs_python_examples_works():
                     failures.append(f"{page.name}: {alias}.{attr} does not exist in {modules[alias].__name__}")
             importlib.invalidate_caches()
     assert not failures, "\n".join(failures)
+
+
+def test_the_readmes_python_control_example_runs():
+    """README's python-control block runs as written and gives the numbers its comments state."""
+    text = (ROOT / "README.md").read_text()
+    block = next(b for b in _python_blocks(text) if "linear_systems" in b)
+    namespace = {}
+    exec(block, namespace)
+    assert abs(namespace["pm"] - 20.3) < 0.05 and abs(namespace["w_gc"] - 1.02) < 0.005
+    assert namespace["y1"][0] == 1.0 and 0.0 < namespace["y1"][-1] < 1e-3
+    assert namespace["cl"].input_labels == ["d1", "d2"]
+    assert namespace["cl"].output_labels == ["y1", "y2", "du1", "du2"]

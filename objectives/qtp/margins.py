@@ -165,6 +165,63 @@ def _plant_and_controller(problem, x, scenario):
     return np.asarray(A), np.asarray(B), ctrl
 
 
+def linear_systems(problem, x, scenario="nominal") -> dict:
+    """The linear systems of a candidate as python-control ``StateSpace`` objects with named
+    signals.
+
+    Parameters
+    ----------
+    problem : heurtune.Problem
+    x : array_like or dict
+        Tuning values.
+    scenario : str or Scenario
+        Plant uncertainty factor taken from it (default nominal); the controller is designed on
+        the nominal plant, as in every evaluation.
+
+    Returns
+    -------
+    dict
+        - ``"plant"``: the linearisation at the operating point, inputs ``du1, du2`` (V), states
+          ``dh1..dh4`` and outputs ``w1..w4`` (cm: the measured deviations, y1, y2, h3, h4);
+        - ``"controller"``: inputs ``w1..w4``, outputs ``du1, du2``, states ``z1..``;
+        - ``"closed_loop"``: the loop closed with ``du = K w``, inputs ``d1, d2`` (an output
+          disturbance added to the measured y1, y2, cm) and outputs ``y1, y2`` (their deviations,
+          the disturbance included), ``du1, du2``;
+        - ``"loop_i_j"`` for i, j in 1, 2: :func:`element_loop`, the SISO loop through the
+          controller's element from level j to pump i, whose margins :func:`loop_margins`
+          reports.
+
+    Raises
+    ------
+    ControllerDesignError
+        When the candidate has no controller.
+    """
+    import control
+
+    A, B, ctrl = _plant_and_controller(problem, x, scenario)
+    n, nz = A.shape[0], ctrl.A.shape[0]
+    w = [f"w{i}" for i in range(1, 5)]
+    du = ["du1", "du2"]
+    z = [f"z{i}" for i in range(1, nz + 1)]
+    plant = control.ss(A, B, np.eye(n), np.zeros((n, 2)), inputs=du, outputs=w,
+                       states=[f"dh{i}" for i in range(1, n + 1)], name="plant")
+    controller = control.ss(ctrl.A, ctrl.B, ctrl.C, ctrl.D, inputs=w, outputs=du, states=z, name="controller")
+    # closed loop: x' = A x + B (C z + D w), z' = Ac z + Bc w, w = x + E d (E: d onto y1, y2)
+    E = np.zeros((n, 2))
+    E[0, 0] = E[1, 1] = 1.0
+    Acl = np.block([[A + B @ ctrl.D, B @ ctrl.C], [ctrl.B, ctrl.A]])
+    Bcl = np.vstack([B @ ctrl.D @ E, ctrl.B @ E])
+    Ccl = np.vstack([np.hstack([np.eye(2, n), np.zeros((2, nz))]), np.hstack([ctrl.D, ctrl.C])])
+    Dcl = np.vstack([np.eye(2), ctrl.D @ E])
+    closed = control.ss(Acl, Bcl, Ccl, Dcl, inputs=["d1", "d2"], outputs=["y1", "y2"] + du,
+                        states=[f"dh{i}" for i in range(1, n + 1)] + z, name="closed_loop")
+    out = {"plant": plant, "controller": controller, "closed_loop": closed}
+    for i in (1, 2):
+        for j in (1, 2):
+            out[f"loop_{i}_{j}"] = element_loop(problem, x, i, j, scenario)
+    return out
+
+
 def return_ratio(problem, x, scenario="nominal"):
     """Return ratio ``L = -K P`` at the plant input as a 2 x 2 python-control state space.
 

@@ -19,7 +19,7 @@ from heurtune.core.problem import FAILED_OBJECTIVE, FAILED_VIOLATION, Evaluation
 from heurtune.objectives.qtp.batch_design import design_batch
 from heurtune.objectives.qtp.controllers import ControllerDesignError
 from heurtune.objectives.qtp.loop import METRIC_NAMES, ClosedLoop, Scenario, physical_range_flags
-from heurtune.objectives.qtp.margins import loop_margins
+from heurtune.objectives.qtp.margins import linear_systems, loop_margins
 
 # Where a QTP problem's simulations run (TuningProblem.set_device): one candidate at a time, the
 # CPU's vector lanes (heurtune.objectives.qtp.batch_kernels), or a CUDA GPU (.gpu).
@@ -323,6 +323,12 @@ class Problem(TuningProblem):
         if not self.loop.structure.extras.get("margins", True):
             return None
         return loop_margins(self, np.array([self.values(x)[n] for n in self.names]))
+
+    def linear_systems(self, x, scenario="nominal") -> dict:
+        """The plant linearisation, the controller, the closed loop and the four element loops
+        of candidate ``x`` as python-control ``StateSpace`` objects with named signals
+        (:func:`heurtune.objectives.qtp.margins.linear_systems`)."""
+        return linear_systems(self, x, scenario)
 
     def controller_record(self, x) -> dict:
         """The continuous controller (A, B, C, D, blocks), its discretisation at the scenario's

@@ -104,3 +104,13 @@ def test_a_plugin_structure_runs_by_config_alone(tmp_path):
     assert {"Kp12", "Ki21"} <= set(runs.columns) and set(runs.controller) == {"mimo_pi"}
     assert np.isfinite(runs.best_f[runs.case == "min"]).all()
     assert len(pd.read_parquet(out / "margins.parquet")) > 0
+
+
+def test_the_guides_example_passes_check_plugin(tmp_path):
+    """docs/controllers.md's code block, as a user would copy it, is a working plugin."""
+    text = (ROOT / "docs" / "controllers.md").read_text()
+    start = text.index("```python\nimport numpy as np") + len("```python\n")
+    path = tmp_path / "guide_pi.py"
+    path.write_text(text[start:text.index("```", start)].replace('name="mimo_pi"', 'name="guide_pi"'))
+    out = io.StringIO()
+    assert check_plugin([str(path)], stream=out) == 0, out.getvalue()

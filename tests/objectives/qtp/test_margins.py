@@ -341,3 +341,28 @@ def test_positive_siso_margins_do_not_make_a_stable_mimo_loop():
     mm = multivariable_margins(prob, x)
     assert not mm.stable and mm.max_real_eig > 0
     assert prob.evaluate(x).reason[0] == "unstable"
+
+
+def test_linear_systems_are_the_loop_python_control_builds(problem, x):
+    """prob.linear_systems: the closed loop equals python-control's own interconnection of the
+    plant and the controller (positive feedback, du = K w, the controller's signs), its poles
+    are the stability check's, and its DC gain from d1 to y1 is 1 - the loop's rejection."""
+    sys = problem.linear_systems(x)
+    plant, ctrl, cl = sys["plant"], sys["controller"], sys["closed_loop"]
+    assert plant.input_labels == ["du1", "du2"] and plant.output_labels == ["w1", "w2", "w3", "w4"]
+    assert ctrl.input_labels == plant.output_labels and ctrl.output_labels == plant.input_labels
+    fb = control.feedback(plant, ctrl, sign=+1)
+    np.testing.assert_allclose(np.sort_complex(cl.poles()), np.sort_complex(fb.poles()), rtol=1e-8, atol=1e-10)
+    margin = problem.loop.stability_margin(problem.loop.controller(problem.values(x)))
+    assert np.max(cl.poles().real) == pytest.approx(margin, rel=1e-8, abs=1e-12)
+    # d1 at a frequency: y1 = (I + P_y K_y ...)^-1 d, compare with the interconnection's response
+    s = 0.3j
+    P = plant(s)
+    K = ctrl(s)
+    E = np.zeros((4, 2))
+    E[0, 0] = E[1, 1] = 1.0
+    w = np.linalg.solve(np.eye(4) - P @ K, E)  # w = P K w + E d
+    np.testing.assert_allclose(cl(s)[:2], w[:2], rtol=1e-9)
+    for i in (1, 2):
+        for j in (1, 2):
+            assert sys[f"loop_{i}_{j}"].ninputs == sys[f"loop_{i}_{j}"].noutputs == 1
