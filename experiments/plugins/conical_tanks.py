@@ -626,6 +626,9 @@ class ConicalTanksProblem(TuningProblem):
     """
 
     scenario_type = TankScenario
+    # What [problem] objectives may name (several objectives, NSGA-II): each the sum over both
+    # loops. Robust tuning ([problem] tuning_scenarios) needs nothing here: the core applies both.
+    objective_metrics = {name: (f"{key}1", f"{key}2") for name, key in OBJECTIVES.items()}
     report_columns = ("f", "IAE1", "IAE2", "Mp1", "Mp2", "ts1", "ts2", "umax1", "umax2", "hmax1", "hmax2",
                       "feasible", "reason")
     signal_labels = {"output": "tank", "input": "pump", "y_label": "level h{i} (cm)",

@@ -25,6 +25,8 @@ from heurtune.core import registry, structures
 from heurtune.core.errors import ConfigError
 from heurtune.core.plugins import load_plugin, load_plugins, loaded
 from heurtune.core.problem import ExperimentBase
+from heurtune.core.robust import ROBUST_SCHEMA, apply_tuning
+from heurtune.core.schema import MULTI_OBJECTIVE_SCHEMA
 
 __all__ = ["FamilyInfo", "register_family", "get_family", "available", "load_families", "make_experiment",
            "families", "load_registering_plugin", "DEFAULT_MODEL"]
@@ -54,7 +56,11 @@ def register_family(name: str, *, schema: dict, description: str, models: tuple 
         Lowercase key (``[a-z0-9_]+``).
     schema : dict
         The config schema of the family's experiments (see :mod:`heurtune.core.schema`); its
-        ``plant.model`` entry should allow the ``models`` names.
+        ``plant.model`` entry should allow the ``models`` names. The keys of robust and
+        multi-objective tuning (``tuning_scenarios``, ``aggregate``, ``cvar_level``,
+        ``objectives``, ``reference_point``, ``decision_weights``) are added to its
+        ``[problem]`` table here: the core applies them to every family's problems
+        (:meth:`~heurtune.core.problem.ExperimentBase._apply_tuning`).
     description : str
         One line for listings.
     models : tuple of str, optional
@@ -71,6 +77,11 @@ def register_family(name: str, *, schema: dict, description: str, models: tuple 
         taken = [m for m in models if m in _FAMILIES and _FAMILIES[m].cls is not cls]
         if taken:
             raise ValueError(f"plant model {taken[0]!r} is already registered (by {_FAMILIES[taken[0]].cls.__module__})")
+        table = schema.setdefault("problem", {})
+        if isinstance(table, dict):
+            for key, spec in {**ROBUST_SCHEMA, **MULTI_OBJECTIVE_SCHEMA}.items():
+                table.setdefault(key, spec)
+        cls._tuning_hook = staticmethod(apply_tuning)
         info = FamilyInfo(name, models, cls, schema, description)
         for m in models:
             _FAMILIES[m] = info

@@ -19,6 +19,7 @@ Data flow: config -> experiment -> problem -> evaluate -> kernel -> metrics -> c
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 
@@ -106,6 +107,9 @@ class TuningProblem:
     """
 
     scenario_type = object  # the class of this problem's scenarios
+    # The objectives a config may name in problem.objectives, each the sum of these metric
+    # columns (e.g. {"iae": ("IAE1", "IAE2")}); None: the family gives F itself or has none.
+    objective_metrics = None
     # One line saying why the configured controller structure cannot meet the problem on this
     # plant (said by the runner and the evaluate command), or None.
     structure_warning = None
@@ -126,6 +130,43 @@ class TuningProblem:
     # and the chosen one.
     devices = ("cpu",)
     device = "cpu"
+
+    def __init_subclass__(cls, **kwargs):
+        """Robust and multi-objective tuning for every family, by construction: a subclass's
+        ``evaluate`` aggregates its tuning scenarios when the problem is tuned robustly (and
+        gives ``F`` from :attr:`objective_metrics` when it has several objectives and the
+        family gives none), and its ``identity`` includes :meth:`tuning_identity`."""
+        super().__init_subclass__(**kwargs)
+        own = cls.__dict__.get("evaluate")
+        if own is not None and not getattr(own, "_tuning", False):
+            @functools.wraps(own)
+            def evaluate(self, X, scenario=None, **options):
+                if scenario is None and self.robust is not None:
+                    return self.robust.evaluate(self, X, **options)
+                return self._with_objectives(own(self, X, scenario, **options))
+
+            evaluate._tuning = True
+            cls.evaluate = evaluate
+        own_identity = cls.__dict__.get("identity")
+        if own_identity is not None and not getattr(own_identity, "_tuning", False):
+            @functools.wraps(own_identity)
+            def identity(self):
+                return {**own_identity(self), **self.tuning_identity()}
+
+            identity._tuning = True
+            cls.identity = identity
+
+    def _with_objectives(self, ev: Evaluation) -> Evaluation:
+        """``ev`` with the values of every objective as ``F`` when the problem has several and
+        the family's evaluation gave none (each the sum of its :attr:`objective_metrics`
+        columns; FAILED_OBJECTIVE for a failed candidate)."""
+        if self.objective_names is None or ev.F is not None or not isinstance(ev, Evaluation):
+            return ev
+        col = {name: i for i, name in enumerate(ev.metric_names)}
+        F = np.column_stack([ev.metrics[:, [col[m] for m in self.objective_metrics[name]]].sum(axis=1)
+                             for name in self.objective_names])
+        F[np.asarray(ev.reason) != ""] = FAILED_OBJECTIVE
+        return dataclasses.replace(ev, F=F, objective_names=self.objective_names)
 
     # -- what a family implements ---------------------------------------------------------------
     def evaluate(self, X, scenario=None) -> Evaluation:
@@ -301,6 +342,25 @@ class ExperimentBase:
     def problem(self, case: str) -> TuningProblem:
         """The tuning problem of one case."""
         raise NotImplementedError
+
+    # Applies the config's robust and multi-objective tuning to a family's problem, where the
+    # family did not (heurtune.core.robust.apply_tuning, installed by register_family).
+    _tuning_hook = None
+
+    def __init_subclass__(cls, **kwargs):
+        """A subclass's ``problem`` hands back its problem with the config's robust and
+        multi-objective tuning applied (:attr:`_tuning_hook`), unless the family set them."""
+        super().__init_subclass__(**kwargs)
+        own = cls.__dict__.get("problem")
+        if own is not None and not getattr(own, "_tuning", False):
+            @functools.wraps(own)
+            def problem(self, case):
+                prob = own(self, case)
+                hook = type(self)._tuning_hook
+                return prob if hook is None else hook(self, prob)
+
+            problem._tuning = True
+            cls.problem = problem
 
     def baseline_names(self, case: str) -> tuple:
         """Fixed designs run once each for ``case`` (names for ``problem.baseline``)."""

@@ -20,7 +20,7 @@ import numpy as np
 from heurtune.core.errors import ConfigError
 from heurtune.core.problem import FAILED_OBJECTIVE, Evaluation
 
-__all__ = ["AGGREGATES", "RobustTuning", "aggregate_evaluations", "robust_tuning", "ROBUST_SCHEMA"]
+__all__ = ["AGGREGATES", "RobustTuning", "aggregate_evaluations", "robust_tuning", "apply_tuning", "ROBUST_SCHEMA"]
 
 AGGREGATES = ("worst", "mean", "cvar")
 DEFAULT_CVAR_LEVEL = 0.5
@@ -148,3 +148,31 @@ def robust_tuning(problem: dict, scenarios, where: str) -> RobustTuning | None:
     if not 0.0 <= level < 1.0:
         raise ConfigError(f"{where}: problem.cvar_level must lie in [0, 1), got {level}")
     return RobustTuning(tuple(names), aggregate, level)
+
+
+def apply_tuning(experiment, prob):
+    """The config's ``[problem] tuning_scenarios`` (with ``aggregate``, ``cvar_level``) and
+    ``objectives`` (with ``reference_point``, ``decision_weights``) on a family's problem, where
+    the family did not set them itself: checked against the problem's scenarios and its
+    ``objective_metrics`` (one-line ConfigErrors). Every registered family's ``problem`` passes
+    its problems through this (:func:`heurtune.core.families.register_family`)."""
+    table = getattr(experiment, "config", {}).get("problem", {})
+    name = getattr(experiment, "name", "experiment")
+    if prob.robust is None and "tuning_scenarios" in table:
+        prob.robust = robust_tuning(table, prob.scenarios, name)
+        if prob.tuning_scenario not in prob.robust.scenarios:
+            raise ConfigError(f"{name}: problem.tuning_scenario must be one of problem.tuning_scenarios "
+                              f"({', '.join(prob.robust.scenarios)})")
+    if prob.objective_names is None and "objectives" in table:
+        allowed = tuple(prob.objective_metrics or ())
+        if not allowed:
+            raise ConfigError(f"{name}: problem.objectives: this family declares no objectives "
+                              "(TuningProblem.objective_metrics)")
+        experiment._objectives(table, allowed)
+        if experiment.objective_names[0] != prob.objective:
+            raise ConfigError(f"{name}: problem.objectives must start with problem.objective "
+                              f"({prob.objective!r}), got {list(experiment.objective_names)}")
+        prob.set_objectives(experiment.objective_names, experiment.reference_point, experiment.decision_weights)
+        if getattr(experiment, "optimisers", None) is not None:
+            experiment._check_multi_objective_optimisers()
+    return prob

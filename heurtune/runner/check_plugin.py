@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m heurtune.check_plugin FILE_OR_MODULE [--settings '{"n": 10}']
+    python -m heurtune.check_plugin FILE_OR_MODULE [--settings '{"n": 10}'] [--config EXPERIMENT.toml]
 
 Loads the plugin (a ``.py`` file or a module name) and finds what it registers:
 
@@ -11,7 +11,10 @@ Loads the plugin (a ``.py`` file or a module name) and finds what it registers:
 - each controller structure runs its plant family's contract
   (:func:`heurtune.core.structures.check_structure`; the QTP's in
   ``heurtune.objectives.qtp.structure_checks``: design, determinism, corners, simulation,
-  batch design, pickling).
+  batch design, pickling);
+- each plant family runs the family contract of :mod:`heurtune.core.family_contract`
+  (protocol, bad candidates, identity, report, robust and multi-objective tuning by config,
+  workers) on the experiment ``--config`` names, which it needs.
 
 One line per check. Exit status 0 when all pass, 1 when one fails, 2 for a mistake in the
 command (no such file, nothing registered, bad settings).
@@ -26,12 +29,13 @@ import sys
 from pathlib import Path
 
 from heurtune import _startup
-from heurtune.core import registry, structures
+from heurtune.core import family_contract, registry, structures
 from heurtune.core.cli import exit_codes
 from heurtune.core.contract import run_checks
 from heurtune.core.errors import ConfigError
-from heurtune.core.families import load_families
+from heurtune.core.families import DEFAULT_MODEL, families, get_family, load_families
 from heurtune.core.plugins import load_plugin
+from heurtune.runner.config import load_config
 
 __all__ = ["run", "main"]
 
@@ -42,6 +46,7 @@ def _parser():
     ap.add_argument("plugin", help="a .py file or an importable module that registers optimisers or controller "
                                    "structures")
     ap.add_argument("--settings", default="{}", help="settings for the checks, as JSON (default: the optimiser's)")
+    ap.add_argument("--config", help="an experiment of the plant family the plugin registers (its checks need one)")
     return ap
 
 
@@ -70,6 +75,7 @@ def run(argv=None, stream=None) -> int:
         load_families()  # their structure contracts, and the structures shipped with them
         before = set(registry.available())
         before_structures = _structures()
+        before_families = {f.name for f in families()}
         shipped = _shipped_module(args.plugin)
         module = importlib.import_module(shipped) if shipped else load_plugin(args.plugin)
         names = sorted(set(registry.available()) - before)
@@ -77,9 +83,22 @@ def run(argv=None, stream=None) -> int:
             names = sorted(n for n in registry.available() if registry.get(n).cls.__module__ == module.__name__)
         new_structures = [s for key, s in _structures().items() if key not in before_structures
                           or s.source == module.__name__]
-        if not names and not new_structures:
-            raise ConfigError(f"{args.plugin} registers no optimiser (heurtune.core.registry.register) and no "
-                              "controller structure (heurtune.core.structures.register_structure)")
+        new_families = sorted({f.name for f in families()} - before_families
+                              | {f.name for f in families() if f.cls.__module__ == module.__name__})
+        if not names and not new_structures and not new_families:
+            raise ConfigError(f"{args.plugin} registers no optimiser (heurtune.core.registry.register), no "
+                              "controller structure (heurtune.core.structures.register_structure) and no plant "
+                              "family (heurtune.core.families.register_family)")
+        config = None
+        if new_families:
+            if args.config is None:
+                raise ConfigError(f"{args.plugin} registers the plant family {', '.join(new_families)}: give "
+                                  "--config EXPERIMENT.toml, an experiment of it, to check it")
+            config = load_config(args.config)
+            model = get_family(config.get("plant", {}).get("model", DEFAULT_MODEL)).name
+            if model not in new_families:
+                raise ConfigError(f"--config {args.config} is an experiment of family {model!r}, not of "
+                                  f"{', '.join(new_families)}")
         try:
             settings = json.loads(args.settings)
         except json.JSONDecodeError as exc:
@@ -95,6 +114,12 @@ def run(argv=None, stream=None) -> int:
             failed += not ok
             total += 1
             print(f"{'PASS' if ok else 'FAIL'}  {name}: {check}" + ("" if ok else f": {reason}"), file=stream)
+    if config is not None:
+        for check, ok, reason in family_contract.run_checks(config):
+            failed += not ok
+            total += 1
+            print(f"{'PASS' if ok else 'FAIL'}  family {new_families[0]}: {check}" + ("" if ok else f": {reason}"),
+                  file=stream)
     for s in new_structures:
         for check, ok, reason in structures.check_structure(s):
             failed += not ok

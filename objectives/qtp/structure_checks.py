@@ -6,6 +6,8 @@ suite on every shipped one). Each returns ``(name, passed, one-line reason)``:
 - ``design``: the centre of the default bounds designs a LinearController whose matrices have
   the kernels' shapes (``B`` (nz, 4), ``C`` (2, nz), ``D`` (2, 4)), are finite, and whose blocks
   cover the states in order with a pump (0 or 1) each;
+- ``pairing``: a paired structure designs differently under the diagonal and the anti-diagonal
+  pairing (a design that ignores ``options["pairing"]`` fails);
 - ``deterministic``: designing the same values twice gives the same matrices, bit for bit;
 - ``corners``: every corner of the default bounds designs, or fails with a ControllerDesignError
   (a reason the evaluation counts), never another exception;
@@ -50,6 +52,17 @@ def check_design(structure):
     assert [a for a, _ in ctrl.blocks] == stops[:-1] and stops[-1] == nz, "blocks must cover the states in order"
     assert len(ctrl.block_channel) == len(ctrl.blocks) and set(ctrl.block_channel) <= {0, 1}, \
         "block_channel needs a pump (0 or 1) per block"
+
+
+def check_pairing(structure):
+    if not structure.paired:
+        return
+    x = _centre(structure)
+    diag = ClosedLoop(preset("min"), structure.name, pairing="diagonal").controller(x)
+    anti = ClosedLoop(preset("min"), structure.name, pairing="anti-diagonal").controller(x)
+    same = all(np.array_equal(getattr(diag, n), getattr(anti, n)) for n in ("A", "B", "C", "D"))
+    assert not same, ("the diagonal and anti-diagonal pairings design the same controller: read "
+                      "options['pairing'] (or declare integral_action 'full' or 'none')")
 
 
 def check_deterministic(structure):
@@ -106,7 +119,7 @@ def check_pickles(structure):
     assert np.array_equal(again.controller(x).D, loop.controller(x).D), "an unpickled loop designs differently"
 
 
-CHECKS = {"design": check_design, "deterministic": check_deterministic, "corners": check_corners,
+CHECKS = {"design": check_design, "pairing": check_pairing, "deterministic": check_deterministic, "corners": check_corners,
           "simulates": check_simulates, "batch": check_batch, "pickles": check_pickles}
 
 

@@ -1,30 +1,16 @@
-"""Contract tests applied to every registered plant family (shipped and the example plugin).
-
-A family passes by registering: its problems take bad candidates without raising (finite,
-infeasible, with a reason), describe themselves reproducibly (identity, problem_id), simulate
-and report with the documented columns, and give the same optimisation result for the same
-seed whether evaluated in-process or on two workers.
-"""
+"""The plant-family contract (heurtune.core.family_contract) applied to every registered family,
+shipped and the example plugin: bad candidates finite and infeasible with a reason, a
+reproducible identity, the documented report and simulate columns, robust and multi-objective
+tuning by config alone, and the same result on one worker and on two."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-from heurtune.core.engine import SearchSpace, run
-from heurtune.core.evaluator import Evaluator
-from heurtune.core.families import families, get_family, make_experiment
-from heurtune.core.problem import (
-    FAILED_OBJECTIVE,
-    FAILURE_REASONS,
-    Evaluation,
-    ExperimentBase,
-    TuningProblem,
-    problem_fingerprint,
-)
+from heurtune.core.families import families, get_family
+from heurtune.core.family_contract import CHECKS, run_checks
 from heurtune.runner.config import list_experiments, load_config
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -55,65 +41,42 @@ def test_every_registered_family_has_an_example_experiment():
     assert {"qtp", "tito"} <= set(EXAMPLES)
 
 
-@pytest.fixture(scope="module", params=sorted(EXAMPLES))
-def problem(request):
-    exp = make_experiment(load_config(EXAMPLES[request.param]))
-    assert isinstance(exp, ExperimentBase)
-    prob = exp.problem(exp.cases[0])
-    assert isinstance(prob, TuningProblem)
-    return prob
+@pytest.mark.parametrize("check", list(CHECKS))
+@pytest.mark.parametrize("family", sorted(EXAMPLES))
+def test_every_family_meets_the_contract(family, check):
+    """heurtune.core.family_contract on one experiment of every registered family."""
+    [(name, ok, reason)] = run_checks(load_config(EXAMPLES[family]), [check])
+    assert ok, f"{family}: {name}: {reason}"
 
 
-def test_problem_declares_the_protocol_attributes(problem):
-    for attr in ("case", "controller", "names", "lower", "upper", "scenarios", "tuning_scenario", "objective",
-                 "constraint_names"):
-        assert hasattr(problem, attr), attr
-    assert problem.dim == len(problem.names) == problem.lower.size == problem.upper.size
-    assert np.all(problem.lower <= problem.upper)
-    assert problem.tuning_scenario in problem.scenarios and "nominal" in problem.scenarios
+def test_check_plugin_runs_the_family_contract_and_names_a_broken_check(tmp_path):
+    """``check_plugin FAMILY.py --config EXPERIMENT.toml``: the example family passes every
+    check; a copy whose identity is not reproducible fails ``identity`` only."""
+    import io
+
+    from heurtune.runner.check_plugin import run as check_plugin
+
+    plugin = ROOT / "experiments" / "plugins" / "conical_tanks.py"
+    out = io.StringIO()
+    assert check_plugin([str(plugin), "--config", str(PLUGIN_EXAMPLE)], stream=out) == 0
+    assert out.getvalue().splitlines()[-1] == f"{len(CHECKS)} of {len(CHECKS)} checks passed"
+    broken = tmp_path / "broken_tanks.py"
+    text = plugin.read_text().replace('"conical_tanks"', '"broken_tanks"')
+    text = text.replace('return dict(family="broken_tanks",', 'return dict(noise=float(np.random.rand()), family="broken_tanks",')
+    broken.write_text(text)
+    config = tmp_path / "broken.toml"
+    config.write_text(PLUGIN_EXAMPLE.read_text().replace("plugins/conical_tanks.py", str(broken))
+                      .replace('model = "conical_tanks"', 'model = "broken_tanks"'))
+    out = io.StringIO()
+    assert check_plugin([str(broken), "--config", str(config)], stream=out) == 1
+    lines = out.getvalue().splitlines()
+    assert "FAIL  family broken_tanks: identity: the problem_id is not reproducible" in lines
+    assert sum(line.startswith("FAIL") for line in lines) == 1
 
 
-def test_bad_candidates_are_finite_and_infeasible(problem):
-    lo, hi = problem.lower, problem.upper
-    X = np.vstack([np.full(problem.dim, np.nan), np.full(problem.dim, np.inf), lo - 1e6 * (hi - lo + 1),
-                   hi + 1e6 * (hi - lo + 1), -np.abs(hi) * 1e9])
-    ev = problem.evaluate(X)
-    assert isinstance(ev, Evaluation)
-    assert ev.f.shape == (5,) and ev.g.shape == (5, len(problem.constraint_names))
-    assert np.all(np.isfinite(ev.f)) and np.all(np.isfinite(ev.g))
-    assert not ev.feasible[:2].any()
-    assert set(ev.reason[:2]) <= set(FAILURE_REASONS) and all(ev.reason[:2])
-    failed = ev.reason != ""
-    assert np.all(ev.f[failed] == FAILED_OBJECTIVE) and np.all(ev.g[failed].max(axis=1) > 0)
-    f, g = problem(X)
-    assert np.array_equal(f, ev.f) and np.array_equal(g, ev.g)
+def test_a_family_plugin_without_a_config_is_a_one_line_error(capsys):
+    from heurtune.runner.check_plugin import run as check_plugin
 
-
-def test_identity_is_json_and_reproducible(problem):
-    text = json.dumps(problem.identity(), sort_keys=True, default=list)
-    assert text and problem_fingerprint(problem) == problem_fingerprint(problem)
-
-
-def test_simulate_and_report_have_the_documented_columns(problem):
-    x = 0.5 * (problem.lower + problem.upper)
-    table = problem.report(x, ["nominal"])
-    assert list(table.index) == ["nominal"] and {"f", "feasible", "reason"} <= set(table.columns)
-    if problem.report_columns is not None:
-        assert set(problem.report_columns) <= set(table.columns)
-    if table.loc["nominal", "reason"] == "":
-        df = problem.simulate(x, "nominal")
-        assert {"t", "y1", "y2", "u1", "u2"} <= set(df.columns) and len(df) > 1
-
-
-def test_same_seed_same_result_in_process_and_on_two_workers(problem):
-    space = SearchSpace(problem.lower, problem.upper)
-    seed = np.random.SeedSequence(2026, spawn_key=(1,))
-    results = []
-    for n_jobs in (1, 2, 1):
-        with Evaluator(problem, n_jobs=n_jobs) as ev:
-            res = run("pso", ev, space, settings={"n": 6}, seed=seed, max_epochs=2)
-        results.append(res)
-    a, b, c = results
-    assert np.array_equal(a.x, b.x) and a.f == b.f and a.n_evals == b.n_evals
-    assert np.array_equal(a.x, c.x) and a.f == c.f
-    assert np.isfinite(a.f)
+    assert check_plugin([str(ROOT / "experiments" / "plugins" / "conical_tanks.py")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "registers the plant family" in err and "--config" in err and "\n" not in err

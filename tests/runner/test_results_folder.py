@@ -276,7 +276,7 @@ def test_saved_solves_of_another_config_are_refused_and_damaged_ones_set_aside(t
     ("runs = 10000000\n", "20,000,000 runs planned"),
     ('[[optimisers]]\nname = "cs"\nsettings = { n = 1000000000 }\n', "settings.n = 1,000,000,000 needs about"),
     ('[plant]\ncases = ["min", "min"]\n', "plant.cases names 'min' more than once"),
-    ('plugins = ["json"]\n', "plugin 'json' registers no optimiser and no plant family"),
+    ('plugins = ["json"]\n', "plugin 'json' registers no optimiser, no plant family and no controller structure"),
     ("[problem.bounds]\nR11 = [-5, 5]\n", "problem.bounds.R11: the lower bound must be > 0, got -5.0"),
     ("[problem.bounds]\nQ11 = [-1, 2]\n", "problem.bounds.Q11: the lower bound must be >= 0"),
     ('[[optimisers]]\nname = "cs"\ntol_window = 0\n', "optimisers[0].tol_window: must be >= 1, got 0"),
