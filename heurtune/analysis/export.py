@@ -24,11 +24,14 @@ Usage::
 ``mat``
     ``runs.mat`` (struct ``runs``: one field per column of runs.parquet), ``history.mat``
     (struct ``history``) and ``best.mat``: cell array ``best`` with one struct per (case,
-    optimiser): its best run, gain names and values and, for QTP problems, the continuous
-    controller (``A, B, C, D``), its zero-order-hold discretisation at the nominal scenario's
-    step (``discrete``) and the nominal response (``response``: ``t, h1..h4, y1, y2, u1, u2``).
-    Column names that are not MATLAB identifiers (``Mp1@+30%``) are rewritten
-    (``Mp1_at_p30pct``); ``column_names`` in each file maps them back.
+    optimiser): its best run, gain names and values and, for QTP problems, the plant (its
+    parameters and linearisation), the operating point, the scenario, the continuous controller
+    (``A, B, C, D``, its blocks as 1-based rows), its zero-order-hold discretisation
+    (``discrete``: ``Phi, Gamma, C, D, dt``) and the nominal response (``response``: ``t,
+    h1..h4, y1, y2, u1, u2``). ``README.txt`` beside them says what each field is, in which unit,
+    and how to rebuild the loop in MATLAB or Octave. Column names that are not MATLAB
+    identifiers (``Mp1@+30%``) are rewritten (``Mp1_at_p30pct``); ``column_names`` in each file
+    maps them back.
 """
 
 from __future__ import annotations
@@ -51,7 +54,7 @@ from heurtune.core.families import make_experiment
 from heurtune.core.io import atomic_path, check_output_folder
 from heurtune.core.problem import FAILED_OBJECTIVE
 
-__all__ = ["load_results", "ioh_lines", "write_ioh", "export_ioh", "matlab_name", "write_mat", "export_mat",
+__all__ = ["load_results", "ioh_lines", "write_ioh", "export_ioh", "matlab_name", "write_mat", "mat_readme", "export_mat",
            "best_runs", "main"]
 
 IOH_VERSION = "0.4.2"  # the ioh release whose Analyzer layout these files follow
@@ -337,7 +340,47 @@ def write_mat(runs: pd.DataFrame, history: pd.DataFrame, out, *, experiment=None
     with atomic_path(out / "best.mat") as tmp:
         scipy.io.savemat(tmp, {"best": cells}, oned_as="column", long_field_names=True, do_compression=True)
     files.append(out / "best.mat")
+    fields = ()
+    if experiment is not None and len(best):
+        fields = getattr(experiment.problem(best.iloc[0]["case"]), "CONTROLLER_RECORD_FIELDS", ())
+    with atomic_path(out / "README.txt") as tmp:
+        Path(tmp).write_text(mat_readme(fields))
+    files.append(out / "README.txt")
     return files
+
+
+def mat_readme(fields=()) -> str:
+    """The README.txt of a ``.mat`` export: what each file and field holds, in which unit;
+    ``fields`` the family's ``(field, meaning)`` pairs of a best design's record."""
+    lines = [
+        "heurtune results as MATLAB/Octave files (python -m heurtune.export DIR --format mat)",
+        "",
+        "runs.mat     struct runs: one field per column of runs.parquet, one row per run (case, optimiser,",
+        "             run): best_f, feasible, status, n_evals, the gains, and <metric>_at_<scenario> of the",
+        "             best gains re-evaluated per scenario; column_names maps each field to its column",
+        "             (Mp1_at_p30pct is Mp1@+30%).",
+        "history.mat  struct history: one row per (run, epoch): n_evals, best_f, mean_f, sd_f, ...",
+        "best.mat     cell array best, one struct per (case, optimiser): its best run (experiment, case,",
+        "             algorithm, optimiser_index, run, best_f, feasible, status) and its gains (gain_names,",
+        "             gains); run and optimiser_index are labels, numbered from 0 as in the parquet files.",
+    ]
+    if fields:
+        lines += ["", "Each struct of best.mat also holds the design:", ""]
+        width = max(len(name) for name, _ in fields)
+        for name, meaning in fields:
+            lines.append(f"  {name.ljust(width)}  {meaning}")
+        lines += [
+            "",
+            "Every index in these fields is 1-based (MATLAB's convention). In MATLAB or Octave:",
+            "",
+            "  S = load('best.mat'); b = S.best{1};",
+            "  K = ss(b.controller.A, b.controller.B, b.controller.C, b.controller.D);   % w -> du",
+            "  Kd = ss(b.discrete.Phi, b.discrete.Gamma, b.discrete.C, b.discrete.D, b.discrete.dt);",
+            "  P = ss(b.plant.linearisation.A, b.plant.linearisation.B, eye(4), zeros(4, 2));  % du -> w",
+            "  L = feedback(P, K, +1);   % du = K w closes the loop (K holds the minus signs)",
+            "  plot(b.response.t, b.response.y1)",
+        ]
+    return "\n".join(lines) + "\n"
 
 
 def export_mat(results_dir, out) -> list:

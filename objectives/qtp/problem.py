@@ -330,25 +330,80 @@ class Problem(TuningProblem):
         (:func:`heurtune.objectives.qtp.margins.linear_systems`)."""
         return linear_systems(self, x, scenario)
 
+    # What best.mat holds of a QTP design (the .mat export writes it into README.txt).
+    CONTROLLER_RECORD_FIELDS = (
+        ("plant.model", "qtp (levels in cm) or qtp_bond_graph (pressures; the controller still sees levels)"),
+        ("plant.name", "the plant case (min, nmp, or a plant.custom name)"),
+        ("plant.tank_area", "A1..A4, cm^2"),
+        ("plant.outlet_area", "a1..a4, cm^2"),
+        ("plant.pump_gain", "k1, k2, cm^3/(V s)"),
+        ("plant.valve_split", "gamma1, gamma2: share of pump j's flow into lower tank j"),
+        ("plant.gravity", "g, cm/s^2"),
+        ("plant.levels", "operating levels h1o, h2o of the lower tanks, cm"),
+        ("plant.height, plant.u_range", "tank heights (cm) and pump range (V) where the plant has them, else NaN"),
+        ("plant.linearisation.A, .B, .C", "dx' = A dx + B du, dy = C dx at the operating point (x: h1..h4 in cm, "
+                                          "u: V, y: h1, h2)"),
+        ("operating_point.h0, .u0", "operating levels h1o..h4o (cm) and voltages u1o, u2o (V)"),
+        ("scenario", "the scenario of the response: horizon (s), output_disturbance (cm, added to y1, y2 at "
+                     "disturbance_time s), input_disturbance (V, added to u1, u2 at input_disturbance_time s), "
+                     "saturation (V, NaN: none), limits, uncertainty (factor on every area), sample_time (s, NaN: "
+                     "the continuous loop), tolerance (cm)"),
+        ("controller.A, .B, .C, .D", "z' = A z + B w, du = C z + D w; w = [y1 - h1o, y2 - h2o, h3 - h3o, h4 - h4o] "
+                                     "(cm), du = u - u0 (V); the error of a loop is -w"),
+        ("controller.blocks", "one row per block of states: first and last state, 1-based, inclusive"),
+        ("controller.block_pump", "the pump (1 or 2) each block belongs to (its anti-windup channel)"),
+        ("controller.type", "the controller structure (folqi, pid, ...)"),
+        ("discrete.Phi, .Gamma, .C, .D, .dt", "the controller with zero-order hold at dt s: z[k+1] = Phi z[k] + "
+                                              "Gamma w[k], du[k] = C z[k] + D w[k]"),
+        ("response", "the nominal response: t (s), h1..h4 (cm), y1, y2 (cm, measured), u1, u2 (V)"),
+    )
+
     def controller_record(self, x) -> dict:
-        """The continuous controller (A, B, C, D, blocks), its discretisation at the scenario's
-        sample period (``output_dt`` for the continuous loop) and the nominal response, for the
-        ``.mat`` export (``controller_error`` instead when it cannot be designed)."""
+        """What the ``.mat`` export writes of a design: the plant (parameters, linearisation),
+        the operating point, the scenario of the response, the continuous controller (blocks as
+        1-based rows), its zero-order-hold discretisation at the scenario's sample period
+        (``output_dt`` for the continuous loop) and the nominal response
+        (:attr:`CONTROLLER_RECORD_FIELDS` says what each field is, in which unit);
+        ``controller_error`` instead when it cannot be designed."""
+        import scipy.linalg
+
         scenario = "nominal" if "nominal" in self.scenarios else self.tuning_scenario
         try:
             ctrl = self.loop.controller(self.values(x))
             sc = self.scenario(scenario)
             dt = float(sc.output_dt if sc.dt is None else sc.dt)
-            dc = ctrl.discretise(dt)
             resp = self.simulate(x, scenario)
         except (ControllerDesignError, ConfigError) as exc:
             return {"controller_error": str(exc)}
-        discrete = {name: np.asarray(getattr(dc, name)) for name in
-                    ("ad", "bd", "state_input", "Ad", "Bd", "Cc", "Dc", "state_channel", "segments")}
-        discrete["dt"] = dt
-        return {"controller": {"A": ctrl.A, "B": ctrl.B, "C": ctrl.C, "D": ctrl.D,
-                               "blocks": np.asarray(ctrl.blocks, dtype=float).reshape(-1, 2)},
-                "discrete": discrete, "response_scenario": scenario, "response": resp}
+        nz, nw = ctrl.B.shape
+        M = np.zeros((nz + nw, nz + nw))
+        M[:nz, :nz], M[:nz, nz:] = ctrl.A, ctrl.B
+        E = scipy.linalg.expm(M * dt)
+        p = self.loop.plant
+
+        def numbers(value):
+            return np.full(1, np.nan) if value is None else np.asarray(value, dtype=float)
+
+        _, u_op = self.loop._perturbed(1.0)
+        scen = dict(name=str(scenario), horizon=float(sc.horizon), output_disturbance=numbers(sc.output_disturbance),
+                    disturbance_time=float(sc.disturbance_time), input_disturbance=numbers(sc.input_disturbance),
+                    input_disturbance_time=float(sc.input_disturbance_time), saturation=numbers(sc.saturation),
+                    limits=str(sc.limits), uncertainty=float(sc.uncertainty), noise_sd=float(sc.noise_sd),
+                    sample_time=float(np.nan if sc.dt is None else sc.dt),
+                    tolerance=float(np.nan if sc.tolerance is None else sc.tolerance))
+        lin = self.loop.plant_linearisation
+        return {
+            "plant": {"model": self.loop.plant_model, "name": str(p.name), "tank_area": numbers(p.A),
+                      "outlet_area": numbers(p.a), "pump_gain": numbers(p.k), "valve_split": numbers(p.gamma),
+                      "gravity": float(p.g), "levels": numbers(p.levels), "height": numbers(p.height),
+                      "u_range": numbers(p.u_range), "linearisation": {"A": lin.A, "B": lin.B, "C": lin.C}},
+            "operating_point": {"h0": np.asarray(self.loop.op.h, dtype=float), "u0": np.asarray(u_op, dtype=float)},
+            "scenario": scen,
+            "controller": {"A": ctrl.A, "B": ctrl.B, "C": ctrl.C, "D": ctrl.D, "type": self.loop.kind,
+                           "blocks": np.array([(a + 1, b) for a, b in ctrl.blocks], dtype=float).reshape(-1, 2),
+                           "block_pump": np.array(ctrl.block_channel, dtype=float) + 1.0},
+            "discrete": {"dt": dt, "Phi": E[:nz, :nz], "Gamma": E[:nz, nz:], "C": ctrl.C, "D": ctrl.D},
+            "response_scenario": scenario, "response": resp}
 
     def physical_limits(self) -> dict | None:
         """The tank heights (0 to height, cm) and the pump voltage range, when the plant has them."""

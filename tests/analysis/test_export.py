@@ -150,16 +150,37 @@ def test_mat_export(tmp_path):
     prob = make_experiment(load_config("cs_folqi_qtp")).problem("min")
     x = np.array(list(X.values()))
     ctrl = prob.loop.controller(X)
-    # the continuous loop (the default) has no sample period: the controller is discretised at
-    # the recorded grid's spacing
-    dc = ctrl.discretise(prob.scenario("nominal").output_dt)
     np.testing.assert_allclose(best["controller"]["A"], ctrl.A)
-    np.testing.assert_allclose(best["discrete"]["ad"], dc.ad)
-    np.testing.assert_allclose(best["discrete"]["Cc"], dc.Cc)
-    assert best["discrete"]["dt"] == dc.dt
+    # the blocks as 1-based inclusive rows, the pumps 1 and 2
+    np.testing.assert_array_equal(np.atleast_2d(best["controller"]["blocks"]), [(a + 1, b) for a, b in ctrl.blocks])
+    np.testing.assert_array_equal(best["controller"]["block_pump"], [1, 2])
+    # the continuous loop (the default) has no sample period: the controller is discretised at
+    # the recorded grid's spacing; the exact zero-order hold of the whole controller
+    dt = prob.scenario("nominal").output_dt
+    assert best["discrete"]["dt"] == dt and np.isnan(best["scenario"]["sample_time"])
+    dc = ctrl.discretise(dt)
+    z, zm, w = np.zeros(ctrl.n_states), np.zeros(ctrl.n_states), np.array([0.3, -0.2, 0.1, 0.05])
+    for _ in range(5):  # the kernels' modal form and the file's dense one advance alike
+        z = best["discrete"]["Phi"] @ z + best["discrete"]["Gamma"] @ w
+        zm = dc.step(zm, w)
+    du_dense = best["discrete"]["C"] @ z + best["discrete"]["D"] @ w
+    du_modal = dc.Cc @ zm + dc.Dc @ w
+    np.testing.assert_allclose(du_dense, du_modal, rtol=1e-9, atol=1e-12)
+    # the plant and the operating point, enough to rebuild the loop without heurtune
+    assert best["plant"]["name"] == "min" and best["plant"]["model"] == "qtp"
+    np.testing.assert_allclose(best["plant"]["valve_split"], prob.loop.plant.gamma)
+    np.testing.assert_allclose(best["operating_point"]["h0"], prob.loop.op.h)
+    np.testing.assert_allclose(best["plant"]["linearisation"]["A"], prob.loop.A)
+    assert best["scenario"]["disturbance_time"] == 50.0
+    # the closed loop rebuilt from the file's matrices alone has the stability check's poles
+    P, K = best["plant"]["linearisation"], best["controller"]
+    Acl = np.block([[P["A"] + P["B"] @ K["D"], P["B"] @ K["C"]], [K["B"], K["A"]]])
+    assert np.max(np.linalg.eigvals(Acl).real) == pytest.approx(prob.loop.stability_margin(ctrl), rel=1e-9)
     resp = prob.simulate(x, "nominal")
     np.testing.assert_allclose(best["response"]["y1"], resp["y1"])
     np.testing.assert_allclose(best["response"]["t"], resp["t"])
+    readme = (tmp_path / "m" / "README.txt").read_text()
+    assert "1-based" in readme and "controller.blocks" in readme and "cm^2" in readme
 
 
 def test_ioh_export_cli(tmp_path, capsys):
