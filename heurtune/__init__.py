@@ -5,6 +5,7 @@ Public entry points::
     heurtune.load_experiment(name) -> experiment of its plant family (QTP: Experiment)
     experiment.problem(case) -> TuningProblem   # .names .lower .upper .evaluate(X) .simulate(x)
     heurtune.minimize(fun, lower, upper, algorithm="cs", ...) -> Result
+    heurtune.load_results("results/NAME") -> Results   # .runs .history .summary .margins .best()
 
 The package is split by role: ``heurtune.core`` (registries, engine, evaluator, execution,
 problem contract), ``heurtune.runner`` (configs, experiments, the evaluate command),
@@ -25,7 +26,9 @@ from heurtune.runner.config import load_experiment  # noqa: E402
 
 # The QTP family's classes, imported when first asked for: ``import heurtune`` loads no plant
 # family (each is imported when a config names its model, heurtune.core.families).
-_LAZY = {"Experiment": "heurtune.objectives.qtp.family", "Problem": "heurtune.objectives.qtp.problem"}
+_LAZY = {"Experiment": "heurtune.objectives.qtp.family", "Problem": "heurtune.objectives.qtp.problem",
+         # the results of a folder as DataFrames (imports the analysis, statistics included)
+         "load_results": "heurtune.analysis.results", "Results": "heurtune.analysis.results"}
 
 
 def __getattr__(name):
@@ -36,5 +39,5 @@ def __getattr__(name):
     raise AttributeError(f"module 'heurtune' has no attribute {name!r}")
 
 __version__ = "0.1.0"
-__all__ = ["ConfigError", "Evaluation", "Experiment", "ExperimentBase", "Problem", "Result", "TuningProblem",
-           "load_experiment", "minimize", "register", "register_family", "__version__"]
+__all__ = ["ConfigError", "Evaluation", "Experiment", "ExperimentBase", "Problem", "Result", "Results", "TuningProblem",
+           "load_experiment", "load_results", "minimize", "register", "register_family", "__version__"]
