@@ -57,6 +57,7 @@ import argparse
 import inspect
 import io
 import itertools
+import re
 import sys
 import warnings
 from dataclasses import dataclass, field
@@ -1252,16 +1253,51 @@ def _tabular(cells: pd.DataFrame, column_format: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+# The widest LaTeX table: its leading text columns (algorithm, pair) and at most this many
+# others. A wider one is split into parts that repeat the leading columns, so that every part
+# fits an A4 or letter text width in \\small (measured with pdflatex on benchmark_qtp's report).
+LATEX_MAX_COLUMNS = 7
+# What the LaTeX output needs in the preamble (said in its first line).
+LATEX_PACKAGES = ("booktabs",)
+
+
+def _latex_label(title: str) -> str:
+    """A \\label key from a table's title: ``tab:`` and its words, lowercase, joined by ``-``."""
+    words, key = re.findall(r"[a-z0-9]+", title.lower()), ""
+    for word in words:  # whole words, up to 60 characters
+        if key and len(key) + 1 + len(word) > 60:
+            break
+        key = f"{key}-{word}" if key else word
+    return "tab:" + key
+
+
 def _latex_table(df: pd.DataFrame, formats: dict, title: str, use_pandas: bool | None = None) -> str:
     num = _numeric_columns(df)
-    colfmt = "".join("r" if n else "l" for n in num)
-    cells = pd.DataFrame({_tex(c): [_tex(_fmt(v, formats.get(c, 5))) for v in df[c]] for c in df.columns},
-                         columns=[_tex(c) for c in df.columns])
+    cols = list(df.columns)
+    keys = []
+    for c, n in zip(cols, num):  # the leading text columns, repeated in every part
+        if n or len(keys) == 2:
+            break
+        keys.append(c)
+    rest = [c for c in cols if c not in keys]
+    width = max(1, LATEX_MAX_COLUMNS - len(keys))
+    chunks = [rest[i:i + width] for i in range(0, len(rest), width)] or [[]]
     if use_pandas is None:
         use_pandas = _have_jinja2()
-    body = (cells.to_latex(index=False, escape=False, column_format=colfmt) if use_pandas
-            else _tabular(cells, colfmt))
-    return "\\begin{table}[htbp]\n\\centering\n" + f"\\caption{{{_tex(title)}}}\n" + body + "\\end{table}"
+    out = []
+    for k, chunk in enumerate(chunks):
+        part = df[keys + chunk]
+        flags = [num[cols.index(c)] for c in part.columns]
+        colfmt = "".join("r" if n else "l" for n in flags)
+        cells = pd.DataFrame({_tex(c): [_tex(_fmt(v, formats.get(c, 5))) for v in part[c]] for c in part.columns},
+                             columns=[_tex(c) for c in part.columns])
+        body = (cells.to_latex(index=False, escape=False, column_format=colfmt) if use_pandas
+                else _tabular(cells, colfmt))
+        caption = title if len(chunks) == 1 else f"{title} (part {k + 1} of {len(chunks)})"
+        label = _latex_label(title) + ("" if len(chunks) == 1 else f"-{k + 1}")
+        out.append("\\begin{table}[htbp]\n\\centering\n\\small\n" + f"\\caption{{{_tex(caption)}}}\n"
+                   + f"\\label{{{label}}}\n" + body + "\\end{table}")
+    return "\n\n".join(out)
 
 
 def _methods_note(alpha: float) -> str:
@@ -1406,7 +1442,11 @@ def report(runs: pd.DataFrame, metric: str = "best_f", alpha: float = 0.05, fmt:
         ``md``: headings and pipe tables. ``csv``: one CSV table per block, separated by blank
         lines, headings and notes as ``# ...`` lines, numbers unrounded. ``latex``: starred
         sectioning commands and ``table`` environments with booktabs tabulars (needs
-        ``\\usepackage{booktabs}``).
+        ``\\usepackage{booktabs}``, said in a first comment line), each ``\\small`` with a
+        ``\\label`` (``tab:`` and its caption's words); a table wider than
+        :data:`LATEX_MAX_COLUMNS` is split into parts that repeat its leading text columns, and
+        each case starts on a new page (``\\clearpage``) so that no table drifts past the next
+        case's heading.
     margins : pandas.DataFrame, optional
         Rows of :func:`load_margins`; when given and not empty, each case ends with the table
         of :func:`margins_table`.
@@ -1448,11 +1488,16 @@ def report(runs: pd.DataFrame, metric: str = "best_f", alpha: float = 0.05, fmt:
         else:
             if kind == "heading":
                 cmd = {1: "section", 2: "subsection"}.get(block[1], "subsubsection")
+                if block[1] <= 2 and len(parts) > 1:
+                    parts.append("\\clearpage")  # the tables of one case stay before the next one's heading
                 parts.append(f"\\{cmd}*{{{_tex(block[2])}}}")
             elif kind == "note":
                 parts.append(_tex(block[1]))
             else:
                 parts.append(_latex_table(block[2], block[3], block[1]))
+    if fmt == "latex":
+        parts.insert(0, f"% heurtune.compare: needs \\usepackage{{{', '.join(LATEX_PACKAGES)}}}; tables are "
+                        f"labelled tab:<their caption's words>")
     return "\n\n".join(parts) + "\n"
 
 

@@ -328,6 +328,37 @@ def test_cli_latex(two_dirs, capsys, monkeypatch):
     assert capsys.readouterr().out == out
 
 
+def test_latex_tables_fit_the_page_and_carry_labels(two_dirs, capsys, tmp_path):
+    """Every table has its leading text columns and at most LATEX_MAX_COLUMNS in all (wider ones
+    are split into parts), a small font, a unique label; the first line names the packages; a
+    case's tables stay before the next case's heading. With pdflatex on the machine the report
+    compiles on A4 and letter paper without an overfull box."""
+    import re
+    import shutil
+    import subprocess
+
+    assert run([*two_dirs, "--format", "latex"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("% heurtune.compare: needs \\usepackage{booktabs}")
+    specs = re.findall(r"\\begin\{tabular\}\{([lr]+)\}", out)
+    assert specs and all(len(spec) <= compare.LATEX_MAX_COLUMNS + 2 for spec in specs)
+    labels = re.findall(r"\\label\{(tab:[a-z0-9-]+)\}", out)
+    assert len(labels) == len(specs) == len(set(labels))
+    assert "(part 1 of" in out and out.count("\\small") == len(specs)
+    assert out.index("\\clearpage") < out.index("\\subsection*{Case nmp}")
+    if shutil.which("pdflatex") is None:
+        return
+    (tmp_path / "report.tex").write_text(out)
+    for paper in ("a4paper", "letterpaper"):
+        doc = tmp_path / f"doc_{paper}.tex"
+        doc.write_text(f"\\documentclass[{paper}]{{article}}\n\\usepackage{{booktabs}}\n\\begin{{document}}\n"
+                       "\\input{report}\n\\end{document}\n")
+        subprocess.run(["pdflatex", "-interaction=nonstopmode", doc.name], cwd=tmp_path, capture_output=True,
+                       timeout=120)
+        log = (tmp_path / f"doc_{paper}.log").read_text(errors="replace")
+        assert "Output written" in log and "Overfull \\hbox" not in log, paper
+
+
 @pytest.mark.parametrize("args, message", [
     ([], "error: no experiment directories given"),
     (["{a}", "--format", "html"], "error: unknown format 'html' (choose from md, csv, latex)"),
