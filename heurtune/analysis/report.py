@@ -161,6 +161,22 @@ def _problem(metas, experiment, case, cache):
     return cache[key]
 
 
+def _with_units(table: pd.DataFrame, runs, case, metas, cache) -> pd.DataFrame:
+    """``table`` with each metric column named with its unit (``IAE1 (cm s)``), from the
+    family's ``metric_units``; as it is when the problem cannot be rebuilt or says none."""
+    rows = runs[runs["case"] == case]
+    try:
+        units = _problem(metas, str(rows["experiment"].iloc[0]), case, cache).metric_units
+    except (ConfigError, IndexError, KeyError):
+        return table
+    names = {}
+    for col in table.columns:
+        base = str(col).rstrip("0123456789")
+        if base in units:
+            names[col] = f"{col} ({units[base]})"
+    return table.rename(columns=names)
+
+
 def _responses(runs, case, metas, tmp: Path, cache) -> list:
     """One response figure (or note) per algorithm of the case: its best run, every scenario."""
     parts = []
@@ -288,7 +304,10 @@ def render_html(runs: pd.DataFrame, *, dirs=(), history: pd.DataFrame | None = N
                     body.append(f'<p class="note">{_esc(text)}</p>')
             else:
                 body.append(f"<h3>{_esc(block[1])}</h3>")
-                body.append(_table(block[2]))
+                table = block[2]
+                if "per scenario" in block[1] and current is not None:
+                    table = _with_units(table, runs, cases[current], metas, cache)
+                body.append(_table(table))
         if current is not None:  # no "Across cases" heading followed the last case
             body += figures_of(current)
     title = "heurtune report: " + ", ".join(map(str, pd.unique(runs["experiment"])))

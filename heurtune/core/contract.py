@@ -20,7 +20,7 @@ import numpy as np
 
 from heurtune.core.engine import minimize
 
-__all__ = ["CHECKS", "LOWER", "UPPER", "run_checks"]
+__all__ = ["CHECKS", "LOWER", "UPPER", "run_checks", "run_named_checks"]
 
 LOWER = np.array([-2.0, -1.0, 0.0, 5.0])
 UPPER = np.array([3.0, 1.0, 0.5, 6.0])
@@ -114,17 +114,25 @@ CHECKS = {"bounds": check_bounds, "nan_inf": check_nan_inf, "seeds": check_seeds
           "constraints": check_constraints, "workers": check_workers}
 
 
-def run_checks(name: str, settings=None) -> list:
-    """Every check on the optimiser ``name``: ``[(check, passed, reason), ...]`` (reason "" when
-    it passed; an exception other than a broken contract counts as a failure with its type)."""
+def run_named_checks(checks: dict, *args) -> list:
+    """``checks`` (name -> function) each called with ``args``: ``[(check, passed, reason),
+    ...]``, the reason "" when it passed, the first line of its ``AssertionError`` when it broke
+    the contract, and the type and message of any other exception (a crash breaks it too). The
+    optimiser, plant-family and controller-structure contracts all report through this."""
     out = []
-    for check, fn in CHECKS.items():
+    for check, fn in checks.items():
         try:
-            fn(name, settings or {})
+            fn(*args)
         except AssertionError as exc:
-            out.append((check, False, str(exc) or "failed"))
+            out.append((check, False, str(exc).splitlines()[0] if str(exc) else "failed"))
         except Exception as exc:  # noqa: BLE001 - a crash breaks the contract too
-            out.append((check, False, f"{type(exc).__name__}: {exc}"))
+            out.append((check, False, f"{type(exc).__name__}: {exc}".splitlines()[0]))
         else:
             out.append((check, True, ""))
     return out
+
+
+def run_checks(name: str, settings=None) -> list:
+    """Every check on the optimiser ``name``: ``[(check, passed, reason), ...]`` (reason "" when
+    it passed; an exception other than a broken contract counts as a failure with its type)."""
+    return run_named_checks(CHECKS, name, settings or {})

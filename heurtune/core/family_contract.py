@@ -28,6 +28,7 @@ import json
 
 import numpy as np
 
+from heurtune.core.contract import run_named_checks
 from heurtune.core.engine import SearchSpace, run
 from heurtune.core.evaluator import Evaluator
 from heurtune.core.families import make_experiment
@@ -166,13 +167,4 @@ CHECKS = {"protocol": check_protocol, "bad_candidates": check_bad_candidates, "i
 def run_checks(config: dict, checks=None) -> list:
     """``[(check, passed, reason), ...]`` of :data:`CHECKS` (or the names in ``checks``) on the
     family of ``config``; a check that raises anything counts as failed, with its message."""
-    out = []
-    for name in checks or CHECKS:
-        try:
-            CHECKS[name](config)
-            out.append((name, True, ""))
-        except AssertionError as exc:
-            out.append((name, False, str(exc).splitlines()[0] if str(exc) else "failed"))
-        except Exception as exc:  # noqa: BLE001 - a crash is a failed check, named
-            out.append((name, False, f"{type(exc).__name__}: {exc}".splitlines()[0]))
-    return out
+    return run_named_checks({name: CHECKS[name] for name in checks or CHECKS}, config)

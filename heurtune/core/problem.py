@@ -107,6 +107,9 @@ class TuningProblem:
     """
 
     scenario_type = object  # the class of this problem's scenarios
+    # The unit of each metric, by its name without the loop number ({"IAE": "cm s", ...}):
+    # tables of results show them beside the column names. Empty: no units said.
+    metric_units: dict = {}
     # The objectives a config may name in problem.objectives, each the sum of these metric
     # columns (e.g. {"iae": ("IAE1", "IAE2")}); None: the family gives F itself or has none.
     objective_metrics = None

@@ -84,6 +84,9 @@ class Problem(TuningProblem):
     devices = DEVICES
     report_columns = ("Mp1", "Mp2", "ts1", "ts2", "ess1", "ess2", "J1", "J2", "J", "hmin", "hmax", "umin", "umax",
                       "feasible", "reason")
+    # Mp and ess in percent of the operating level, the extremes of levels and voltages
+    metric_units = {"Mp": "%", "ts": "s", "ess": "%", "IAE": "cm s", "ISE": "cm² s", "ITAE": "cm s²",
+                    "J": "V² s", "Jdev": "V² s", "TV": "V", "hmin": "cm", "hmax": "cm", "umin": "V", "umax": "V"}
     signal_labels = {"output": "tank", "input": "pump", "y_label": "level {i} (cm)",
                      "u_label": "pump voltage u{i} (V)", "y_unit": "cm", "u_unit": "V"}
 

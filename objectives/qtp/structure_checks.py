@@ -24,6 +24,7 @@ import pickle
 
 import numpy as np
 
+from heurtune.core.contract import run_named_checks
 from heurtune.core.structures import register_checks
 from heurtune.objectives.qtp.controllers import N_INPUTS, N_MEASURED, ControllerDesignError, LinearController
 from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
@@ -125,16 +126,7 @@ CHECKS = {"design": check_design, "pairing": check_pairing, "deterministic": che
 
 def run_checks(structure) -> list:
     """``[(check, passed, reason), ...]`` of :data:`CHECKS` on ``structure``."""
-    out = []
-    for name, check in CHECKS.items():
-        try:
-            check(structure)
-            out.append((name, True, ""))
-        except AssertionError as exc:
-            out.append((name, False, str(exc).splitlines()[0] if str(exc) else "failed"))
-        except Exception as exc:  # noqa: BLE001 - a crash is a failed check, named
-            out.append((name, False, f"{type(exc).__name__}: {exc}".splitlines()[0]))
-    return out
+    return run_named_checks(CHECKS, structure)
 
 
 register_checks("qtp", run_checks)

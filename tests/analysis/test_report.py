@@ -98,6 +98,9 @@ def test_report_sections_tables_and_figures(smoke_report):
     assert "0.1.0" in text  # heurtune version from meta.json
     # two algorithms only: the Friedman test across cases is skipped, and the page says so
     assert "Friedman test across cases skipped" in text
+    # the per-scenario table names its units (the family's metric_units)
+    for column in ("Mp1 (%)", "ts2 (s)", "J (V² s)", "ess1 (%)"):
+        assert f"<th>{column}</th>" in text, column
 
 
 def test_friedman_diagram_embedded_and_text_escaped():
