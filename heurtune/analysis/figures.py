@@ -15,6 +15,7 @@ Examples
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import matplotlib
@@ -346,74 +347,100 @@ def _draw_limits(ax, lo, hi, label):
     ax.set_ylim(ylim)
 
 
+def _signal_numbers(df: pd.DataFrame, prefix: str) -> list:
+    """The numbers ``i`` of the columns ``<prefix><i>`` of ``df`` (``y1, y2, y3`` -> 1, 2, 3), sorted."""
+    found = (re.fullmatch(rf"{prefix}(\d+)", str(c)) for c in df.columns)
+    return sorted(int(m.group(1)) for m in found if m)
+
+
+def _input_ranges(limits: dict, inputs: list) -> dict:
+    """``limits["u"]``, one (lo, hi) for every input or one per input, as ``{input: (lo, hi)}``."""
+    u = limits["u"]
+    if len(u) == 2 and all(np.isscalar(v) for v in u):
+        return {j: (float(u[0]), float(u[1])) for j in inputs}
+    return {j: (float(u[j - 1][0]), float(u[j - 1][1])) for j in inputs}
+
+
 def plot_responses(traj, path, title: str = "", limits=None, labels=None) -> None:
     """Outputs (with set-points and internal levels when recorded) and inputs per scenario.
+
+    The grid has the outputs in its first row and the inputs in its second, as many columns
+    as the larger of the two counts (a family of two inputs and two outputs gets 2 x 2).
 
     Parameters
     ----------
     traj : pandas.DataFrame
-        Columns ``scenario, t, y1, y2, u1, u2``; optional ``r1, r2`` (set-points, drawn black
-        dashed for the first scenario) and ``h1..h4`` (true levels: ``h1, h2`` thin and pale
-        beside the measured ``y1, y2``). Each scenario has its own colour and line style
-        (:data:`SCENARIO_STYLES`), so that scenarios whose responses overlap stay apart.
+        Columns ``scenario, t``, the outputs ``y1 .. ym`` and the inputs ``u1 .. un``; optional
+        ``r1 .. rm`` (set-points, drawn black dashed for the first scenario) and ``h1 ..``
+        (true levels: ``h_i`` thin and pale beside the measured ``y_i``). Each scenario has its
+        own colour and line style (:data:`SCENARIO_STYLES`), so that scenarios whose responses
+        overlap stay apart.
     path : str or Path
         PNG written atomically.
     title : str
         Figure title.
     limits : dict, optional
         :meth:`~heurtune.core.problem.TuningProblem.physical_limits`: ``"y"`` one (lo, hi) per
-        output, ``"u"`` the input range, ``"h"`` one range per recorded level. Drawn as dashed
-        lines; a panel whose trajectory leaves its range says so in its title, and the figure
-        title names the scenarios that leave any range.
+        output, ``"u"`` one (lo, hi) for every input or one per input, ``"h"`` one range per
+        recorded level. Drawn as dashed lines; a panel whose trajectory leaves its range says
+        so in its title, and the figure title names the scenarios that leave any range.
     labels : dict, optional
         :attr:`~heurtune.core.problem.TuningProblem.signal_labels` (panel names and units).
     """
     lab = {**DEFAULT_SIGNAL_LABELS, **(labels or {})}
-    fig, axes = new_figure(2, 2, figsize=(11, 7), sharex=True)
+    outputs, inputs = _signal_numbers(traj, "y"), _signal_numbers(traj, "u")
+    ncol = max(len(outputs), len(inputs), 1)
+    fig, axes = new_figure(2, ncol, figsize=(5.5 * ncol, 7), sharex=True, squeeze=False)
+    out_ax = {i: axes[0, k] for k, i in enumerate(outputs)}
+    in_ax = {j: axes[1, k] for k, j in enumerate(inputs)}
+    for ax in list(axes[0, len(outputs):]) + list(axes[1, len(inputs):]):
+        ax.set_visible(False)
     for k, (name, df) in enumerate(traj.groupby("scenario", sort=False)):
         style = SCENARIO_STYLES[k % len(SCENARIO_STYLES)]  # scenarios that overlap stay apart
-        for i in (1, 2):
-            line, = axes[0, i - 1].plot(df["t"], df[f"y{i}"], lw=1.2, ls=style, label=f"{name}: y{i}")
+        for i, ax in out_ax.items():
+            line, = ax.plot(df["t"], df[f"y{i}"], lw=1.2, ls=style, label=f"{name}: y{i}")
             if f"h{i}" in df:
-                axes[0, i - 1].plot(df["t"], df[f"h{i}"], lw=0.7, ls=style, alpha=0.5, color=line.get_color(),
-                                    label=f"{name}: h{i}")
+                ax.plot(df["t"], df[f"h{i}"], lw=0.7, ls=style, alpha=0.5, color=line.get_color(), label=f"{name}: h{i}")
             if k == 0 and f"r{i}" in df:
-                axes[0, i - 1].plot(df["t"], df[f"r{i}"], "k--", lw=0.8, label="set-point")
-            axes[1, i - 1].plot(df["t"], df[f"u{i}"], lw=1.2, ls=style, label=name)
+                ax.plot(df["t"], df[f"r{i}"], "k--", lw=0.8, label="set-point")
+        for j, ax in in_ax.items():
+            ax.plot(df["t"], df[f"u{j}"], lw=1.2, ls=style, label=name)
+    for i, ax in out_ax.items():
+        ax.set_title(f"{lab['output']} {i}", fontsize=10)
+    for j, ax in in_ax.items():
+        ax.set_title(f"{lab['input']} {j}", fontsize=10)
     if limits:
-        u_lo, u_hi = limits["u"]
-        for i in (1, 2):
+        u_range = _input_ranges(limits, inputs)
+        for i, ax in out_ax.items():
             y_lo, y_hi = limits["y"][i - 1]
             # the true level when recorded (the measured one carries the output disturbance)
             level = traj[f"h{i}"] if f"h{i}" in traj else traj[f"y{i}"]
-            _draw_limits(axes[0, i - 1], y_lo, y_hi, f"{lab['output']} {i}: {y_lo:g} and {y_hi:g} {lab['y_unit']}".rstrip())
-            _draw_limits(axes[1, i - 1], u_lo, u_hi, f"{lab['input']} range {u_lo:g} to {u_hi:g} {lab['u_unit']}".rstrip())
-            axes[0, i - 1].set_title(f"{lab['output']} {i}" + (f": {OUTSIDE}" if _outside(level, y_lo, y_hi) else ""),
-                                     fontsize=10)
-            axes[1, i - 1].set_title(f"{lab['input']} {i}" + (f": {OUTSIDE}" if _outside(traj[f"u{i}"], u_lo, u_hi) else ""),
-                                     fontsize=10)
+            _draw_limits(ax, y_lo, y_hi, f"{lab['output']} {i}: {y_lo:g} and {y_hi:g} {lab['y_unit']}".rstrip())
+            if _outside(level, y_lo, y_hi):
+                ax.set_title(f"{lab['output']} {i}: {OUTSIDE}", fontsize=10)
+        for j, ax in in_ax.items():
+            u_lo, u_hi = u_range[j]
+            _draw_limits(ax, u_lo, u_hi, f"{lab['input']} range {u_lo:g} to {u_hi:g} {lab['u_unit']}".rstrip())
+            if _outside(traj[f"u{j}"], u_lo, u_hi):
+                ax.set_title(f"{lab['input']} {j}: {OUTSIDE}", fontsize=10)
         levels = limits.get("h", limits["y"])
         leaving = []
         for name, df in traj.groupby("scenario", sort=False):
-            tanks = [j for j in range(1, len(levels) + 1) if f"h{j}" in df] or [1, 2]
+            tanks = [j for j in range(1, len(levels) + 1) if f"h{j}" in df] or outputs
             out = any(_outside(df[f"h{j}"] if f"h{j}" in df else df[f"y{j}"], *levels[j - 1]) for j in tanks)
-            out = out or any(_outside(df[f"u{j}"], u_lo, u_hi) for j in (1, 2))
+            out = out or any(_outside(df[f"u{j}"], *u_range[j]) for j in inputs)
             if out:
                 leaving.append(str(name))
         if leaving:
             title = f"{title}\n{OUTSIDE}: {', '.join(leaving)}" if title else f"{OUTSIDE}: {', '.join(leaving)}"
-    else:
-        for i in (1, 2):
-            axes[0, i - 1].set_title(f"{lab['output']} {i}", fontsize=10)
-            axes[1, i - 1].set_title(f"{lab['input']} {i}", fontsize=10)
-    for i in (1, 2):
-        axes[0, i - 1].set_ylabel(lab["y_label"].format(i=i))
-        axes[1, i - 1].set_ylabel(lab["u_label"].format(i=i))
-        axes[1, i - 1].set_xlabel("t (s)")
-        axes[0, i - 1].legend(fontsize=7)
-        axes[1, i - 1].legend(fontsize=7)
-        for ax in axes[:, i - 1]:
-            ax.grid(alpha=0.3)
+    for i, ax in out_ax.items():
+        ax.set_ylabel(lab["y_label"].format(i=i))
+    for j, ax in in_ax.items():
+        ax.set_ylabel(lab["u_label"].format(i=j))
+        ax.set_xlabel("t (s)")
+    for ax in list(out_ax.values()) + list(in_ax.values()):
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3)
     if title:
         fig.suptitle(title)
     fig.tight_layout()

@@ -104,6 +104,13 @@ class TuningProblem:
     ``"nominal"``), ``tuning_scenario`` (str), ``objective`` (str) and ``constraint_names``
     (tuple of str); and implements :meth:`evaluate`, :meth:`simulate`, :meth:`report`,
     :meth:`identity` and :meth:`warm_up`. The rest has defaults here.
+
+    Any numbers of inputs and outputs: :meth:`simulate` names them ``u1 .. un`` and
+    ``y1 .. ym``, :meth:`physical_limits` gives one output range per output, and the figures
+    are sized from them. What the runner's calibration needs of a scenario (the time of one
+    evaluation, ``heurtune.runner.workplan``): its ``horizon`` (s) and the simulated seconds
+    per kernel step, ``kernel_step`` or ``dt``; a scenario without them is not calibrated
+    (the plan then gives no time estimate and refuses nothing).
     """
 
     scenario_type = object  # the class of this problem's scenarios
@@ -181,8 +188,10 @@ class TuningProblem:
         raise NotImplementedError
 
     def simulate(self, x, scenario="nominal") -> pd.DataFrame:
-        """Trajectories of one candidate: columns ``t, y1, y2, u1, u2`` and optionally the
-        set-points ``r1, r2`` and internal states (e.g. levels ``h1..h4``)."""
+        """Trajectories of one candidate: columns ``t``, the outputs ``y1 .. ym`` and the
+        inputs ``u1 .. un`` (any numbers of each, numbered from 1; figures are sized from
+        them), optionally the set-points ``r1 .. rm`` and internal states (e.g. levels
+        ``h1..h4``)."""
         raise NotImplementedError
 
     def report(self, x, scenarios=None) -> pd.DataFrame:
@@ -261,8 +270,9 @@ class TuningProblem:
         return None
 
     def physical_limits(self) -> dict | None:
-        """Ranges drawn on response figures: ``{"y": [(lo, hi), (lo, hi)], "u": (lo, hi)}``
-        (and ``"h"``: one range per internal level), or None."""
+        """Ranges drawn on response figures: ``{"y": [(lo, hi), ...]}`` one per output, ``"u"``
+        one ``(lo, hi)`` for every input or a list of one per input (and ``"h"``: one range per
+        internal level), or None."""
         return None
 
     # -- shared -------------------------------------------------------------------------------

@@ -218,3 +218,22 @@ def test_boxplot_counts_failed_and_infeasible_runs_as_compare_does(tmp_path, mon
     boxplot_figure(runs, tmp_path / "box.png")
     label = figs[0].axes[0].get_xticklabels()[0].get_text()
     assert label == "apso\nn=3, failed=1, infeas.=1"
+
+
+def test_responses_are_sized_from_the_signals(tmp_path, monkeypatch):
+    """Three outputs and one input: a 2 x 3 grid, outputs on top, the unused input panels hidden,
+    one input range for every input or one per input, a leaving input named in the title."""
+    from heurtune.analysis import figures
+
+    figs = keep_figures(monkeypatch, figures)
+    t = np.linspace(0, 1, 11)
+    traj = pd.DataFrame(dict(scenario="a", t=t, y1=t, y2=2 * t, y3=3 * t, u1=5 * t))
+    figures.plot_responses(traj, tmp_path / "r.png", title="T",
+                           limits={"y": [(0, 10)] * 3, "u": [(0, 4)]})
+    axes = figs[0].axes
+    assert len(axes) == 6 and [ax.get_visible() for ax in axes] == [True, True, True, True, False, False]
+    assert [ax.get_title() for ax in axes[:3]] == ["output 1", "output 2", "output 3"]
+    assert axes[3].get_title() == f"input 1: {figures.OUTSIDE}"
+    assert figs[0]._suptitle.get_text() == f"T\n{figures.OUTSIDE}: a"
+    figures.plot_responses(traj.assign(u1=t), tmp_path / "s.png", limits={"y": [(0, 10)] * 3, "u": (0, 4)})
+    assert figs[1].axes[3].get_title() == "input 1"
