@@ -8,7 +8,8 @@ set per lane. The sampled loop's (:func:`simulate_lanes`) runs the loop of :func
 on the lane-last arrays of :func:`heurtune.objectives.qtp.batch_kernels.simulate_batch`, so that
 neighbouring threads read neighbouring addresses. The plant step, the metric folds and their
 finishing come from the CPU kernels' own Python source, compiled a second time as CUDA device
-functions (:func:`_device_functions`): one text of the arithmetic for both targets. Controller
+functions (:func:`_device_functions`, the callees of both kernels found by :func:`_reachable`): one text
+of the arithmetic for both targets. Controller
 design stays on the CPU. Float64 throughout.
 
 Needs ``numba-cuda`` and an NVIDIA GPU (``pip install heurtune[gpu]``); the tests run it under
@@ -33,10 +34,11 @@ __all__ = ["available", "require", "simulate_lanes", "simulate_continuous_lanes"
 MAX_STATES = 64
 THREADS_PER_BLOCK = 128
 
-# The CPU kernels' per-lane functions that the CUDA kernel calls, by module.
-_SHARED = {
-    _kernels: ("_qtp_rhs", "_rk4_clipped", "_limited", "_rhs_limited", "_rk4_limited", "_output_state_init",
-               "_fold_output", "_fold_input", "_finish_output", "_finish_input", "_finish_range"),
+# The CPU kernels' per-lane functions that the sampled CUDA kernel calls, by module; the
+# functions they call are found from them (_reachable), as for the continuous kernel's lane.
+_SAMPLED_ROOTS = {
+    _kernels: ("_rk4_clipped", "_rk4_limited", "_output_state_init", "_fold_output", "_fold_input",
+               "_finish_output", "_finish_input", "_finish_range"),
     _batch: ("_rk4_fast",),
 }
 _KERNEL = None
@@ -79,14 +81,26 @@ def _reachable(module, root: str) -> tuple:
     return tuple(found)
 
 
+def _with_callees(roots: dict) -> dict:
+    """``roots`` (module to names) with every jitted function of the same module they call,
+    directly or not, callees first (:func:`_reachable`)."""
+    out = {}
+    for module, names in roots.items():
+        found = []
+        for name in names:
+            found += [n for n in reversed(_reachable(module, name)) if n not in found]
+        out[module] = tuple(found)
+    return out
+
+
 def _device_functions(shared=None) -> dict:
-    """CUDA device versions of the functions in ``shared`` (module to names; default
-    ``_SHARED``), compiled from their Python source.
+    """CUDA device versions of the functions in ``shared`` (module to names, callees first;
+    default: the sampled kernel's roots with their callees), compiled from their Python source.
 
     Each function is rebuilt on one shared namespace in which the names of the others point to
     their device versions, so that calls between them stay on the GPU.
     """
-    shared = _SHARED if shared is None else shared
+    shared = _with_callees(_SAMPLED_ROOTS) if shared is None else shared
     namespace = {"math": math, "np": np}
     for module in shared:
         namespace.update({k: v for k, v in vars(module).items() if k.isupper()})
@@ -283,7 +297,7 @@ def simulate_lanes(*, P, level_per_state, h_init, h_op, ad, bd, state_input, Ad,
 
 
 def _make_continuous_kernel():
-    lane = _device_functions({_ck: _reachable(_ck, "continuous_lane")})["continuous_lane"]
+    lane = _device_functions(_with_callees({_ck: ("continuous_lane",)}))["continuous_lane"]
 
     @cuda.jit
     def kernel(level_per_state, x_init, h_op, band_pct,
