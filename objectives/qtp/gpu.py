@@ -8,9 +8,9 @@ set per lane. The sampled loop's (:func:`simulate_lanes`) runs the loop of :func
 on the lane-last arrays of :func:`heurtune.objectives.qtp.batch_kernels.simulate_batch`, so that
 neighbouring threads read neighbouring addresses. The plant step, the metric folds and their
 finishing come from the CPU kernels' own Python source, compiled a second time as CUDA device
-functions (:func:`_device_functions`, the callees of both kernels found by :func:`_reachable`): one text
-of the arithmetic for both targets. Controller
-design stays on the CPU. Float64 throughout.
+functions (:func:`_device_functions`; for both kernels, their roots and what these call, found by
+:func:`_reachable`): one text of the arithmetic for both targets. Controller design stays on the
+CPU. Float64 throughout.
 
 Needs ``numba-cuda`` and an NVIDIA GPU (``pip install heurtune[gpu]``); the tests run it under
 Numba's CUDA simulator (``NUMBA_ENABLE_CUDASIM=1``), which executes the same Python on the CPU.
