@@ -23,6 +23,10 @@ def main(argv=None) -> int:
     try:
         for name in args.names or registry.available():
             print(registry.describe(name))
+        if not args.names:
+            for prefix, what in registry.bridges().items():
+                print(f"{prefix}:<name>: {what} (the settings of a bridged one: python -m heurtune.algorithms "
+                      f"{prefix}:<name>)")
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

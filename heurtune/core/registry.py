@@ -18,11 +18,13 @@ import typing
 import heurtune.algorithms as algorithms_package
 from heurtune.core.errors import ConfigError
 
-__all__ = ["AlgorithmInfo", "register", "get", "available", "load_algorithms",
+__all__ = ["AlgorithmInfo", "register", "register_bridge", "bridges", "get", "available", "load_algorithms",
            "make_settings", "describe", "reference_markdown"]
 
 _REGISTRY: dict = {}
 _PLUGINS_LOADED = False
+# Bridged libraries: prefix -> (resolve(name) -> AlgorithmInfo or None, what the prefix names).
+_BRIDGES: dict = {}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,18 +89,52 @@ def load_algorithms() -> None:
 
 
 def available() -> list:
-    """Registered names, sorted."""
+    """Registered names, sorted (bridged ones, ``ng:NGOpt``, are not listed: see :func:`bridges`)."""
     load_algorithms()
-    return sorted(_REGISTRY)
+    return sorted(n for n in _REGISTRY if ":" not in n)
+
+
+def register_bridge(prefix: str, resolve, description: str) -> None:
+    """Names ``"<prefix>:<Name>"`` stand for the optimisers of another library (``ng:NGOpt``):
+    the first :func:`get` of such a name calls ``resolve(Name)``, which returns the
+    :class:`AlgorithmInfo` of a class bridging that optimiser (or raises a one-line
+    ConfigError for a name the library does not have, or when the library is not installed).
+
+    Parameters
+    ----------
+    prefix : str
+        Lowercase, e.g. ``"ng"`` (nevergrad) or ``"pymoo"``.
+    resolve : callable
+        ``resolve(name) -> AlgorithmInfo``.
+    description : str
+        What the prefix names, for listings and error messages.
+    """
+    if not prefix or prefix != prefix.lower() or not prefix.isalnum():
+        raise ValueError(f"bridge prefix {prefix!r} must be lowercase letters and digits")
+    if prefix in _BRIDGES:
+        raise ValueError(f"bridge prefix {prefix!r} is already registered")
+    _BRIDGES[prefix] = (resolve, description)
+
+
+def bridges() -> dict:
+    """``{prefix: description}`` of the bridged libraries."""
+    load_algorithms()
+    return {k: v[1] for k, v in sorted(_BRIDGES.items())}
 
 
 def get(name: str) -> AlgorithmInfo:
-    """The registry entry of ``name`` (a one-line ConfigError listing the allowed names)."""
+    """The registry entry of ``name`` (a one-line ConfigError listing the allowed names); a
+    bridged name (``ng:NGOpt``) is resolved and registered on first use."""
     load_algorithms()
-    try:
+    if name in _REGISTRY:
         return _REGISTRY[name]
-    except KeyError:
-        raise ConfigError(f"unknown optimiser {name!r}; allowed: {', '.join(sorted(_REGISTRY))}") from None
+    prefix, sep, rest = str(name).partition(":")
+    if sep and prefix in _BRIDGES and rest:
+        info = _BRIDGES[prefix][0](rest)
+        _REGISTRY[name] = dataclasses.replace(info, name=name)
+        return _REGISTRY[name]
+    extra = "".join(f", {p}:<name> ({d})" for p, (_, d) in sorted(_BRIDGES.items()))
+    raise ConfigError(f"unknown optimiser {name!r}; allowed: {', '.join(available())}{extra}")
 
 
 def _check_type(name: str, key: str, hint, value):
