@@ -15,7 +15,8 @@ import math
 
 import numpy as np
 
-from heurtune.core.structures import structures_of
+from heurtune.core.errors import ConfigError
+from heurtune.core.structures import get_structure, structures_of
 
 # The step rule: the step that keeps the largest level error under ``tolerance`` cm. The
 # method is fourth order, so the error scales as h^4: h = step_at_reference(kind) (tolerance /
@@ -105,11 +106,14 @@ class ContinuousController:
 def step_at_reference(kind: str | None) -> float:
     """The step a controller type declares at the reference tolerance (None, or a type that
     declares none: the smallest any registered type declares)."""
-    declared = {s.name: s.extras["step_at_reference"] for s in structures_of("qtp")
-                if "step_at_reference" in s.extras}
-    if kind in declared:
-        return float(declared[kind])
-    return float(min(declared.values(), default=DEFAULT_STEP_AT_REFERENCE))
+    try:  # the per-evaluation path: one lookup
+        declared = get_structure("qtp", kind).extras.get("step_at_reference")
+    except ConfigError:  # None, or a type not registered
+        declared = None
+    if declared is not None:
+        return float(declared)
+    steps = [s.extras["step_at_reference"] for s in structures_of("qtp") if "step_at_reference" in s.extras]
+    return float(min(steps, default=DEFAULT_STEP_AT_REFERENCE))
 
 
 def step_for_tolerance(tolerance: float, kind: str | None = None) -> float:

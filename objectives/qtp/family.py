@@ -352,8 +352,7 @@ class Experiment(ExperimentBase):
         ki = tuple(self.bounds.get(k, (1.0, 1.0)) for k in ("Ki1", "Ki2"))
         extras = loop.structure.extras
         sign = extras["gain_sign"](loop.plant_linearisation, loop.options) if "gain_sign" in extras else 1
-        warning = integral_action_obstruction(extras.get("integral_check", "signs" if loop.structure.paired else None),
-                                              pairing, loop.A, loop.B, loop.C, ki, gain_sign=sign)
+        warning = integral_action_obstruction(kind, pairing, loop.A, loop.B, loop.C, ki, gain_sign=sign)
         prob = Problem(case, loop, names, lower, upper, objective=self.objective,
                        constraints=self.constraints, settling_band=self.settling_band,
                        scenarios=self.scenarios, tuning_scenario=self.tuning_scenario,
