@@ -33,6 +33,8 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_robust.py
 	$(BIN)/python benchmarks/bench_batch.py --gpu
 	$(BIN)/python benchmarks/work_precision.py
+	if $(BIN)/python -c "import pymoo" 2>/dev/null; then $(BIN)/python benchmarks/bench_sms_emoa.py; \
+	else echo "bench_sms_emoa: skipped (pymoo not installed: pip install 'heurtune[pymoo]')"; fi
 
 clean:
 	rm -rf $(VENV) results build *.egg-info

@@ -28,6 +28,7 @@ the unit box, default 0.3, the value pycma's documentation suggests for a box of
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 
@@ -36,6 +37,7 @@ from heurtune.core.errors import ConfigError
 from heurtune.core.registry import register
 
 RESTARTS = ("ipop", "none", "stop")
+CONSTRAINTS = ("engine", "al")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,6 +47,9 @@ class CMAESSettings:
     restarts: str = dataclasses.field(default="ipop", metadata={
         "help": "after pycma's termination: ipop (population x incpopsize), none (same population) or stop"})
     incpopsize: float = dataclasses.field(default=2.0, metadata={"help": "population factor of an IPOP restart"})
+    constraints: str = dataclasses.field(default="engine", metadata={
+        "help": "engine (rank as the engine does: Deb's rules or the penalty) or al (pycma's "
+                "augmented Lagrangian on the constraint values)"})
 
     def __post_init__(self):
         if self.popsize != 0 and self.popsize < 2:
@@ -55,6 +60,8 @@ class CMAESSettings:
             raise ValueError(f"restarts must be one of {', '.join(RESTARTS)}, got {self.restarts!r}")
         if not self.incpopsize >= 1:
             raise ValueError(f"incpopsize must be >= 1, got {self.incpopsize}")
+        if self.constraints not in CONSTRAINTS:
+            raise ValueError(f"constraints must be one of {', '.join(CONSTRAINTS)}, got {self.constraints!r}")
 
 
 def ranking_values(f, v, compare) -> np.ndarray:
@@ -91,10 +98,24 @@ def _cma():
     return cma
 
 
+def _quiet_augmented_lagrangian(cma):
+    """pycma's ``AugmentedLagrangian`` without its file loggers: built with logging on, it creates
+    ``./outcmaes/`` in the working directory and writes ``outauglag*.dat`` files there."""
+
+    class QuietAugmentedLagrangian(cma.constraints_handler.AugmentedLagrangian):
+        def _init_(self):
+            self.logging = 0
+            super()._init_()
+
+    return QuietAugmentedLagrangian
+
+
 @register("cmaes", settings=CMAESSettings, description="CMA-ES (pycma) with IPOP restarts, in the unit box",
           source="Hansen & Ostermeier 2001; Auger & Hansen 2005 (IPOP); pycma")
 class CMAES(Optimizer):
     """CMA-ES through pycma (see the module docstring)."""
+
+    uses_constraint_values = True  # read only with constraints = "al"
 
     def __init__(self, space, settings, rng, compare):
         super().__init__(space, settings, rng, compare)
@@ -113,13 +134,47 @@ class CMAES(Optimizer):
             opts["popsize"] = int(self._popsize)
         self.es = self._cma.CMAEvolutionStrategy(list(x0), self.settings.sigma0, opts)
         self._popsize = self.es.popsize
+        self._al = None  # the augmented Lagrangian starts afresh with each strategy
 
     def ask(self) -> np.ndarray:
         self._genotypes = self.es.ask()
         return self.space.lower + np.array(self._genotypes) * self.space.width
 
+    def _al_values(self, f, v) -> np.ndarray:
+        """The values pycma's ``ConstrainedFitnessAL`` gives the generation (objective plus the
+        augmented Lagrangian of the constraint values), its coefficients updated after. Where
+        there are no constraints, or none of the candidates has finite values, the engine's
+        ranking; candidates with a value that is not finite rank after the others, in the
+        engine's order."""
+        g = getattr(self, "constraint_values", None)
+        f = np.asarray(f, dtype=np.float64)
+        finite = np.isfinite(f) & (np.all(np.isfinite(g), axis=1) if g is not None and g.size else True)
+        if g is None or g.shape[1] == 0 or not finite.any():
+            return ranking_values(f, v, self.compare)
+        if self._al is None:
+            self._al = self._cma.ConstrainedFitnessAL(lambda x: self._fk, lambda x: self._gk,
+                                                      dimension=self.space.dim, archives=False, logging=0)
+            self._al._al = _quiet_augmented_lagrangian(self._cma)(self.space.dim)
+        out = np.empty(len(f))
+        with warnings.catch_warnings():
+            # pycma warns (several lines) when a generation's values give its coefficients
+            # nothing to scale by, as a first generation of equally failed candidates does; it
+            # then keeps its defaults, which is all a user could do about it
+            warnings.simplefilter("ignore", UserWarning)
+            for k in np.flatnonzero(finite):
+                self._fk, self._gk = float(f[k]), list(g[k])
+                out[k] = self._al(self._genotypes[k])
+            self._al.update(self.es)
+        tail = np.flatnonzero(~finite)
+        if tail.size:
+            tail = tail[self.compare.order(f[tail], v[tail])]
+            out[tail] = out[finite].max() + 1.0 + np.arange(tail.size)
+        return out
+
     def tell(self, X, f, v) -> bool:
-        self.es.tell(self._genotypes, ranking_values(f, v, self.compare).tolist())
+        values = (self._al_values(f, v) if self.settings.constraints == "al"
+                  else ranking_values(f, v, self.compare))
+        self.es.tell(self._genotypes, values.tolist())
         self.X, self.f, self.v = X, f, v
         if self.es.stop():
             if self.settings.restarts == "stop":

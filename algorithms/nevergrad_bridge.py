@@ -32,6 +32,7 @@ import dataclasses
 
 import numpy as np
 
+from heurtune.algorithms._bridge import inside_library
 from heurtune.algorithms.cmaes import ranking_values
 from heurtune.core.engine import Optimizer
 from heurtune.core.errors import ConfigError
@@ -86,14 +87,7 @@ class NevergradOptimizer(Optimizer):
         return self._opt
 
     def _inside(self, step, *args):
-        """``step(*args)``, an exception of nevergrad's as a one-line ConfigError."""
-        try:
-            return step(*args)
-        except ConfigError:
-            raise
-        except Exception as exc:  # noqa: BLE001 - nevergrad's own failure, named
-            raise ConfigError(f"ng:{self.ng_name} failed inside nevergrad {getattr(self._ng, '__version__', '')}: "
-                              f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}") from exc
+        return inside_library(f"ng:{self.ng_name}", f"nevergrad {getattr(self._ng, '__version__', '')}", step, *args)
 
     def _ask(self):
         opt = self._optimizer()
@@ -129,7 +123,10 @@ def resolve(name: str) -> AlgorithmInfo:
                          f"nevergrad {getattr(ng, '__version__', '')}: {name}", "population")
 
 
-register_bridge("ng", resolve, "nevergrad's optimisers, e.g. ng:NGOpt, ng:TwoPointsDE")
+# NGOpt is not in the checked names: on the contract's 4-variable problems it picks MetaModel,
+# which fails under NumPy 2 in nevergrad 1.0.12 (see the module docstring).
+register_bridge("ng", resolve, "nevergrad's optimisers, e.g. ng:NGOpt, ng:TwoPointsDE",
+                checked=("CMA", "TwoPointsDE", "PSO"))
 
 
 def __getattr__(attr: str):

@@ -23,7 +23,7 @@ from heurtune.core.evaluator import Evaluator
 from heurtune.core.pareto import asf_choice, hypervolume, update_front
 
 __all__ = ["SearchSpace", "Comparator", "Optimizer", "Driver", "RunContext", "Checkpoint", "Result", "minimize",
-           "run", "convergence_epoch", "CONSTRAINT_HANDLING", "BOUND_HANDLING"]
+           "run", "evaluate_generation", "convergence_epoch", "CONSTRAINT_HANDLING", "BOUND_HANDLING"]
 
 CONSTRAINT_HANDLING = ("deb", "penalty")
 BOUND_HANDLING = ("clip", "reflect")
@@ -123,7 +123,14 @@ class Optimizer:
 
     Subclasses set ``self.X``, ``self.f``, ``self.v`` (the current population, used by the
     history) and implement :meth:`ask` and :meth:`tell`. All randomness comes from ``self.rng``.
+
+    An optimiser that handles constraints itself (``cmaes``' augmented Lagrangian) sets the class
+    attribute ``uses_constraint_values = True``: before each :meth:`tell` the engine then sets
+    ``self.constraint_values``, the (n, m) constraint values ``g`` of the told candidates
+    (``g <= 0`` feasible; NaN rows for candidates the budget left unevaluated).
     """
+
+    uses_constraint_values = False
 
     def __init__(self, space: SearchSpace, settings, rng: np.random.Generator, compare: Comparator):
         self.space = space
@@ -434,19 +441,43 @@ def violation(g: np.ndarray) -> np.ndarray:
     return np.where(np.isnan(g), np.inf, np.maximum(g, 0.0)).sum(axis=1)
 
 
+def evaluate_generation(opt: Optimizer, ctx: RunContext, X, limit: int | None = None) -> tuple:
+    """Evaluate the candidates ``X`` an optimiser asked for (what the budget allows, and at most
+    ``limit`` of them) and tell them to it; candidates left unevaluated rank last (objective and
+    violation +inf, NaN constraint values). For drivers that run a population optimiser as one
+    of their phases.
+
+    Returns
+    -------
+    evaluated : int
+        How many of ``X`` were evaluated.
+    generation_done : bool
+        ``opt.tell``'s answer.
+
+    Raises
+    ------
+    BudgetExhausted
+        When no evaluation is left (nothing is told).
+    """
+    f, v, g = ctx.evaluate(X if limit is None else X[:max(int(limit), 0)])
+    k = len(f)
+    if k < len(X):
+        f = np.concatenate([f, np.full((len(X) - k,) + f.shape[1:], np.inf)])
+        v = np.concatenate([v, np.full(len(X) - k, np.inf)])
+        g = np.concatenate([g, np.full((len(X) - k,) + g.shape[1:], np.nan)]) if g.ndim == 2 else g
+    if opt.uses_constraint_values:
+        opt.constraint_values = np.asarray(g, dtype=np.float64).reshape(len(X), -1)
+    return k, opt.tell(X, f, v)
+
+
 def _population_loop(opt: Optimizer, ctx: RunContext) -> None:
     while True:
         X = ctx.space.repair(opt.ask())
         try:
-            f, v, _ = ctx.evaluate(X)
+            k, generation_done = evaluate_generation(opt, ctx, X)
         except BudgetExhausted:
             ctx.stop_reason = "max_evals"
             return
-        k = len(f)
-        if k < len(X):  # budget cut the batch: unevaluated candidates rank last
-            f = np.concatenate([f, np.full((len(X) - k,) + f.shape[1:], np.inf)])
-            v = np.concatenate([v, np.full(len(X) - k, np.inf)])
-        generation_done = opt.tell(X, f, v)
         if generation_done or k < len(X) or ctx.remaining == 0:
             if ctx.record_epoch(opt.f, opt.v):
                 return

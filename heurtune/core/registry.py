@@ -18,7 +18,7 @@ import typing
 import heurtune.algorithms as algorithms_package
 from heurtune.core.errors import ConfigError
 
-__all__ = ["AlgorithmInfo", "register", "register_bridge", "bridges", "get", "available", "load_algorithms",
+__all__ = ["AlgorithmInfo", "register", "register_bridge", "bridges", "bridge_checked", "get", "available", "load_algorithms",
            "make_settings", "describe", "reference_markdown"]
 
 _REGISTRY: dict = {}
@@ -94,7 +94,7 @@ def available() -> list:
     return sorted(n for n in _REGISTRY if ":" not in n)
 
 
-def register_bridge(prefix: str, resolve, description: str) -> None:
+def register_bridge(prefix: str, resolve, description: str, checked: tuple = ()) -> None:
     """Names ``"<prefix>:<Name>"`` stand for the optimisers of another library (``ng:NGOpt``):
     the first :func:`get` of such a name calls ``resolve(Name)``, which returns the
     :class:`AlgorithmInfo` of a class bridging that optimiser (or raises a one-line
@@ -108,18 +108,30 @@ def register_bridge(prefix: str, resolve, description: str) -> None:
         ``resolve(name) -> AlgorithmInfo``.
     description : str
         What the prefix names, for listings and error messages.
+    checked : tuple of str
+        Names (without the prefix) that the engine contract runs on, in the tests and in
+        ``python -m heurtune.check_plugin`` on the bridge's module; names left out of it say why
+        in the bridge's docstring.
     """
     if not prefix or prefix != prefix.lower() or not prefix.isalnum():
         raise ValueError(f"bridge prefix {prefix!r} must be lowercase letters and digits")
     if prefix in _BRIDGES:
         raise ValueError(f"bridge prefix {prefix!r} is already registered")
-    _BRIDGES[prefix] = (resolve, description)
+    _BRIDGES[prefix] = (resolve, description, tuple(checked))
 
 
 def bridges() -> dict:
     """``{prefix: description}`` of the bridged libraries."""
     load_algorithms()
     return {k: v[1] for k, v in sorted(_BRIDGES.items())}
+
+
+def bridge_checked(module: str | None = None) -> list:
+    """The bridged names the contract checks (``["ng:CMA", ...]``), of every bridge or of the
+    bridges registered by ``module``."""
+    load_algorithms()
+    return [f"{prefix}:{name}" for prefix, (resolve, _, checked) in sorted(_BRIDGES.items())
+            if module is None or resolve.__module__ == module for name in checked]
 
 
 def get(name: str) -> AlgorithmInfo:
@@ -133,7 +145,7 @@ def get(name: str) -> AlgorithmInfo:
         info = _BRIDGES[prefix][0](rest)
         _REGISTRY[name] = dataclasses.replace(info, name=name)
         return _REGISTRY[name]
-    extra = "".join(f", {p}:<name> ({d})" for p, (_, d) in sorted(_BRIDGES.items()))
+    extra = "".join(f", {p}:<name> ({d})" for p, (_, d, _) in sorted(_BRIDGES.items()))
     raise ConfigError(f"unknown optimiser {name!r}; allowed: {', '.join(available())}{extra}")
 
 

@@ -7,7 +7,9 @@ Usage::
 Loads the plugin (a ``.py`` file or a module name) and finds what it registers:
 
 - each optimiser runs the contract checks of :mod:`heurtune.core.contract` (bounds, NaN/inf,
-  seeds, exact budgets, constraints, one and two workers), with ``--settings``;
+  seeds, exact budgets, constraints, one and two workers), with ``--settings``; a bridge to
+  another library (:func:`heurtune.core.registry.register_bridge`) runs them on the names it
+  declares ``checked``;
 - each controller structure runs its plant family's contract
   (:func:`heurtune.core.structures.check_structure`; the QTP's in
   ``heurtune.objectives.qtp.structure_checks``: design, determinism, corners, simulation,
@@ -81,12 +83,14 @@ def run(argv=None, stream=None) -> int:
         names = sorted(set(registry.available()) - before)
         if not names:  # a module imported before (a shipped optimiser): the ones it registered
             names = sorted(n for n in registry.available() if registry.get(n).cls.__module__ == module.__name__)
+        names += registry.bridge_checked(module.__name__)  # a bridge: the names it declares checked
         new_structures = [s for key, s in _structures().items() if key not in before_structures
                           or s.source == module.__name__]
         new_families = sorted({f.name for f in families()} - before_families
                               | {f.name for f in families() if f.cls.__module__ == module.__name__})
         if not names and not new_structures and not new_families:
-            raise ConfigError(f"{args.plugin} registers no optimiser (heurtune.core.registry.register), no "
+            raise ConfigError(f"{args.plugin} registers no optimiser (heurtune.core.registry.register or "
+                              "register_bridge with checked names), no "
                               "controller structure (heurtune.core.structures.register_structure) and no plant "
                               "family (heurtune.core.families.register_family)")
         config = None

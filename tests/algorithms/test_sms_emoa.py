@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import heurtune
-from heurtune.algorithms.sms_emoa import contributions, reduce_one
+from heurtune.algorithms.sms_emoa import contributions, reduce_one, reduce_to
 from heurtune.core.testfunctions import ZDT1_HYPERVOLUME, zdt1
 
 
@@ -24,6 +24,33 @@ def test_reduction_drops_the_least_contributor_of_the_worst_front():
     assert reduce_one(F[:4], v[:4]) == 2  # the smallest exclusive contribution
     v = np.array([0, 0, 0, 0.5, 0.2])
     assert reduce_one(F, v) == 3  # infeasible fronts go by violation, the largest first
+
+
+def test_a_generation_keeps_whole_fronts_then_drops_least_contributors_one_at_a_time():
+    F = np.array([[0.0, 4.0], [1.0, 2.0], [2.0, 1.5], [4.0, 0.0], [3.0, 3.0]])
+    v = np.zeros(5)
+    np.testing.assert_array_equal(reduce_to(F, v, 4), [0, 1, 2, 3])  # the first front fits
+    np.testing.assert_array_equal(reduce_to(F, v, 3), [0, 1, 3])  # as reduce_one on it
+    # two removals, recomputed: after (2, 1.5) goes, (1, 2) is the only finite contributor
+    np.testing.assert_array_equal(reduce_to(F, v, 2), [0, 3])
+    v = np.array([0, 0, 0, 0.5, 0.2])
+    np.testing.assert_array_equal(reduce_to(F, v, 4), [0, 1, 2, 4])  # the smaller violation stays
+
+
+def test_batch_offspring_evaluate_a_generation_at_once_and_reach_the_front():
+    batches = []
+
+    def counted(X):
+        batches.append(len(X))
+        return zdt1(X)
+
+    res = heurtune.minimize(counted, np.zeros(6), np.ones(6), "sms_emoa", max_epochs=120, seed=3,
+                            settings=dict(n=30, offspring=30), reference_point=[1.1, 1.1])
+    assert batches == [30] * 121 and res.n_evals == 30 * 121 and res.n_epochs == 120
+    assert -res.f > 0.98 * ZDT1_HYPERVOLUME  # measured 0.998 of it with this seed
+    with pytest.raises(heurtune.ConfigError, match="offspring must be >= 1"):
+        heurtune.minimize(zdt1, np.zeros(3), np.ones(3), "sms_emoa", max_epochs=1, settings=dict(offspring=0),
+                          reference_point=[1.1, 1.1])
 
 
 def test_zdt1_front_and_hypervolume():

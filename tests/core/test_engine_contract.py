@@ -46,12 +46,11 @@ def budgets(name):
     return small.get(name, {})
 
 
-# Bridged optimisers of optional libraries (the test extra installs nevergrad). ng:NGOpt is left
-# out: on the checks' 4-variable problems it picks nevergrad's MetaModel, which fails under
-# NumPy 2 in nevergrad 1.0.12 (algorithms/nevergrad_bridge.py; the run ends with a one-line error).
-BRIDGED = ("ng:CMA", "ng:TwoPointsDE", "ng:PSO")
+# Bridged optimisers of optional libraries (the test extra installs nevergrad and pymoo): the
+# names each bridge declares checked (ng:NGOpt is not, and its module says why).
+BRIDGE_LIBRARY = {"ng": "nevergrad", "pymoo": "pymoo"}
 NAMES = [n for n in registry.available() if ":" not in n] + [
-    n for n in BRIDGED if importlib.util.find_spec("nevergrad") is not None]
+    n for n in registry.bridge_checked() if importlib.util.find_spec(BRIDGE_LIBRARY[n.split(":")[0]]) is not None]
 
 
 @pytest.mark.parametrize("check", sorted(CHECKS))

@@ -79,3 +79,28 @@ def test_a_shipped_optimiser_passes_by_file_or_module(capsys):
     for spec in (path, "heurtune.algorithms.cmaes"):
         assert run([spec]) == 0
         assert capsys.readouterr().out.strip().endswith("6 of 6 checks passed")
+
+
+def test_a_bridge_is_checked_on_the_names_it_declares(tmp_path):
+    """A module that registers a bridge to another library runs the contract on its ``checked``
+    names (here a toy library of one algorithm, the guide's walk under another name)."""
+    guide = _guide_plugin(tmp_path).read_text()
+    start = guide.index('@register("guide_walk"')
+    walk = guide[:start] + guide[guide.index("class RandomWalk(", start):]  # the class, not registered
+    path = tmp_path / "toy_bridge.py"
+    path.write_text(walk + '''
+
+from heurtune.core.registry import AlgorithmInfo, register_bridge
+
+
+def resolve(name):
+    return AlgorithmInfo(f"toylib:{name}", RandomWalk, RandomWalkSettings, "a toy library's walk", "", "population")
+
+
+register_bridge("toylib", resolve, "a toy library", checked=("Walk",))
+''')
+    assert "@register(" not in path.read_text()
+    out = io.StringIO()
+    assert run([str(path)], stream=out) == 0
+    lines = out.getvalue().splitlines()
+    assert lines[0] == "PASS  toylib:Walk: bounds" and lines[-1] == "6 of 6 checks passed"

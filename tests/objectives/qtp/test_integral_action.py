@@ -277,7 +277,8 @@ def test_printed_thesis_nmp_gains_are_unstable(label):
 
 def test_benchmark_runs_every_population_metaheuristic_on_a_sound_problem():
     """benchmark_qtp: every registered single-objective ask/tell metaheuristic (not the gradient
-    methods, not the multistart driver, not the multi-objective ones) with the same budget, on
+    methods, not the multistart driver, not the multi-objective ones), and the memetic
+    cmaes_sqp (a driver: CMA-ES, then a local polish), with the same budget, on
     min and nmp with integral action that can be stable, physical limits and a discriminating
     objective."""
     from heurtune.algorithms._gradient import GradientOptimizer
@@ -288,7 +289,7 @@ def test_benchmark_runs_every_population_metaheuristic_on_a_sound_problem():
                if registry.get(n).cls.__module__.startswith("heurtune.algorithms.")]  # not test plugins
     population = {a.name for a in shipped if a.kind == "population" and not a.multi_objective
                   and not issubclass(a.cls, GradientOptimizer)}
-    assert {o["name"] for o in exp.optimisers} == population
+    assert {o["name"] for o in exp.optimisers} == population | {"cmaes_sqp"}
     assert len({o["max_evals"] for o in exp.optimisers}) == 1
     assert exp.config["runs"] >= 20
     assert exp.structure_warnings() == {}
