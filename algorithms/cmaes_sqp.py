@@ -25,7 +25,7 @@ The schedule:
    strategy, so the budget is spent exactly. Without a budget the run ends after the polish
    (``stop_reason = "finished"``).
 
-``Driver.polished`` records the polish: its free coordinates, evaluations, iterations and
+``CMAESSQP.polished`` records the polish: its free coordinates, evaluations, iterations and
 SLSQP's message.
 """
 
