@@ -24,27 +24,8 @@ import moocore  # noqa: E402
 import numpy as np  # noqa: E402
 
 import heurtune  # noqa: E402
+from heurtune.core.testfunctions import dtlz2, zdt1  # noqa: E402
 from heurtune.runner.machine import cpu_name  # noqa: E402
-
-
-def zdt1(X):
-    f1 = X[:, 0]
-    g = 1.0 + 9.0 * X[:, 1:].mean(axis=1)
-    return np.stack([f1, g * (1.0 - np.sqrt(f1 / g))], axis=1)
-
-
-def dtlz2(X, m=3):
-    g = ((X[:, m - 1:] - 0.5) ** 2).sum(axis=1)
-    angle = 0.5 * np.pi * X[:, :m - 1]
-    F = np.empty((len(X), m))
-    for i in range(m):
-        f = 1.0 + g
-        f = f * np.prod(np.cos(angle[:, :m - 1 - i]), axis=1)
-        if i > 0:
-            f = f * np.sin(angle[:, m - 1 - i])
-        F[:, i] = f
-    return F
-
 
 PROBLEMS = {"zdt1": (zdt1, 30, 2), "dtlz2": (dtlz2, 12, 3)}
 

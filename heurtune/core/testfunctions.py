@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-__all__ = ["SHIFT", "sphere", "rosenbrock", "rastrigin", "ackley", "pressure_vessel", "zdt1", "ZDT1_HYPERVOLUME",
+__all__ = ["SHIFT", "sphere", "rosenbrock", "rastrigin", "ackley", "pressure_vessel", "zdt1", "dtlz2", "ZDT1_HYPERVOLUME",
            "PROBLEMS", "BUDGETS"]
 
 SHIFT = 1.3  # optimum of the shifted functions at x_i = 1.3 (inside [-5, 5])
@@ -78,6 +78,22 @@ def zdt1(X):
     f1 = X[:, 0]
     g = 1.0 + 9.0 * X[:, 1:].mean(axis=1)
     return np.column_stack([f1, g * (1.0 - np.sqrt(f1 / g))])
+
+
+def dtlz2(X, m: int = 3):
+    """DTLZ2 (Deb, Thiele, Laumanns & Zitzler 2002), ``m`` objectives on [0, 1]^d:
+    ``f_i = (1 + g) prod_{j < m - i} cos(x_j pi / 2) sin(x_{m-i} pi / 2)`` (no sine for
+    ``i = 1``), ``g = sum_{j >= m} (x_j - 1/2)^2``. The Pareto front is the unit sphere's
+    positive orthant, reached with ``x_m..x_d = 1/2``."""
+    g = ((X[:, m - 1:] - 0.5) ** 2).sum(axis=1)
+    angle = 0.5 * np.pi * X[:, :m - 1]
+    F = np.empty((len(X), m))
+    for i in range(m):
+        f = (1.0 + g) * np.prod(np.cos(angle[:, :m - 1 - i]), axis=1)
+        if i > 0:
+            f = f * np.sin(angle[:, m - 1 - i])
+        F[:, i] = f
+    return F
 
 
 # Hypervolume of ZDT1's Pareto front with respect to (1.1, 1.1): the integral over f1 in [0, 1]
