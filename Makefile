@@ -20,8 +20,11 @@ JOBS ?= $(shell nproc 2>/dev/null || echo 1)
 run: $(STAMP)
 	$(BIN)/python -m heurtune.experiment cs_folqi_qtp --jobs $(JOBS)
 
+# Two worker processes, each test file on one of them (pytest-xdist; `--dist loadfile` keeps a
+# file's module-level caches and compiled kernels in one process). TEST_WORKERS=0 runs in-process.
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(BIN)/pytest
+	$(BIN)/pytest -n $(TEST_WORKERS) --dist loadfile
 
 # ruff with the rule set of pyproject.toml ([tool.ruff]); .ci/run lints before it tests.
 lint: $(STAMP)

@@ -39,6 +39,15 @@ DEFAULT_STEP_AT_REFERENCE = 0.05
 # eigenvalues lambda of the plant under that static feedback, A + B D, which the explicit
 # part of the method integrates (see explicit_step; validated in test_pid.py).
 EXPLICIT_STEP_RADIUS = 0.5
+# A structure with ``extras["feedback_step"]`` (FOLQI, IOLQI, LQI) keeps its declared step unless
+# the plant under its effective static feedback is fast: h rho(A + B D_h) <= FEEDBACK_STEP_RADIUS
+# (tolerance / REFERENCE_TOLERANCE)^(1/4), where D_h adds to D the static gain of every modal
+# state faster than 1/h (those the method integrates exactly, but whose push on the levels the
+# explicit part sees as a static feedback). The step is halved until it holds (see
+# feedback_step; benchmarks/step_rule.py measures it). At 0.125 s it shortens only candidates with
+# rho > 6 1/s, such as the corner Q = 2.5, R = 0.1, Ki = 10, alpha = 0.1 (rho 8.5, 5.3e-3 cm off at
+# 0.125 s); every other candidate keeps its step, bit for bit.
+FEEDBACK_STEP_RADIUS = 0.75
 MAX_STEP = 1.0
 MIN_STEP = 1e-4
 # A scenario whose step rule needs more steps than this over its horizon is refused.
@@ -133,6 +142,55 @@ def explicit_step(A: np.ndarray, B: np.ndarray, D: np.ndarray, tolerance: float)
         return MIN_STEP
     h = EXPLICIT_STEP_RADIUS * (tolerance / REFERENCE_TOLERANCE) ** 0.25 / max(rho, 1e-12)
     return float(min(max(h, MIN_STEP), MAX_STEP))
+
+
+def folded_feedback(cc: ContinuousController, h: float) -> np.ndarray:
+    """The static feedback (2, 4) that the explicit part of a step ``h`` sees: ``D`` plus, for
+    every modal state with ``|lam| h > 1``, its static gain ``-C_i b_i / lam_i`` on the signal it
+    reads. Dense blocks are left out."""
+    D = np.array(cc.D, dtype=np.float64)
+    fast = np.flatnonzero(np.abs(cc.lam) * h > 1.0)
+    if fast.size:
+        gain = -cc.Cm[:, fast] * (cc.b[fast] / cc.lam[fast])
+        for j, col in enumerate(cc.col[fast]):
+            D[:, col] += gain[:, j]
+    return D
+
+
+def feedback_step(A: np.ndarray, B: np.ndarray, cc: ContinuousController, h_max: float,
+                  tolerance: float) -> float:
+    """The step of a controller whose effective static feedback may make the plant fast.
+
+    Parameters
+    ----------
+    A : (4, 4) ndarray
+        The linearised plant of the scenario.
+    B : (4, 2) ndarray
+        Its input matrix (the nominal one divided by the scenario's uncertainty factor, which
+        scales the tank areas).
+    cc : ContinuousController
+    h_max : float
+        The structure's step for ``tolerance`` (:func:`step_for_tolerance`).
+    tolerance : float
+        The largest level error in cm.
+
+    Returns
+    -------
+    float
+        ``h_max`` if ``h_max rho(A + B D_h) <= FEEDBACK_STEP_RADIUS (tolerance /
+        REFERENCE_TOLERANCE)^(1/4)`` (``D_h``: :func:`folded_feedback`), else ``h_max`` halved
+        until it holds; at least :data:`MIN_STEP`.
+    """
+    radius = FEEDBACK_STEP_RADIUS * (tolerance / REFERENCE_TOLERANCE) ** 0.25
+    h = float(h_max)
+    while h > MIN_STEP:
+        rho = float(np.max(np.abs(np.linalg.eigvals(A + B @ folded_feedback(cc, h)))))
+        if not math.isfinite(rho):
+            return MIN_STEP
+        if h * rho <= radius:
+            return h
+        h *= 0.5
+    return MIN_STEP
 
 
 @dataclasses.dataclass(frozen=True)

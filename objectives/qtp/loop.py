@@ -395,16 +395,30 @@ class ClosedLoop:
         """Design the controller for named tuning ``values`` (raises ControllerDesignError)."""
         return self.structure.design(values, self.plant_linearisation, self.options)
 
-    def step_plan(self, ctrl: LinearController, scenario: Scenario):
+    def step_plan(self, ctrl: LinearController, scenario: Scenario, cc=None):
         """The continuous loop's step plan of ``ctrl`` under ``scenario``: the scenario's
-        (:meth:`Scenario.step_plan` of this type), shortened for a structure that declares
-        ``explicit_step`` to the step its static feedback allows
-        (:func:`~heurtune.objectives.qtp.continuous.explicit_step`) unless the scenario gives
-        ``step``."""
-        if scenario.step is None and self.structure.extras.get("explicit_step"):
+        (:meth:`Scenario.step_plan` of this type) unless the scenario gives ``step`` and
+
+        - a structure that declares ``explicit_step`` gets the step its static feedback allows
+          (:func:`~heurtune.objectives.qtp.continuous.explicit_step`);
+        - one that declares ``feedback_step`` gets its step halved while the plant under its
+          effective static feedback is too fast for it
+          (:func:`~heurtune.objectives.qtp.continuous.feedback_step`, on the scenario's plant).
+
+        ``cc``: the controller's :class:`~heurtune.objectives.qtp.continuous.ContinuousController`
+        when the caller has it."""
+        extras = self.structure.extras
+        if scenario.step is None and extras.get("explicit_step"):
             h = min(scenario.continuous_step_for(self.kind),
                     _continuous.explicit_step(self.A, self.B, ctrl.D, float(scenario.tolerance)))
             return scenario.step_plan(self.kind, step=h)
+        if scenario.step is None and extras.get("feedback_step"):
+            h_max = scenario.continuous_step_for(self.kind)
+            if cc is None:
+                cc = _continuous.ContinuousController.from_linear(ctrl)
+            h = _continuous.feedback_step(self.A, self.B / scenario.uncertainty, cc, h_max, float(scenario.tolerance))
+            if h < h_max:
+                return scenario.step_plan(self.kind, step=h)
         return scenario.step_plan(self.kind)
 
     def stability_margin(self, ctrl: LinearController) -> float:
@@ -532,7 +546,7 @@ class ClosedLoop:
         """:meth:`run` of a continuous-time scenario (kernel ``simulate_continuous``)."""
         coef, u_op, t_dist, horizon, saturate, u_lo, u_hi, clip, h_max = self._continuous_inputs(scenario)
         cc = _continuous.ContinuousController.from_linear(ctrl)
-        plan = self.step_plan(ctrl, scenario)
+        plan = self.step_plan(ctrl, scenario, cc)
         n_out = int(round(scenario.horizon / scenario.output_dt))
         t = None
         if record or record_levels:
@@ -693,8 +707,9 @@ class ClosedLoop:
         CUDA kernel with ``device="gpu"``), lanes of one controller structure per call; fills
         ``diverged`` and ``metrics`` in place."""
         forms = [_continuous.ContinuousController.from_linear(c) for c in ctrls]
-        if self.structure.extras.get("explicit_step"):
-            plans = {(i, s): self.step_plan(c, scenarios[s]) for i, c in enumerate(ctrls) for s in members}
+        extras = self.structure.extras
+        if extras.get("explicit_step") or extras.get("feedback_step"):
+            plans = {(i, s): self.step_plan(c, scenarios[s], forms[i]) for i, c in enumerate(ctrls) for s in members}
         else:
             shared = {s: scenarios[s].step_plan(self.kind) for s in members}
             plans = {(i, s): shared[s] for i in range(len(ctrls)) for s in members}

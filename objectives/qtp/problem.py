@@ -315,6 +315,11 @@ class Problem(TuningProblem):
                 payload["scenario"].pop(key, None)
         if self.loop.plant_model != "qtp":
             payload["plant"]["model"] = self.loop.plant_model
+        tuning = self.scenario(self.tuning_scenario)
+        if tuning.continuous and tuning.step is None and self.loop.structure.extras.get("feedback_step"):
+            # The continuous loop's step of these structures shortens for a fast feedback
+            # (continuous.feedback_step): results made before it was added never mix with its.
+            payload["step_rule"] = "feedback"
         payload.update(self.tuning_identity())
         return payload
 

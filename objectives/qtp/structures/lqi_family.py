@@ -71,14 +71,16 @@ FOLQI = register_structure(ControllerStructure(
     name="folqi", family="qtp", variables=_FOLQI_NAMES, bounds=_bounds(_FOLQI_NAMES), design=_folqi,
     description="fractional-order LQI (thesis eq. 3.9): Riccati state feedback + Ki / s^alpha per loop",
     options=FRACTIONAL_OPTIONS, integral_action="paired", domains=_domains(_FOLQI_NAMES),
-    batch_design=_batch("folqi"), label="FOLQI", extras={"step_at_reference": 0.125, "integral_check": "signs"}))
+    batch_design=_batch("folqi"), label="FOLQI",
+    extras={"step_at_reference": 0.125, "feedback_step": True, "integral_check": "signs"}))
 IOLQI = register_structure(ControllerStructure(
     name="iolqi", family="qtp", variables=_IOLQI_NAMES, bounds=_bounds(_IOLQI_NAMES), design=_iolqi,
     description="integer-order LQI: Riccati state feedback + Ki / s per loop",
     options=FRACTIONAL_OPTIONS, integral_action="paired", domains=_domains(_IOLQI_NAMES),
-    batch_design=_batch("iolqi"), label="IOLQI", extras={"step_at_reference": 0.125, "integral_check": "signs"}))
+    batch_design=_batch("iolqi"), label="IOLQI",
+    extras={"step_at_reference": 0.125, "feedback_step": True, "integral_check": "signs"}))
 LQI = register_structure(ControllerStructure(
     name="lqi", family="qtp", variables=_LQI_NAMES, bounds=_bounds(_LQI_NAMES), design=_lqi,
     description="textbook LQI: the integrated errors weighted (Qi) in the Riccati design",
     options=FRACTIONAL_OPTIONS, integral_action="full", domains=_domains(_LQI_NAMES), label="LQI",
-    extras={"step_at_reference": 0.125, "integral_check": "det"}))
+    extras={"step_at_reference": 0.125, "feedback_step": True, "integral_check": "det"}))
