@@ -36,6 +36,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_robust.py
 	$(BIN)/python benchmarks/bench_batch.py --gpu
 	$(BIN)/python benchmarks/work_precision.py
+	$(BIN)/python benchmarks/step_rule.py
 	if $(BIN)/python -c "import pymoo" 2>/dev/null; then $(BIN)/python benchmarks/bench_sms_emoa.py; \
 	else echo "bench_sms_emoa: skipped (pymoo not installed: pip install 'heurtune[pymoo]')"; fi
 
