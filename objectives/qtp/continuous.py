@@ -181,10 +181,13 @@ def feedback_step(A: np.ndarray, B: np.ndarray, cc: ContinuousController, h_max:
         REFERENCE_TOLERANCE)^(1/4)`` (``D_h``: :func:`folded_feedback`), else ``h_max`` halved
         until it holds; at least :data:`MIN_STEP`.
     """
+    from heurtune.objectives.qtp.continuous_kernels import feedback_radius
+
     radius = FEEDBACK_STEP_RADIUS * (tolerance / REFERENCE_TOLERANCE) ** 0.25
     h = float(h_max)
+    A, B = np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(B, dtype=np.float64)
     while h > MIN_STEP:
-        rho = float(np.max(np.abs(np.linalg.eigvals(A + B @ folded_feedback(cc, h)))))
+        rho = float(feedback_radius(A, B, cc.D, cc.lam, cc.b, cc.col, cc.Cm, h))
         if not math.isfinite(rho):
             return MIN_STEP
         if h * rho <= radius:

@@ -1118,6 +1118,34 @@ def continuous_lane(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm, Aq,
 
 
 
+@njit(cache=True)
+def feedback_radius(A, B, D, lam, bm, mi, Cm, h):
+    """Spectral radius of ``A + B D_h``, the linearised plant under the static feedback that the
+    explicit part of a step ``h`` sees: ``D`` plus ``-Cm_i bm_i / lam_i`` on signal ``mi_i`` of
+    every modal state with ``|lam_i| h > 1`` (``continuous.folded_feedback``, jitted for the
+    per-candidate step rule ``continuous.feedback_step``).
+
+    A : (4, 4); B : (4, 2); D : (2, 4); lam, bm : (nd,); mi : (nd,) int64; Cm : (2, nd).
+    Returns inf when any entry is not finite.
+    """
+    Dh = D.copy()
+    for i in range(lam.size):
+        if not (math.isfinite(lam[i]) and math.isfinite(bm[i]) and math.isfinite(Cm[0, i])
+                and math.isfinite(Cm[1, i])):
+            return math.inf
+        if abs(lam[i]) * h > 1.0:
+            g = bm[i] / lam[i]
+            Dh[0, mi[i]] -= Cm[0, i] * g
+            Dh[1, mi[i]] -= Cm[1, i] * g
+    M = np.empty((4, 4), dtype=np.complex128)
+    for r in range(4):
+        for c in range(4):
+            M[r, c] = A[r, c] + B[r, 0] * Dh[0, c] + B[r, 1] * Dh[1, c]
+            if not (math.isfinite(M[r, c].real)):
+                return math.inf
+    return np.max(np.abs(np.linalg.eigvals(M)))
+
+
 # Rows of the working arrays of continuous_lane (float64 unless stated): see its first lines.
 _W4_ROWS = 20
 _W2_ROWS = 26

@@ -26,6 +26,8 @@ from heurtune.objectives.qtp.controllers import LinearController, PlantLinearisa
 from heurtune.objectives.qtp.model import QTPParams, linearise, operating_point
 
 _DGEEV = scipy.linalg.lapack.get_lapack_funcs("geev", dtype=np.float64)
+# Step plans kept per loop (scenario, step); cleared when full.
+_PLAN_CACHE_SIZE = 256
 
 __all__ = ["Scenario", "ClosedLoop", "SimulationResult", "METRIC_NAMES", "LIMITS", "PLANT_MODELS",
            "physical_range_flags"]
@@ -361,6 +363,7 @@ class ClosedLoop:
             self._level_per_state = 1.0
         self._plants = {}
         self._scenarios = {}
+        self._plans = {}
         self._limits = None
 
     def __getstate__(self):
@@ -368,11 +371,13 @@ class ClosedLoop:
         state = self.__dict__.copy()
         state["_plants"] = {}
         state["_scenarios"] = {}
+        state["_plans"] = {}
         state["_limits"] = None
         return state
 
     def __setstate__(self, state):
         state.setdefault("_limits", None)
+        state.setdefault("_plans", {})
         # Pickles from before the bond-graph model are level models.
         state.setdefault("plant_model", "qtp")
         state.setdefault("_rho_g", 1.0)
@@ -412,14 +417,22 @@ class ClosedLoop:
             h = min(scenario.continuous_step_for(self.kind),
                     _continuous.explicit_step(self.A, self.B, ctrl.D, float(scenario.tolerance)))
             return scenario.step_plan(self.kind, step=h)
+        h = None  # the scenario's step for this type
         if scenario.step is None and extras.get("feedback_step"):
             h_max = scenario.continuous_step_for(self.kind)
             if cc is None:
                 cc = _continuous.ContinuousController.from_linear(ctrl)
             h = _continuous.feedback_step(self.A, self.B / scenario.uncertainty, cc, h_max, float(scenario.tolerance))
-            if h < h_max:
-                return scenario.step_plan(self.kind, step=h)
-        return scenario.step_plan(self.kind)
+            if h >= h_max:
+                h = None
+        # Plans are read-only for the kernels; a scenario has one per step of the ladder h_max 2^-k.
+        key = (scenario, h)
+        plan = self._plans.get(key)
+        if plan is None:
+            if len(self._plans) >= _PLAN_CACHE_SIZE:
+                self._plans.clear()
+            plan = self._plans[key] = scenario.step_plan(self.kind, step=h)
+        return plan
 
     def stability_margin(self, ctrl: LinearController) -> float:
         """Largest real part of the linearised closed-loop eigenvalues (negative = stable)."""

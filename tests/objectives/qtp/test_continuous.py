@@ -14,6 +14,7 @@ tightly, so the bound is the method's error alone.
 """
 
 import math
+from dataclasses import replace as dataclasses_replace
 
 import numpy as np
 import pytest
@@ -168,6 +169,13 @@ def test_folded_feedback_is_the_static_gain_of_the_fast_modes():
         B[np.arange(B.shape[0]), cc.col[fast]] = cc.b[fast]
         dc = control.ss(np.diag(cc.lam[fast]), B, cc.Cm[:, fast], np.zeros((2, 4))).dcgain()
         np.testing.assert_allclose(cont.folded_feedback(cc, h), cc.D + dc, rtol=1e-12, atol=1e-12)
+        # the jitted radius of the step rule is the spectral radius of A + B D_h
+        rho = np.abs(np.linalg.eigvals(loop.A + loop.B @ cont.folded_feedback(cc, h))).max()
+        assert ck.feedback_radius(loop.A, loop.B, cc.D, cc.lam, cc.b, cc.col, cc.Cm, h) == pytest.approx(rho, rel=1e-12)
+    bad = cc.D.copy()
+    bad[0, 0] = np.nan
+    assert ck.feedback_radius(loop.A, loop.B, bad, cc.lam, cc.b, cc.col, cc.Cm, 0.125) == math.inf
+    assert cont.feedback_step(loop.A, loop.B, dataclasses_replace(cc, D=bad), 0.125, TOL) == cont.MIN_STEP
 
 
 def test_feedback_step_keeps_the_step_of_ordinary_candidates_and_halves_it_for_a_fast_plant():
