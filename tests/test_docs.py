@@ -4,6 +4,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -107,3 +109,21 @@ def test_the_readmes_python_control_example_runs():
     assert namespace["y1"][0] == 1.0 and 0.0 < namespace["y1"][-1] < 1e-3
     assert namespace["cl"].input_labels == ["d1", "d2"]
     assert namespace["cl"].output_labels == ["y1", "y2", "du1", "du2"]
+
+
+def test_objectives_guide_weighted_example_is_the_sum_it_states(tmp_path):
+    """docs/objectives.md's weighted config, as printed, gives IAE1 + IAE2 + 0.05 (TV1 + TV2)."""
+    import re
+
+    import heurtune
+
+    text = (ROOT / "docs" / "objectives.md").read_text()
+    block = re.search(r"```toml\n(.*?)```", text, re.S).group(1)
+    config = tmp_path / "weighted.toml"
+    config.write_text(block)
+    prob = heurtune.load_experiment(str(config)).problem("min")
+    ev = prob.evaluate((prob.lower + prob.upper) / 2)
+    m = dict(zip(ev.metric_names, ev.metrics[0]))
+    assert ev.f[0] == pytest.approx(m["IAE1"] + m["IAE2"] + 0.05 * (m["TV1"] + m["TV2"]), rel=1e-12)
+    for name in ("effort", "effort_deviation", "iae", "ise", "itae"):  # the table names every QTP objective
+        assert f"`{name}`" in text
