@@ -127,3 +127,28 @@ def test_objectives_guide_weighted_example_is_the_sum_it_states(tmp_path):
     assert ev.f[0] == pytest.approx(m["IAE1"] + m["IAE2"] + 0.05 * (m["TV1"] + m["TV2"]), rel=1e-12)
     for name in ("effort", "effort_deviation", "iae", "ise", "itae"):  # the table names every QTP objective
         assert f"`{name}`" in text
+
+
+def test_each_extension_guide_fits_one_page():
+    """The guides to a new optimiser, controller structure, plant family and objective are one
+    page each: at most 80 lines (an A4 page of 10 pt text); their details live in the
+    reference pages they link to."""
+    for name in ("optimisers", "controllers", "plants", "objectives"):
+        lines = (ROOT / "docs" / f"{name}.md").read_text().splitlines()
+        assert len(lines) <= 80, (name, len(lines))
+
+
+def test_optimiser_guide_config_runs_the_plugin(tmp_path):
+    """docs/optimisers.md's config, beside the guide's plugin, loads as printed."""
+    import re
+
+    import heurtune
+
+    text = (ROOT / "docs" / "optimisers.md").read_text()
+    start = text.index('```python\n"""Greedy random walk') + len("```python\n")
+    (tmp_path / "random_walk.py").write_text(text[start:text.index("```", start)].replace(
+        '"random_walk"', '"guide_walk_cfg"'))
+    toml = re.search(r"```toml\n(.*?)```", text, re.S).group(1).replace('"random_walk"', '"guide_walk_cfg"')
+    (tmp_path / "my.toml").write_text(toml)
+    exp = heurtune.load_experiment(str(tmp_path / "my.toml"))
+    assert [o["name"] for o in exp.optimisers] == ["guide_walk_cfg"]
