@@ -2,7 +2,8 @@
 
 A schema maps keys to specs: a dict is a table with fixed keys; ``("map", spec)`` a table with
 free keys whose values follow spec; ``("list", spec)`` a list; ``("pair", NUMBER)`` two numbers;
-``("choices", values)`` one of the values or a list of distinct ones; ``("oneof", specs)`` the
+``("choices", values[, hint])`` one of the values or a list of distinct ones (the hint, when
+given, ends the error of a value not among them); ``("oneof", specs)`` the
 first spec that fits; ``("range", spec, lo, hi, strict)`` a number of ``spec`` within [lo, hi]
 (``strict``: above lo), either end None for none (:func:`at_least`, :func:`positive`); a tuple
 of strings the allowed values; ``None`` anything (checked
@@ -123,7 +124,8 @@ def check(value, spec, where: str, src: str):
         values = value if isinstance(value, list) else [value]
         for v in values:
             if v not in spec[1]:
-                fail(f"got {v!r}; allowed: {', '.join(spec[1])}")
+                hint = f" ({spec[2]})" if len(spec) > 2 else ""
+                fail(f"got {v!r}; allowed: {', '.join(spec[1])}{hint}")
         if not values or len(set(values)) != len(values):
             fail(f"give one or more distinct values, got {value!r}")
         return

@@ -45,7 +45,7 @@ EXPLICIT_STEP_RADIUS = 0.5
 # state faster than 1/h (those the method integrates exactly, but whose push on the levels the
 # explicit part sees as a static feedback). The step is halved until it holds (see
 # feedback_step; benchmarks/step_rule.py measures it). At 0.125 s it shortens only candidates with
-# rho > 6 1/s, such as the corner Q = 2.5, R = 0.1, Ki = 10, alpha = 0.1 (rho 8.5, 5.3e-3 cm off at
+# rho > 6 1/s, such as the corner Q = 2.5, R = 0.1, Ki = 10, alpha = 0.1 (rho 8.5, 5.5e-3 cm off at
 # 0.125 s); every other candidate keeps its step, bit for bit.
 FEEDBACK_STEP_RADIUS = 0.75
 MAX_STEP = 1.0

@@ -101,6 +101,10 @@ SCHEMA = dict(COMMON_SCHEMA, **{
 
 
 
+# Ends the error of an unknown [controller] type: a plugin's type is known once its file is loaded.
+_PLUGIN_TYPE_HINT = "a plugin's type needs its file: plugins = [\"FILE.py\"] in the config, or --plugin FILE.py"
+
+
 def _add_structure(structure) -> None:
     """Keep the schema's ``controller`` table up to date with the registered structures: their
     names as the choices of ``type``, their options as keys (one spec per key: two structures
@@ -115,7 +119,7 @@ def _add_structure(structure) -> None:
     options = {key: spec for key, spec in table.items() if key not in fixed and key != "type"}
     options.update({key: spec for key, (spec, _) in structure.options.items()})
     table.clear()
-    table.update({"type": ("choices", structures.names()), **options, **fixed})
+    table.update({"type": ("choices", structures.names(), _PLUGIN_TYPE_HINT), **options, **fixed})
 
 
 # The [controller] keys every type reads (the others are the structures' options).

@@ -92,3 +92,13 @@ def test_relative_extends_path_resolves_beside_the_config(tmp_path, monkeypatch)
     monkeypatch.chdir(tmp_path)  # not the configs' folder
     cfg = load_config(str(sub / "child.toml"))
     assert cfg["runs"] == 3 and cfg["seed"] == 7 and cfg["controller"]["type"] == "folqi"
+
+
+def test_an_unknown_controller_type_says_how_a_plugin_type_is_loaded(tmp_path):
+    cfg = tmp_path / "x.toml"
+    cfg.write_text('extends = "cs_folqi_qtp"\n[controller]\ntype = "my_pid"\n')
+    with pytest.raises(ConfigError) as err:
+        heurtune.load_experiment(str(cfg))
+    message = str(err.value)
+    assert "controller.type: got 'my_pid'" in message and "\n" not in message
+    assert 'plugins = ["FILE.py"]' in message and "--plugin FILE.py" in message
