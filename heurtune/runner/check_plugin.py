@@ -1,4 +1,4 @@
-"""Check a plugin against the contracts of what it registers: optimisers and controller structures.
+"""Check a plugin against the contracts of what it registers: optimisers, structures, families.
 
 Usage::
 
