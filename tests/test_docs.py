@@ -151,4 +151,21 @@ def test_optimiser_guide_config_runs_the_plugin(tmp_path):
     toml = re.search(r"```toml\n(.*?)```", text, re.S).group(1).replace('"random_walk"', '"guide_walk_cfg"')
     (tmp_path / "my.toml").write_text(toml)
     exp = heurtune.load_experiment(str(tmp_path / "my.toml"))
-    assert [o["name"] for o in exp.optimisers] == ["guide_walk_cfg"]
+    assert [o["name"] for o in exp.optimisers] == ["cs", "guide_walk_cfg"]
+
+
+def test_objectives_guide_new_named_objective_runs_to_its_label(tmp_path, monkeypatch):
+    """docs/objectives.md, step 5: a name added to OBJECTIVES (and to the schema that reads it
+    at import) is tuned, summed and labelled, without a unit or a label of its own."""
+    import heurtune
+    from heurtune.objectives.qtp import family, problem
+
+    monkeypatch.setitem(problem.OBJECTIVES, "iae_tv", ("IAE1", "IAE2", "TV1", "TV2"))
+    monkeypatch.setitem(family.SCHEMA["problem"], "objective", tuple(problem.OBJECTIVES) + ("weighted",))
+    config = tmp_path / "iae_tv.toml"
+    config.write_text('extends = "benchmark_qtp"\n[problem]\nobjective = "iae_tv"\n')
+    prob = heurtune.load_experiment(str(config)).problem("min")
+    ev = prob.evaluate((prob.lower + prob.upper) / 2)
+    m = dict(zip(ev.metric_names, ev.metrics[0]))
+    assert ev.f[0] == pytest.approx(m["IAE1"] + m["IAE2"] + m["TV1"] + m["TV2"], rel=1e-12)
+    assert prob.objective_label == "iae_tv"

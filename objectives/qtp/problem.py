@@ -37,8 +37,10 @@ OBJECTIVES = {
     "ise": ("ISE1", "ISE2"),
     "itae": ("ITAE1", "ITAE2"),
 }
-# The unit of each objective (levels in cm, voltages in V, times in s).
+# The unit of each objective (levels in cm, voltages in V, times in s) and its name on axes; an
+# objective added to OBJECTIVES without them is drawn by its key alone.
 OBJECTIVE_UNITS = {"effort": "V² s", "effort_deviation": "V² s", "iae": "cm s", "ise": "cm² s", "itae": "cm s²"}
+OBJECTIVE_LABELS = {"effort": "effort J", "effort_deviation": "effort Jdev", "iae": "IAE", "ise": "ISE", "itae": "ITAE"}
 _METRIC_INDEX = {name: i for i, name in enumerate(METRIC_NAMES)}
 # Metrics a weighted objective may combine (each summed over both loops or pumps).
 WEIGHTED_METRICS = ("J", "Jdev", "IAE", "ISE", "ITAE", "TV")
@@ -135,9 +137,10 @@ class Problem(TuningProblem):
     def objective_label(self) -> str:
         """The objective with its unit, for axes: e.g. ``"effort J (V² s)"``."""
         if self.objective == "weighted":
-            return "weighted objective"
-        names = {"effort": "effort J", "effort_deviation": "effort Jdev", "iae": "IAE", "ise": "ISE", "itae": "ITAE"}
-        return f"{names[self.objective]} ({OBJECTIVE_UNITS[self.objective]})"
+            return "weighted objective: " + " + ".join(f"{w:g} {m}" for m, w in self.weights.items())
+        label = OBJECTIVE_LABELS.get(self.objective, self.objective)
+        unit = OBJECTIVE_UNITS.get(self.objective)
+        return f"{label} ({unit})" if unit else label
 
     def __repr__(self):
         return (f"Problem(case={self.case!r}, controller={self.loop.kind!r}, dim={self.dim}, "
