@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from heurtune.analysis.compare import best_runs
+from heurtune.analysis.runs import best_runs
 
 
 def rows(folder: Path) -> list:

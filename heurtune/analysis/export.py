@@ -47,7 +47,7 @@ import pandas as pd
 
 from heurtune import _startup
 from heurtune.analysis.anytime import feasible_best
-from heurtune.analysis.compare import best_runs
+from heurtune.analysis.runs import best_runs
 from heurtune.core.cli import exit_codes
 from heurtune.core.errors import ConfigError
 from heurtune.core.families import make_experiment

@@ -17,16 +17,21 @@ from __future__ import annotations
 import math
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import matplotlib
 import numpy as np
 import pandas as pd
 
+from heurtune.core.errors import ConfigError
 from heurtune.core.io import atomic_path
 from heurtune.core.problem import DEFAULT_SIGNAL_LABELS, RANGE_RTOL
 
+if TYPE_CHECKING:
+    from heurtune.analysis.stats import FriedmanResult
+
 __all__ = ["convergence_figure", "boxplot_figure", "response_figure", "plot_responses", "pareto_figure",
-           "new_figure", "algorithm_colors", "FAILED_THRESHOLD"]
+           "new_figure", "algorithm_colors", "FAILED_THRESHOLD", "cd_diagram"]
 
 # Objective values at or above this are the problem's failure sentinel (FAILED_OBJECTIVE = 1e10,
 # see heurtune.objectives.qtp.problem): they are left out of medians and boxes, which they would otherwise swamp.
@@ -482,3 +487,55 @@ def pareto_figure(fronts, path, objectives, title: str = "") -> None:
     if title:
         ax.set_title(title, fontsize=10)
     _save(fig, path)
+
+
+def cd_diagram(result: FriedmanResult, path) -> Path:
+    """Draw the critical-difference diagram of a Friedman/Nemenyi result as a PNG.
+
+    Uses ``scikit_posthocs.critical_difference_diagram`` (mean ranks on the axis, algorithms
+    not significantly different by Nemenyi's test joined by a bar) on a matplotlib Agg figure,
+    with the critical difference drawn above the axis; the file is written atomically.
+
+    Parameters
+    ----------
+    result : FriedmanResult
+        Output of :func:`heurtune.analysis.stats.friedman_across_cases` that was not skipped.
+    path : str or Path
+        The PNG file to write (folders are created).
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ConfigError
+        The Friedman test was skipped, so there is no diagram to draw.
+    """
+    import scikit_posthocs as sp
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    if result.skipped:
+        raise ConfigError(f"no critical-difference diagram: Friedman test skipped ({result.skipped})")
+    fig = Figure(figsize=(6.4, 0.6 + 0.35 * len(result.mean_ranks)))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    sp.critical_difference_diagram(result.mean_ranks, result.nemenyi, alpha=result.alpha, ax=ax)
+    if np.isfinite(result.cd):  # drawn here, above the tick labels (the library's bar overlaps them)
+        from matplotlib.transforms import blended_transform_factory, offset_copy
+
+        where = offset_copy(blended_transform_factory(ax.transData, ax.transAxes), fig=fig, y=26, units="points")
+        x0 = float(result.mean_ranks.min())
+        ax.plot([x0, x0 + result.cd], [1.0, 1.0], color="k", linewidth=2, transform=where, clip_on=False)
+        ax.text(x0 + result.cd / 2, 1.0, f"CD = {result.cd:.3g}", ha="center", va="bottom", transform=where)
+    ax.set_title(f"Mean ranks over {len(result.medians)} cases (Nemenyi, alpha = {result.alpha:g})",
+                 fontsize="small", pad=44)
+    path = Path(path)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format="png", dpi=150, bbox_inches="tight")
+    except OSError as exc:
+        raise ConfigError(f"cannot write {path}: {exc.strerror or exc}") from exc
+    return path

@@ -39,8 +39,17 @@ import numpy as np
 import pandas as pd
 
 from heurtune import _startup
-from heurtune.analysis import anytime, compare, figures
-from heurtune.core.cli import exit_codes
+from heurtune.analysis import anytime, figures, render
+from heurtune.analysis.compare import parse_labels
+from heurtune.analysis.runs import (
+    best_run_index,
+    check_metric,
+    experiment_folder,
+    load_histories,
+    load_margins,
+    load_runs,
+)
+from heurtune.core.cli import OneLineParser, UsageError, exit_codes
 from heurtune.core.errors import ConfigError
 from heurtune.core.families import make_experiment
 from heurtune.core.io import atomic_path
@@ -93,13 +102,13 @@ def _read_meta(dirs) -> dict:
     """``{experiment name: (folder, meta dict)}`` of the folders with a readable ``meta.json``."""
     metas = {}
     for d in dirs:
-        file = compare.experiment_folder(d) / "meta.json"
+        file = experiment_folder(d) / "meta.json"
         try:
             meta = json.loads(file.read_text(encoding="utf-8"))
         except (OSError, ValueError):
             continue
         if isinstance(meta, dict) and "experiment" in meta:
-            metas.setdefault(str(meta["experiment"]), (compare.experiment_folder(d), meta))
+            metas.setdefault(str(meta["experiment"]), (experiment_folder(d), meta))
     return metas
 
 
@@ -186,7 +195,7 @@ def _responses(runs, case, metas, tmp: Path, cache) -> list:
         if "best_f" not in g:
             parts.append(_skip(what, "no best_f column"))
             continue
-        best = g.loc[compare.best_run_index(g)]
+        best = g.loc[best_run_index(g)]
         try:
             prob = _problem(metas, str(best["experiment"]), case, cache)
             missing = [n for n in prob.names if n not in best.index]
@@ -268,7 +277,7 @@ def render_html(runs: pd.DataFrame, *, dirs=(), history: pd.DataFrame | None = N
     with tempfile.TemporaryDirectory(prefix="heurtune_report_") as name:
         tmp = Path(name)
         cd_path = tmp / "cd_diagram.png"
-        blocks = compare._blocks(runs, metric, alpha, margins, cd_path=cd_path)
+        blocks = render._blocks(runs, metric, alpha, margins, cd_path=cd_path)
         ecdf_table = _ecdf_table(history)
         cache: dict = {}
         current = None  # index of the case whose blocks are being written
@@ -351,9 +360,9 @@ def build_report(dirs, out, *, metric: str = "best_f", alpha: float = 0.05, resp
     dirs = list(dirs)
     if not 0 < alpha < 1:
         raise ConfigError(f"alpha must lie in (0, 1), got {alpha:g}")
-    runs = compare.load_runs(dirs, labels=labels)
-    compare._check_metric(runs, metric)
-    page = render_html(runs, dirs=dirs, history=compare.load_histories(dirs, runs), margins=compare.load_margins(dirs, runs),
+    runs = load_runs(dirs, labels=labels)
+    check_metric(runs, metric)
+    page = render_html(runs, dirs=dirs, history=load_histories(dirs, runs), margins=load_margins(dirs, runs),
                        metas=_read_meta(dirs), metric=metric, alpha=alpha, responses=responses)
     path = Path(out) / "index.html"
     try:
@@ -370,7 +379,7 @@ def build_report(dirs, out, *, metric: str = "best_f", alpha: float = 0.05, resp
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = compare.OneLineParser(prog="python -m heurtune.report", description=__doc__.split("\n")[0],
+    ap = OneLineParser(prog="python -m heurtune.report", description=__doc__.split("\n")[0],
                                epilog=exit_codes())
     ap.add_argument("dirs", nargs="*", metavar="DIR", help="experiment results folder (with runs.parquet)")
     ap.add_argument("--out", help="output folder; the report is OUT/index.html")
@@ -400,8 +409,8 @@ def run(argv=None) -> int:
             if not Path(d).exists():
                 raise ConfigError(f"{d}: no such folder")
         path = build_report(args.dirs, args.out, metric=args.metric, alpha=args.alpha,
-                            responses=not args.no_responses, labels=compare.parse_labels(args.label))
-    except (ConfigError, compare.UsageError) as exc:
+                            responses=not args.no_responses, labels=parse_labels(args.label))
+    except (ConfigError, UsageError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(f"report written to {path}")

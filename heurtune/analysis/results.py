@@ -15,8 +15,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from heurtune.analysis.compare import best_runs, summary_table
 from heurtune.analysis.export import load_results as _load_frames
+from heurtune.analysis.runs import best_runs
+from heurtune.analysis.stats import summary_table
 
 __all__ = ["Results", "load_results"]
 

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-__all__ = ["EXIT_CODES", "exit_codes"]
+import argparse
+
+__all__ = ["EXIT_CODES", "exit_codes", "UsageError", "OneLineParser"]
 
 EXIT_CODES = {
     0: "done",
@@ -17,3 +19,14 @@ def exit_codes(**extra: str) -> str:
     codes = dict(EXIT_CODES)
     codes.update({int(k.lstrip("c")): v for k, v in extra.items()})
     return "exit codes: " + "; ".join(f"{code} {what}" for code, what in sorted(codes.items()))
+
+
+class UsageError(Exception):
+    """A command-line mistake, reported as one line (exit code 2)."""
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose errors raise :class:`UsageError` instead of printing usage."""
+
+    def error(self, message):  # one line instead of usage + message
+        raise UsageError(message)

@@ -54,7 +54,7 @@ import pandas as pd
 
 from heurtune import _startup
 from heurtune.analysis import figures
-from heurtune.analysis.compare import best_runs, failed_runs, successful_runs
+from heurtune.analysis.runs import best_runs, failed_runs, successful_runs
 from heurtune.core import registry
 from heurtune.core.cli import exit_codes
 from heurtune.core.engine import Checkpoint, SearchSpace

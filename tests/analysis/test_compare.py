@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from heurtune.analysis import compare
+from heurtune.analysis import compare, render
 from heurtune.analysis.compare import (
     find_winners,
     friedman_across_cases,
@@ -323,7 +323,7 @@ def test_cli_latex(two_dirs, capsys, monkeypatch):
     assert "\\subsection*{Case min}" in out and "\\begin{tabular}" in out and "\\toprule" in out
     assert "cs* &" in out and "-30\\%" in out and "best\\_f" in out and "p \\textless{} 0.01" in out
     # without jinja2 the own tabular writer gives the same text as pandas' to_latex
-    monkeypatch.setattr(compare, "_have_jinja2", lambda: False)
+    monkeypatch.setattr(render, "_have_jinja2", lambda: False)
     assert run([*two_dirs, "--format", "latex", "--alpha", "0.01"]) == 0
     assert capsys.readouterr().out == out
 
@@ -341,7 +341,7 @@ def test_latex_tables_fit_the_page_and_carry_labels(two_dirs, capsys, tmp_path):
     out = capsys.readouterr().out
     assert out.startswith("% heurtune.compare: needs \\usepackage{booktabs}")
     specs = re.findall(r"\\begin\{tabular\}\{([lr]+)\}", out)
-    assert specs and all(len(spec) <= compare.LATEX_MAX_COLUMNS + 2 for spec in specs)
+    assert specs and all(len(spec) <= render.LATEX_MAX_COLUMNS + 2 for spec in specs)
     labels = re.findall(r"\\label\{(tab:[a-z0-9-]+)\}", out)
     assert len(labels) == len(specs) == len(set(labels))
     assert "(part 1 of" in out and out.count("\\small") == len(specs)

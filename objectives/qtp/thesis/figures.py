@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from heurtune.analysis.compare import best_run_index
 from heurtune.analysis.figures import _save, convergence_figure, new_figure
+from heurtune.analysis.runs import best_run_index
 from heurtune.objectives.qtp.margins import element_loop, frequency_grid, loop_margins
 from heurtune.objectives.qtp.structures import controller_label
 

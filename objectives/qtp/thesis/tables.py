@@ -57,7 +57,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from heurtune.analysis.compare import best_run_index, successful_runs
+from heurtune.analysis.runs import best_run_index, successful_runs
 from heurtune.core.errors import ConfigError
 from heurtune.core.io import atomic_path
 from heurtune.objectives.qtp.margins import loop_margins
