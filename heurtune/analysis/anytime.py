@@ -156,7 +156,9 @@ def fixed_target(history: pd.DataFrame, targets=None, **target_options) -> pd.Da
         Rows of ``history.parquet``.
     targets : sequence of float, dict of str to sequence, or pandas.DataFrame, optional
         The same targets for every case, ``{case: targets}``, or a table with columns
-        ``case, target``. Default: :func:`default_targets` (``target_options`` go there).
+        ``case, target``. Default: :func:`default_targets`.
+    **target_options
+        Passed to :func:`default_targets` when ``targets`` is None.
 
     Returns
     -------
@@ -224,6 +226,13 @@ def budget_grid(ft: pd.DataFrame, n_budgets: int = 50) -> pd.DataFrame:
 
     From the smallest evaluation count at which any run of the case reached any target (at
     least 1) to the largest run budget of the case.
+
+    Parameters
+    ----------
+    ft : pandas.DataFrame
+        The table of :func:`fixed_target`.
+    n_budgets : int
+        Budgets per case.
 
     Returns
     -------
@@ -368,6 +377,8 @@ def plot_ecdf(ecdf_table: pd.DataFrame, path, *, case: str, title: str | None = 
         PNG file to write.
     case : str
         The case to plot.
+    title : str, optional
+        The figure's title (default: the case).
     """
     d = ecdf_table[ecdf_table["case"] == case]
     d = d.assign(_label=_labels(d))
@@ -395,6 +406,17 @@ def plot_fixed_target(ert_table: pd.DataFrame, path, *, case: str, title: str | 
     """Plot ERT against the target for one case (fixed-target view; log-log).
 
     Targets no run of an optimiser reached (``ERT = inf``) are left out of its line.
+
+    Parameters
+    ----------
+    ert_table : pandas.DataFrame
+        The table of :func:`ert`.
+    path : str or Path
+        PNG file to write (atomically).
+    case : str
+        The case to plot.
+    title : str, optional
+        The figure's title (default: the case).
     """
     d = ert_table[ert_table["case"] == case]
     d = d.assign(_label=_labels(d))
@@ -427,6 +449,21 @@ def _slug(text: str) -> str:
 def write_report(history: pd.DataFrame, out, *, n_targets: int = 20, reference=None, n_budgets: int = 50,
                  figures: bool = True) -> dict:
     """Compute every measure and write CSV tables (and figures) to ``out``.
+
+    Parameters
+    ----------
+    history : pandas.DataFrame
+        Rows of ``history.parquet``.
+    out : str or Path
+        The folder to write (created).
+    n_targets : int
+        Targets per case (:func:`default_targets`).
+    reference : optional
+        The reference values of the targets (:func:`default_targets`).
+    n_budgets : int
+        Budgets per case of the ECDF (:func:`budget_grid`).
+    figures : bool
+        Also draw the ECDF and ERT figures of every case.
 
     Returns
     -------
@@ -483,5 +520,6 @@ def run(argv=None) -> int:
 
 
 def main() -> None:
+    """Run the command line and exit with its code."""
     _startup.release()  # python -m heurtune.<command>: its imports are done, its own handling takes over
     sys.exit(_startup.run_command(run))

@@ -118,7 +118,23 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def parse_labels(items) -> dict:
-    """``["NAME=DIR", ...]`` -> ``{NAME: DIR}``; a missing ``=`` or a repeated NAME is an error."""
+    """The ``--label`` options as a mapping.
+
+    Parameters
+    ----------
+    items : iterable of str
+        ``"NAME=DIR"`` each.
+
+    Returns
+    -------
+    dict
+        ``{NAME: DIR}``.
+
+    Raises
+    ------
+    ConfigError
+        A missing ``=``, or a NAME given twice.
+    """
     out = {}
     for item in items:
         name, sep, d = item.partition("=")
@@ -138,6 +154,11 @@ def run(argv=None) -> int:
     ----------
     argv : list of str, optional
         Arguments without the program name; default ``sys.argv[1:]``.
+
+    Returns
+    -------
+    int
+        The exit code: 0 done, 2 a usage or input error (one line on stderr).
     """
     try:
         args = _parser().parse_args(argv)

@@ -65,6 +65,16 @@ FORMATS = ("ioh", "mat")
 def load_results(results_dir) -> tuple:
     """``(runs, history, meta)`` of a results folder.
 
+    Parameters
+    ----------
+    results_dir : str or Path
+        A folder written by ``python -m heurtune.experiment``.
+
+    Returns
+    -------
+    tuple
+        ``runs.parquet`` and ``history.parquet`` as DataFrames, and ``meta.json`` as a dict.
+
     Raises
     ------
     FileNotFoundError
@@ -237,7 +247,20 @@ def _slug(text) -> str:
 
 
 def export_ioh(results_dir, out) -> list:
-    """Write a results folder in the IOHprofiler layout; returns the ``.json`` files."""
+    """Write a results folder in the IOHprofiler layout.
+
+    Parameters
+    ----------
+    results_dir : str or Path
+        A folder written by ``python -m heurtune.experiment``.
+    out : str or Path
+        The folder to write (created).
+
+    Returns
+    -------
+    list of Path
+        The ``.json`` files written, one per case and algorithm.
+    """
     runs, history, meta = load_results(results_dir)
     exp = _experiment(meta)
     names = {c: tuple(exp.problem(c).names) for c in dict.fromkeys(history["case"])}
@@ -250,7 +273,18 @@ _SIGNS = {"@": "_at_", "+": "p", "-": "m", "%": "pct", ".": "_"}
 
 
 def matlab_name(name: str) -> str:
-    """A valid MATLAB field name for a column name (``Mp1@+30%`` -> ``Mp1_at_p30pct``)."""
+    """A valid MATLAB field name for a column name.
+
+    Parameters
+    ----------
+    name : str
+        A column name (``Mp1@+30%``).
+
+    Returns
+    -------
+    str
+        Letters, digits and underscores, starting with a letter (``Mp1_at_p30pct``).
+    """
     s = "".join(_SIGNS.get(ch, ch if (ch.isascii() and (ch.isalnum() or ch == "_")) else "_") for ch in str(name))
     s = re.sub(r"_+", "_", s).strip("_") or "x"
     if not s[0].isalpha():
@@ -350,8 +384,17 @@ def write_mat(runs: pd.DataFrame, history: pd.DataFrame, out, *, experiment=None
 
 
 def mat_readme(fields=()) -> str:
-    """The README.txt of a ``.mat`` export: what each file and field holds, in which unit;
-    ``fields`` the family's ``(field, meaning)`` pairs of a best design's record."""
+    """The README.txt of a ``.mat`` export: what each file and field holds, in which unit.
+
+    Parameters
+    ----------
+    fields : sequence of (str, str)
+        The family's ``(field, meaning)`` pairs of a best design's record.
+
+    Returns
+    -------
+    str
+    """
     lines = [
         "heurtune results as MATLAB/Octave files (python -m heurtune.export DIR --format mat)",
         "",
@@ -384,7 +427,20 @@ def mat_readme(fields=()) -> str:
 
 
 def export_mat(results_dir, out) -> list:
-    """Write a results folder as ``.mat`` files; returns the files."""
+    """Write a results folder as ``.mat`` files, with a ``README.txt`` of their fields.
+
+    Parameters
+    ----------
+    results_dir : str or Path
+        A folder written by ``python -m heurtune.experiment``.
+    out : str or Path
+        The folder to write (created).
+
+    Returns
+    -------
+    list of Path
+        The files written.
+    """
     runs, history, meta = load_results(results_dir)
     return write_mat(runs, history, out, experiment=_experiment(meta))
 
@@ -415,5 +471,6 @@ def run(argv=None) -> int:
 
 
 def main() -> None:
+    """Run the command line and exit with its code."""
     _startup.release()  # python -m heurtune.<command>: its imports are done, its own handling takes over
     sys.exit(_startup.run_command(run))

@@ -68,6 +68,15 @@ def load_results(path) -> Results:
     """Read a results folder (what ``python -m heurtune.experiment`` and
     :func:`heurtune.runner.experiment.run_experiment` write) into a :class:`Results`.
 
+    Parameters
+    ----------
+    path : str or Path
+        The results folder.
+
+    Returns
+    -------
+    Results
+
     Raises
     ------
     FileNotFoundError

@@ -50,7 +50,17 @@ def _read_one(d) -> pd.DataFrame:
 
 
 def experiment_folder(d) -> Path:
-    """The experiment folder that ``d`` stands for (a ``.parquet`` path stands for its folder)."""
+    """The experiment folder that ``d`` stands for.
+
+    Parameters
+    ----------
+    d : str or Path
+        A folder, or a ``.parquet`` file in it.
+
+    Returns
+    -------
+    Path
+    """
     path = Path(d)
     return path.parent if path.suffix == ".parquet" and not path.is_dir() else path
 
@@ -229,7 +239,15 @@ def load_margins(dirs, runs: pd.DataFrame | None = None) -> pd.DataFrame:
 
 def load_histories(dirs, runs: pd.DataFrame | None = None) -> pd.DataFrame:
     """Read and merge the ``history.parquet`` files of experiment output folders, with the
-    algorithms labelled as :func:`load_runs` labelled them (see :func:`load_margins`).
+    algorithms labelled as :func:`load_runs` labelled them.
+
+    Parameters
+    ----------
+    dirs : iterable of str or Path
+        Experiment output folders (a path to a ``.parquet`` file stands for its folder).
+    runs : pandas.DataFrame, optional
+        Rows of :func:`load_runs` for the same folders, whose labels are followed (as
+        :func:`load_margins` does).
 
     Returns
     -------
@@ -301,6 +319,20 @@ def margins_table(margins: pd.DataFrame) -> pd.DataFrame:
 
 
 def check_metric(runs: pd.DataFrame, metric: str) -> None:
+    """Refuse a metric that the statistics cannot compare.
+
+    Parameters
+    ----------
+    runs : pandas.DataFrame
+        Rows of :func:`load_runs`.
+    metric : str
+        The column to compare, lower being better.
+
+    Raises
+    ------
+    ConfigError
+        An unknown column (the numeric ones listed), or one that is not numeric.
+    """
     if metric not in runs.columns:
         numeric = [c for c in runs.columns if pd.api.types.is_numeric_dtype(runs[c])
                    and not pd.api.types.is_bool_dtype(runs[c])]
@@ -385,14 +417,36 @@ def _scenario_columns(runs: pd.DataFrame):
 
 
 def best_runs(runs: pd.DataFrame) -> pd.DataFrame:
-    """Per case and optimiser (``optimiser_index``, else ``algorithm``), its best run as
-    :func:`best_run_index` picks it, in order of appearance."""
+    """The best run of every case and optimiser.
+
+    Parameters
+    ----------
+    runs : pandas.DataFrame
+        Rows of ``runs.parquet``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Per case and optimiser (``optimiser_index``, else ``algorithm``), its best run as
+        :func:`best_run_index` picks it, in order of appearance.
+    """
     keys = ["case", "optimiser_index"] if "optimiser_index" in runs.columns else ["case", "algorithm"]
     return runs.loc[[best_run_index(g) for _, g in runs.groupby(keys, sort=False)]]
 
 
 def best_run_index(g: pd.DataFrame):
-    """Index of the best run: lowest best_f among feasible runs, else lowest violation."""
+    """Index of the best run of a group.
+
+    Parameters
+    ----------
+    g : pandas.DataFrame
+        Rows of ``runs.parquet`` (one optimiser of one case).
+
+    Returns
+    -------
+    index label
+        The run with the lowest ``best_f`` among the feasible ones, else the lowest violation.
+    """
     feasible = g["feasible"].fillna(False).astype(bool) if "feasible" in g else pd.Series(True, index=g.index)
     best_f = g["best_f"].astype(float)
     if feasible.any():

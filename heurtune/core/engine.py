@@ -612,10 +612,15 @@ def minimize(fun, lower, upper, algorithm: str = "cs", *, constraints=None, max_
         Parallel workers for evaluation (a persistent joblib pool); 1 = in-process.
     settings : dict or the optimiser's settings dataclass
         Hyperparameters; an unknown name is an error listing the allowed ones.
-    constraint_handling : {"deb", "penalty"}; penalty : float
+    constraint_handling : {"deb", "penalty"}
+        Deb's feasibility rules, or ``f + penalty * violation``.
+    penalty : float
+        The penalty factor of ``constraint_handling="penalty"``.
     bound_handling : {"clip", "reflect"}
-    backend : {"loky", "dask"}; scheduler : str or distributed.Client
-        ``backend="dask"`` evaluates on the cluster at ``scheduler``.
+    backend : {"loky", "dask"}
+        Where the evaluations run: a local process pool, or a Dask cluster.
+    scheduler : str or distributed.Client, optional
+        The cluster of ``backend="dask"`` (``"tcp://host:8786"``).
     reference_point : array_like, optional
         Several objectives: the point bounding the hypervolume (``Result.f`` is minus it).
 

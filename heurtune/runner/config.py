@@ -128,6 +128,16 @@ def load_experiment(name: str):
     """Load an experiment by name (``experiments/<name>.toml``) or path: the experiment object
     of its plant family (:func:`heurtune.core.families.make_experiment`).
 
+    Parameters
+    ----------
+    name : str
+        A shipped experiment's name (``cs_folqi_qtp``) or the path of a ``.toml`` file.
+
+    Returns
+    -------
+    ExperimentBase
+        The experiment: its ``cases``, ``problem(case)``, ``optimisers`` and config.
+
     Raises
     ------
     ConfigError
