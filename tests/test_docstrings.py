@@ -23,6 +23,14 @@ MODULES = [
     "heurtune.analysis.export",
     "heurtune.analysis.anytime",
     "heurtune.analysis.figures",
+    "heurtune.core.engine",
+    "heurtune.core.problem",
+    "heurtune.core.structures",
+    "heurtune.core.families",
+    "heurtune.core.plugins",
+    "heurtune.core.registry",
+    "heurtune.core.robust",
+    "heurtune.core.pareto",
 ]
 
 

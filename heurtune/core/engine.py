@@ -221,7 +221,20 @@ class Result:
 
 
 def convergence_epoch(best_f, tol: float = DEFAULT_TOL) -> int:
-    """First epoch e with ``best_f[e] - best_f[-1] <= tol * max(|best_f[-1]|, 1e-300)``."""
+    """The convergence epoch of a run.
+
+    Parameters
+    ----------
+    best_f : sequence of float
+        The best objective after each epoch.
+    tol : float
+        Relative tolerance.
+
+    Returns
+    -------
+    int
+        The first epoch e with ``best_f[e] - best_f[-1] <= tol * max(|best_f[-1]|, 1e-300)``.
+    """
     best_f = np.asarray(best_f, dtype=np.float64)
     if best_f.size == 0:
         return 0
@@ -446,6 +459,17 @@ def evaluate_generation(opt: Optimizer, ctx: RunContext, X, limit: int | None = 
     ``limit`` of them) and tell them to it; candidates left unevaluated rank last (objective and
     violation +inf, NaN constraint values). For drivers that run a population optimiser as one
     of their phases.
+
+    Parameters
+    ----------
+    opt : Optimizer
+        The optimiser that asked.
+    ctx : RunContext
+        The run's evaluation, budgets and records.
+    X : ndarray (n, d)
+        The candidates.
+    limit : int, optional
+        At most this many of them are evaluated.
 
     Returns
     -------

@@ -103,19 +103,46 @@ def load_families() -> None:
 
 
 def available() -> list:
-    """The registered ``[plant] model`` names, sorted."""
+    """The registered ``[plant] model`` names.
+
+    Returns
+    -------
+    list of str
+        Sorted.
+    """
     load_families()
     return sorted(_FAMILIES)
 
 
 def families() -> list:
-    """One :class:`FamilyInfo` per registered family (by name)."""
+    """The registered families.
+
+    Returns
+    -------
+    list of FamilyInfo
+        One per family, by name.
+    """
     load_families()
     return sorted({info.name: info for info in _FAMILIES.values()}.values(), key=lambda i: i.name)
 
 
 def get_family(model: str) -> FamilyInfo:
-    """The family that builds ``[plant] model = model`` (one-line ConfigError otherwise)."""
+    """The family that builds ``[plant] model = model``.
+
+    Parameters
+    ----------
+    model : str
+        A ``[plant] model`` name.
+
+    Returns
+    -------
+    FamilyInfo
+
+    Raises
+    ------
+    ConfigError
+        One line naming the registered models.
+    """
     load_families()
     try:
         return _FAMILIES[model]
@@ -125,16 +152,42 @@ def get_family(model: str) -> FamilyInfo:
 
 
 def make_experiment(config: dict) -> ExperimentBase:
-    """The experiment object of a loaded config (e.g. ``meta.json``'s), built by the family of
-    its ``plant.model`` once the config's plugins are loaded."""
+    """The experiment object of a loaded config.
+
+    Parameters
+    ----------
+    config : dict
+        A checked config (e.g. ``meta.json``'s ``config``).
+
+    Returns
+    -------
+    ExperimentBase
+        Built by the family of its ``plant.model`` once the config's plugins are loaded.
+    """
     load_plugins(config.get("plugins", []))
     return get_family(config.get("plant", {}).get("model", DEFAULT_MODEL)).cls(config)
 
 
 def load_registering_plugin(spec: str):
-    """:func:`heurtune.core.plugins.load_plugin`, and a one-line ConfigError when the plugin,
-    loaded for the first time, registers neither an optimiser nor a plant family (a module name
-    mistyped for another one, e.g. ``plugins = ["json"]``)."""
+    """:func:`heurtune.core.plugins.load_plugin`, refusing a plugin that registers nothing.
+
+    Parameters
+    ----------
+    spec : str
+        A ``.py`` file or a module name.
+
+    Returns
+    -------
+    module
+        The plugin's module.
+
+    Raises
+    ------
+    ConfigError
+        One line when the plugin, loaded for the first time, registers no optimiser, plant
+        family or controller structure (a module name mistyped for another one, e.g.
+        ``plugins = ["json"]``).
+    """
     spec = str(spec)
     key = str(Path(spec).resolve()) if spec.endswith(".py") else spec
     if key in loaded():

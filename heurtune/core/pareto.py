@@ -51,6 +51,15 @@ def crowding_distance(F) -> np.ndarray:
     Per objective the points are sorted, the two extremes get an infinite distance and every
     other point adds the gap between its two neighbours divided by the objective's range. An
     objective whose values are all equal adds nothing.
+
+    Parameters
+    ----------
+    F : array_like (n, k)
+        The front's objective values.
+
+    Returns
+    -------
+    ndarray (n,)
     """
     F = np.asarray(F, dtype=np.float64)
     F = F.reshape(len(F), -1)
@@ -70,8 +79,20 @@ def crowding_distance(F) -> np.ndarray:
 
 
 def hypervolume(F, reference) -> float:
-    """Volume dominated by ``F`` and bounded by ``reference`` (0 when no point is strictly
-    better than it in every objective)."""
+    """Volume dominated by ``F`` and bounded by ``reference``.
+
+    Parameters
+    ----------
+    F : array_like (n, k)
+        Objective values (minimised).
+    reference : array_like (k,)
+        The reference point.
+
+    Returns
+    -------
+    float
+        0 when no point is strictly better than the reference in every objective.
+    """
     F = np.asarray(F, dtype=np.float64)
     F = F.reshape(len(F), -1)
     ref = np.asarray(reference, dtype=np.float64).ravel()
@@ -119,7 +140,20 @@ def asf_choice(F, weights=None) -> int:
     """The decision step: the index of the point of a front that minimises the achievement
     scalarising function ``max_j w_j (F_j - ideal_j) / (nadir_j - ideal_j)`` (ideal and nadir of
     the front itself; equal weights by default). With normalised objectives and equal weights
-    this picks the balanced compromise; a larger weight on an objective favours it."""
+    this picks the balanced compromise; a larger weight on an objective favours it.
+
+    Parameters
+    ----------
+    F : array_like (n, k)
+        The front's objective values.
+    weights : array_like (k,), optional
+        The weights ``w``; equal by default.
+
+    Returns
+    -------
+    int
+        The chosen point's row.
+    """
     F = np.asarray(F, dtype=np.float64)
     F = F.reshape(len(F), -1)
     w = np.ones(F.shape[1]) if weights is None else np.asarray(weights, dtype=np.float64)

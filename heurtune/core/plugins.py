@@ -26,6 +26,11 @@ def load_plugin(spec: str):
     on-disk cache (``cache=True``) finds the module of a cached kernel by that name. Load a
     plugin file only through this function (not also with ``importlib`` under another name).
 
+    Parameters
+    ----------
+    spec : str
+        A path to a ``.py`` file, or a module name.
+
     Returns
     -------
     module
@@ -67,12 +72,24 @@ def load_plugin(spec: str):
 
 
 def load_plugins(specs) -> None:
-    """:func:`load_plugin` each of ``specs`` (a config's ``plugins`` list)."""
+    """:func:`load_plugin` each of ``specs``.
+
+    Parameters
+    ----------
+    specs : iterable of str
+        A config's ``plugins`` list.
+    """
     for spec in specs or ():
         load_plugin(spec)
 
 
 def loaded() -> tuple:
-    """The plugins loaded in this process, in order: resolved file paths and module names
-    (what a worker process loads before it unpickles anything)."""
+    """The plugins loaded in this process.
+
+    Returns
+    -------
+    tuple of str
+        Resolved file paths and module names, in order (what a worker process loads before it
+        unpickles anything).
+    """
     return tuple(str(p) for p in _LOADED_FILES) + tuple(_MODULES)

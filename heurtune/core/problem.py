@@ -513,6 +513,17 @@ class ExperimentBase:
 
 
 def problem_fingerprint(prob) -> str:
-    """A short hash of everything that defines a tuning problem (its ``identity()``)."""
+    """A short hash of everything that defines a tuning problem.
+
+    Parameters
+    ----------
+    prob : TuningProblem
+        A problem; its ``identity()`` is hashed.
+
+    Returns
+    -------
+    str
+        The ``problem_id`` of ``runs.parquet``.
+    """
     text = json.dumps(prob.identity(), sort_keys=True, default=list)
     return hashlib.sha256(text.encode()).hexdigest()[:12]

@@ -123,6 +123,11 @@ def robust_tuning(problem: dict, scenarios, where: str) -> RobustTuning | None:
         The experiment's scenario names.
     where : str
         Prefix of the one-line errors (the experiment's name).
+
+    Returns
+    -------
+    RobustTuning or None
+        None when the table asks for no robust tuning.
     """
     names = problem.get("tuning_scenarios")
     if names is None:
@@ -155,7 +160,20 @@ def apply_tuning(experiment, prob):
     ``objectives`` (with ``reference_point``, ``decision_weights``) on a family's problem, where
     the family did not set them itself: checked against the problem's scenarios and its
     ``objective_metrics`` (one-line ConfigErrors). Every registered family's ``problem`` passes
-    its problems through this (:func:`heurtune.core.families.register_family`)."""
+    its problems through this (:func:`heurtune.core.families.register_family`).
+
+    Parameters
+    ----------
+    experiment : ExperimentBase
+        The experiment whose config is read.
+    prob : TuningProblem
+        One of its problems.
+
+    Returns
+    -------
+    TuningProblem
+        ``prob``, tuned as the config asks.
+    """
     table = getattr(experiment, "config", {}).get("problem", {})
     name = getattr(experiment, "name", "experiment")
     if prob.robust is None and "tuning_scenarios" in table:

@@ -143,8 +143,22 @@ class ControllerStructure:
 
 
 def register_structure(structure: ControllerStructure) -> ControllerStructure:
-    """Add a structure to its family's registry (a name already taken is an error) and tell
-    the family (:func:`on_register`). Returns the structure, so a module can keep it."""
+    """Add a structure to its family's registry and tell the family (:func:`on_register`).
+
+    Parameters
+    ----------
+    structure : ControllerStructure
+
+    Returns
+    -------
+    ControllerStructure
+        ``structure``, so that a module can keep it.
+
+    Raises
+    ------
+    ConfigError
+        For a name already taken in the family.
+    """
     known = _REGISTRY.setdefault(structure.family, {})
     if structure.name in known:
         raise ConfigError(f"controller structure {structure.name!r} of family {structure.family!r} is "
@@ -158,15 +172,39 @@ def register_structure(structure: ControllerStructure) -> ControllerStructure:
 
 
 def on_register(family: str, callback) -> None:
-    """Call ``callback(structure)`` for every structure of ``family``, those registered already
-    and those to come (a family keeps its schema's choices up to date this way)."""
+    """Call ``callback(structure)`` for every structure of a family, those registered already
+    and those to come (a family keeps its schema's choices up to date this way).
+
+    Parameters
+    ----------
+    family : str
+    callback : callable
+        Takes a :class:`ControllerStructure`.
+    """
     _LISTENERS.setdefault(family, []).append(callback)
     for structure in list(_REGISTRY.get(family, {}).values()):
         callback(structure)
 
 
 def get_structure(family: str, name: str) -> ControllerStructure:
-    """The structure ``name`` of ``family``; a one-line ConfigError naming the allowed ones."""
+    """A registered structure.
+
+    Parameters
+    ----------
+    family : str
+        The plant family (``"qtp"``).
+    name : str
+        The structure's name (``[controller] type``).
+
+    Returns
+    -------
+    ControllerStructure
+
+    Raises
+    ------
+    ConfigError
+        One line naming the allowed ones.
+    """
     try:
         return _REGISTRY[family][name]
     except (KeyError, TypeError):
@@ -175,30 +213,71 @@ def get_structure(family: str, name: str) -> ControllerStructure:
 
 
 def structure_names(family: str) -> tuple:
-    """The names registered for ``family``, sorted."""
+    """The structure names of a family.
+
+    Parameters
+    ----------
+    family : str
+
+    Returns
+    -------
+    tuple of str
+        Sorted.
+    """
     return tuple(sorted(_REGISTRY.get(family, {})))
 
 
 def all_structures() -> tuple:
-    """Every registered structure of every family."""
+    """Every registered structure of every family.
+
+    Returns
+    -------
+    tuple of ControllerStructure
+    """
     return tuple(s for family in sorted(_REGISTRY) for s in _REGISTRY[family].values())
 
 
 def structures_of(family: str) -> tuple:
-    """The structures registered for ``family``, in registration order."""
+    """The structures of a family.
+
+    Parameters
+    ----------
+    family : str
+
+    Returns
+    -------
+    tuple of ControllerStructure
+        In registration order.
+    """
     return tuple(_REGISTRY.get(family, {}).values())
 
 
 def register_checks(family: str, checks) -> None:
-    """Give ``family``'s contract for controller structures: ``checks(structure)`` returns
-    ``[(check name, passed, one-line reason), ...]`` (``python -m heurtune.check_plugin`` runs it
-    on a plugin's structures)."""
+    """Give a family's contract for controller structures (``python -m heurtune.check_plugin``
+    runs it on a plugin's structures).
+
+    Parameters
+    ----------
+    family : str
+    checks : callable
+        ``checks(structure)`` returns ``[(check name, passed, one-line reason), ...]``.
+    """
     _CHECKERS[family] = checks
 
 
 def check_structure(structure: ControllerStructure) -> list:
-    """The contract checks of ``structure``'s family on it (a single failed check when the
-    family gives none)."""
+    """The contract checks of a structure's family on it.
+
+    Parameters
+    ----------
+    structure : ControllerStructure
+
+    Returns
+    -------
+    list of (str, bool, str)
+        ``(check name, passed, one-line reason)``; a single failed check when the family gives
+        no contract.
+    """
     checks = _CHECKERS.get(structure.family)
     if checks is None:
         return [("family", False, f"family {structure.family!r} gives no structure contract (register_checks)")]
