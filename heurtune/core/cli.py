@@ -15,7 +15,17 @@ EXIT_CODES = {
 
 def exit_codes(**extra: str) -> str:
     """The ``--help`` epilog listing a command's exit codes: :data:`EXIT_CODES` and ``extra``
-    (keyword ``c<code>``, e.g. ``c130="interrupted"``)."""
+    (keyword ``c<code>``, e.g. ``c130="interrupted"``).
+
+    Parameters
+    ----------
+    **extra : str
+        More codes, keyword ``c<code>`` (``c130="interrupted"``).
+
+    Returns
+    -------
+    str
+    """
     codes = dict(EXIT_CODES)
     codes.update({int(k.lstrip("c")): v for k, v in extra.items()})
     return "exit codes: " + "; ".join(f"{code} {what}" for code, what in sorted(codes.items()))

@@ -118,7 +118,19 @@ def run_named_checks(checks: dict, *args) -> list:
     """``checks`` (name -> function) each called with ``args``: ``[(check, passed, reason),
     ...]``, the reason "" when it passed, the first line of its ``AssertionError`` when it broke
     the contract, and the type and message of any other exception (a crash breaks it too). The
-    optimiser, plant-family and controller-structure contracts all report through this."""
+    optimiser, plant-family and controller-structure contracts all report through this.
+
+    Parameters
+    ----------
+    checks : dict of str to callable
+        The checks by name.
+    *args
+        What each check is called with.
+
+    Returns
+    -------
+    list of (str, bool, str)
+    """
     out = []
     for check, fn in checks.items():
         try:
@@ -134,5 +146,17 @@ def run_named_checks(checks: dict, *args) -> list:
 
 def run_checks(name: str, settings=None) -> list:
     """Every check on the optimiser ``name``: ``[(check, passed, reason), ...]`` (reason "" when
-    it passed; an exception other than a broken contract counts as a failure with its type)."""
+    it passed; an exception other than a broken contract counts as a failure with its type).
+
+    Parameters
+    ----------
+    name : str
+        A registered optimiser.
+    settings : dict, optional
+        Its settings for the checks.
+
+    Returns
+    -------
+    list of (str, bool, str)
+    """
     return run_named_checks(CHECKS, name, settings or {})

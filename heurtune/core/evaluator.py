@@ -17,7 +17,22 @@ CHUNKS_PER_WORKER = 4
 
 def normalise(result, constraints, X):
     """``(f, g)`` from a user function's output: f (n,), or (n, k) for k >= 2 objectives, and
-    g (n, m) with m >= 0."""
+    g (n, m) with m >= 0.
+
+    Parameters
+    ----------
+    result : array_like or tuple
+        What the function returned: f, or ``(f, g)``.
+    constraints : callable or None
+        ``constraints(X)`` -> g, when the function returns f alone.
+    X : ndarray (n, d)
+        The candidates it was called with.
+
+    Returns
+    -------
+    f : ndarray
+    g : ndarray (n, m)
+    """
     n = X.shape[0]
     if isinstance(result, tuple):
         if len(result) != 2:
@@ -69,7 +84,21 @@ def _evaluate_named_block(item):
 def chunk_bounds(n: int, workers: int, per_worker: int = CHUNKS_PER_WORKER) -> list:
     """Contiguous ``(start, stop)`` chunks of a batch of ``n``: several per worker even out
     candidates of unequal cost (a failed design returns in 0.1 ms, a full simulation takes
-    milliseconds)."""
+    milliseconds).
+
+    Parameters
+    ----------
+    n : int
+        Candidates in the batch.
+    workers : int
+        Worker processes.
+    per_worker : int
+        Chunks per worker.
+
+    Returns
+    -------
+    list of (int, int)
+    """
     k = min(n, workers * (per_worker if workers > 1 else 1))
     bounds = np.linspace(0, n, k + 1).round().astype(int)
     return [(a, b) for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
@@ -84,7 +113,19 @@ def _joined(parts) -> tuple:
 
 def evaluate_in(pool: Pool, X):
     """Evaluate X (n, d) with the objective shared by ``pool``, in contiguous chunks, in
-    order. Returns f (n,) and g (n, m)."""
+    order. Returns f (n,) and g (n, m).
+
+    Parameters
+    ----------
+    pool : Pool
+        A pool sharing the objective.
+    X : ndarray (n, d)
+
+    Returns
+    -------
+    f : ndarray (n,)
+    g : ndarray (n, m)
+    """
     X = np.ascontiguousarray(X, dtype=np.float64)
     if X.shape[0] == 0:
         return np.zeros(0), np.zeros((0, 0))
@@ -104,7 +145,22 @@ class Objectives(dict):
 def evaluate_groups(pool: Pool, batches: dict, per_worker: int = CHUNKS_PER_WORKER) -> dict:
     """Evaluate several batches, ``{name: X}``, each with the objective ``name`` of the pool's
     :class:`Objectives`, all chunks in one round of the pool; returns ``{name: (f, g)}``.
-    A batched simulation gains from long chunks: give it ``per_worker = 1``."""
+    A batched simulation gains from long chunks: give it ``per_worker = 1``.
+
+    Parameters
+    ----------
+    pool : Pool
+        A pool sharing an :class:`Objectives`.
+    batches : dict of str to ndarray
+        ``{name: X}``.
+    per_worker : int
+        Chunks per worker.
+
+    Returns
+    -------
+    dict
+        ``{name: (f, g)}``.
+    """
     items, spans = [], {}
     for name, X in batches.items():
         X = np.ascontiguousarray(X, dtype=np.float64)

@@ -172,5 +172,17 @@ CHECKS = {"protocol": check_protocol, "bad_candidates": check_bad_candidates, "i
 
 def run_checks(config: dict, checks=None) -> list:
     """``[(check, passed, reason), ...]`` of :data:`CHECKS` (or the names in ``checks``) on the
-    family of ``config``; a check that raises anything counts as failed, with its message."""
+    family of ``config``; a check that raises anything counts as failed, with its message.
+
+    Parameters
+    ----------
+    config : dict
+        A loaded experiment config of the family.
+    checks : iterable of str, optional
+        The names of the checks to run; all by default.
+
+    Returns
+    -------
+    list of (str, bool, str)
+    """
     return run_named_checks({name: CHECKS[name] for name in checks or CHECKS}, config)

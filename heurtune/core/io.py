@@ -23,7 +23,20 @@ def _blocking_file(path: Path):
 
 def check_output_file(path, option: str, suffixes=None) -> Path:
     """Check that ``path`` can be written as a file; a one-line ConfigError naming ``option``
-    when it is a folder, lies under a file, or (``suffixes`` given) has another extension."""
+    when it is a folder, lies under a file, or (``suffixes`` given) has another extension.
+
+    Parameters
+    ----------
+    path : str or Path
+    option : str
+        The option that gave it, named in the error.
+    suffixes : iterable of str, optional
+        The allowed extensions.
+
+    Returns
+    -------
+    Path
+    """
     from heurtune.core.errors import ConfigError
 
     path = Path(path)
@@ -40,7 +53,18 @@ def check_output_file(path, option: str, suffixes=None) -> Path:
 
 def check_output_folder(path, option: str) -> Path:
     """Check that ``path`` can be a folder; a one-line ConfigError naming ``option`` when it is
-    a file or lies under one."""
+    a file or lies under one.
+
+    Parameters
+    ----------
+    path : str or Path
+    option : str
+        The option that gave it, named in the error.
+
+    Returns
+    -------
+    Path
+    """
     from heurtune.core.errors import ConfigError
 
     path = Path(path)
@@ -60,6 +84,16 @@ def atomic_path(path):
     --------
     >>> with atomic_path("out.png") as tmp:          # doctest: +SKIP
     ...     fig.savefig(tmp)
+
+    Parameters
+    ----------
+    path : str or Path
+        The file to write.
+
+    Yields
+    ------
+    Path
+        The temporary path to write to.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -83,7 +117,14 @@ def _umask() -> int:
 
 def write_parquet(df, path, metadata: dict | None = None) -> None:
     """Write a DataFrame to parquet atomically; ``metadata`` (bytes to bytes) joins the file's
-    schema metadata (the results folder keeps each part's fingerprint there)."""
+    schema metadata (the results folder keeps each part's fingerprint there).
+
+    Parameters
+    ----------
+    df : pandas.DataFrame
+    path : str or Path
+    metadata : dict of bytes to bytes, optional
+    """
     with atomic_path(path) as tmp:
         if metadata:
             import pyarrow as pa

@@ -26,17 +26,52 @@ PAIR = ("pair", NUMBER)
 
 
 def at_least(spec, lo):
-    """A value of ``spec`` (``int`` or ``NUMBER``) that is at least ``lo``."""
+    """A value of ``spec`` (``int`` or ``NUMBER``) that is at least ``lo``.
+
+    Parameters
+    ----------
+    spec : type or spec
+        ``int`` or ``NUMBER``.
+    lo : float
+
+    Returns
+    -------
+    tuple
+        A ``("range", ...)`` spec.
+    """
     return ("range", spec, lo, None, False)
 
 
 def positive(spec=NUMBER):
-    """A value of ``spec`` above 0."""
+    """A value of ``spec`` above 0.
+
+    Parameters
+    ----------
+    spec : type or spec
+        ``int`` or ``NUMBER`` (default).
+
+    Returns
+    -------
+    tuple
+        A ``("range", ...)`` spec.
+    """
     return ("range", spec, 0, None, True)
 
 
 def within(spec, lo, hi):
-    """A value of ``spec`` in [lo, hi]."""
+    """A value of ``spec`` in [lo, hi].
+
+    Parameters
+    ----------
+    spec : type or spec
+        ``int`` or ``NUMBER``.
+    lo, hi : float
+
+    Returns
+    -------
+    tuple
+        A ``("range", ...)`` spec.
+    """
     return ("range", spec, lo, hi, False)
 
 
@@ -86,7 +121,19 @@ def _is_number(v) -> bool:
 
 
 def check(value, spec, where: str, src: str):
-    """Validate ``value`` against ``spec``; raise ConfigError naming file and key."""
+    """Validate ``value`` against ``spec``; raise ConfigError naming file and key.
+
+    Parameters
+    ----------
+    value
+        The config value.
+    spec
+        Its spec (see the module docstring).
+    where : str
+        The key path (``scenario.horizon``).
+    src : str
+        The file, named in the error.
+    """
 
     def fail(msg):
         raise ConfigError(f"{src}: {where}: {msg}" if where else f"{src}: {msg}")

@@ -17,23 +17,59 @@ SHIFT = 1.3  # optimum of the shifted functions at x_i = 1.3 (inside [-5, 5])
 
 
 def sphere(X):
-    """Shifted sphere, f* = 0 at x = 1.3."""
+    """Shifted sphere, f* = 0 at x = 1.3.
+
+    Parameters
+    ----------
+    X : ndarray (n, d)
+
+    Returns
+    -------
+    ndarray (n,)
+    """
     return ((X - SHIFT) ** 2).sum(axis=1)
 
 
 def rosenbrock(X):
-    """Rosenbrock (optimum at x = 1, f* = 0)."""
+    """Rosenbrock (optimum at x = 1, f* = 0).
+
+    Parameters
+    ----------
+    X : ndarray (n, d)
+
+    Returns
+    -------
+    ndarray (n,)
+    """
     return (100.0 * (X[:, 1:] - X[:, :-1] ** 2) ** 2 + (1.0 - X[:, :-1]) ** 2).sum(axis=1)
 
 
 def rastrigin(X):
-    """Shifted Rastrigin, f* = 0 at x = 1.3."""
+    """Shifted Rastrigin, f* = 0 at x = 1.3.
+
+    Parameters
+    ----------
+    X : ndarray (n, d)
+
+    Returns
+    -------
+    ndarray (n,)
+    """
     Z = X - SHIFT
     return 10.0 * X.shape[1] + (Z * Z - 10.0 * np.cos(2 * np.pi * Z)).sum(axis=1)
 
 
 def ackley(X):
-    """Shifted Ackley, f* = 0 at x = 1.3."""
+    """Shifted Ackley, f* = 0 at x = 1.3.
+
+    Parameters
+    ----------
+    X : ndarray (n, d)
+
+    Returns
+    -------
+    ndarray (n,)
+    """
     Z = X - SHIFT
     d = X.shape[1]
     return (-20.0 * np.exp(-0.2 * np.sqrt((Z * Z).sum(axis=1) / d))
@@ -45,6 +81,15 @@ def pressure_vessel(X):
 
     x = (Ts, Th, R, L); minimise cost subject to four inequalities g <= 0. Best known
     continuous optimum f* = 5885.33 at about (0.7782, 0.3846, 40.32, 200).
+
+    Parameters
+    ----------
+    X : ndarray (n, 4)
+
+    Returns
+    -------
+    f : ndarray (n,)
+    g : ndarray (n, 4)
     """
     x1, x2, x3, x4 = X.T
     f = 0.6224 * x1 * x3 * x4 + 1.7781 * x2 * x3 ** 2 + 3.1661 * x1 ** 2 * x4 + 19.84 * x1 ** 2 * x3
@@ -74,7 +119,16 @@ BUDGETS = {"sphere": 10_000, "rosenbrock": 50_000, "rastrigin": 50_000, "ackley"
 def zdt1(X):
     """ZDT1 (Zitzler, Deb & Thiele 2000), two objectives on [0, 1]^d: ``f1 = x1``,
     ``f2 = g (1 - sqrt(x1 / g))`` with ``g = 1 + 9 mean(x2..xd)``. The Pareto front is
-    ``f2 = 1 - sqrt(f1)``, reached with ``x2..xd = 0``."""
+    ``f2 = 1 - sqrt(f1)``, reached with ``x2..xd = 0``.
+
+    Parameters
+    ----------
+    X : ndarray (n, d)
+
+    Returns
+    -------
+    ndarray (n, 2)
+    """
     f1 = X[:, 0]
     g = 1.0 + 9.0 * X[:, 1:].mean(axis=1)
     return np.column_stack([f1, g * (1.0 - np.sqrt(f1 / g))])
@@ -84,7 +138,18 @@ def dtlz2(X, m: int = 3):
     """DTLZ2 (Deb, Thiele, Laumanns & Zitzler 2002), ``m`` objectives on [0, 1]^d:
     ``f_i = (1 + g) prod_{j < m - i} cos(x_j pi / 2) sin(x_{m-i} pi / 2)`` (no sine for
     ``i = 1``), ``g = sum_{j >= m} (x_j - 1/2)^2``. The Pareto front is the unit sphere's
-    positive orthant, reached with ``x_m..x_d = 1/2``."""
+    positive orthant, reached with ``x_m..x_d = 1/2``.
+
+    Parameters
+    ----------
+    X : ndarray (n, d)
+    m : int
+        Objectives.
+
+    Returns
+    -------
+    ndarray (n, m)
+    """
     g = ((X[:, m - 1:] - 0.5) ** 2).sum(axis=1)
     angle = 0.5 * np.pi * X[:, :m - 1]
     F = np.empty((len(X), m))

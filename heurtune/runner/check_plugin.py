@@ -70,7 +70,20 @@ def _structures() -> dict:
 
 def run(argv=None, stream=None) -> int:
     """Entry point; returns the exit status (the lines go to ``stream``, default the
-    ``sys.stdout`` of the call)."""
+    ``sys.stdout`` of the call).
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Arguments without the program name; default ``sys.argv[1:]``.
+    stream : file-like, optional
+        Where the lines go; default ``sys.stdout``.
+
+    Returns
+    -------
+    int
+        0 when every check passed, 1 when one failed, 2 for a mistake in the command.
+    """
     stream = sys.stdout if stream is None else stream
     args = _parser().parse_args(argv)
     try:
@@ -135,5 +148,6 @@ def run(argv=None, stream=None) -> int:
 
 
 def main() -> None:
+    """Run the command line and exit with its code."""
     _startup.release()  # python -m heurtune.<command>: its imports are done, its own handling takes over
     sys.exit(_startup.run_command(run))

@@ -21,17 +21,43 @@ __all__ = ["experiments_dir", "list_experiments", "find_experiment", "load_confi
 
 
 def experiments_dir() -> Path:
-    """Folder of the shipped experiment configs."""
+    """Folder of the shipped experiment configs.
+
+    Returns
+    -------
+    Path
+    """
     return Path(str(resources.files("heurtune.experiments")))
 
 
 def list_experiments() -> list[str]:
-    """Names of the shipped experiments, sorted."""
+    """Names of the shipped experiments, sorted.
+
+    Returns
+    -------
+    list of str
+    """
     return sorted(p.stem for p in experiments_dir().glob("*.toml"))
 
 
 def find_experiment(name: str) -> Path:
-    """Path of an experiment given its name or a path to a ``.toml`` file."""
+    """Path of an experiment given its name or a path to a ``.toml`` file.
+
+    Parameters
+    ----------
+    name : str
+        A shipped experiment's name, or a path to a ``.toml`` file.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    ConfigError
+        One line: a ``.toml`` file that does not exist, or an unknown name (the shipped ones
+        listed).
+    """
     p = Path(name)
     if p.suffix == ".toml":
         if not p.is_file():

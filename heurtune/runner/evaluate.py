@@ -74,7 +74,18 @@ def bound_violations(prob, x) -> list:
 
 
 def run(argv=None) -> int:
-    """Entry point; returns the process exit code."""
+    """Entry point; returns the process exit code.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Arguments without the program name; default ``sys.argv[1:]``.
+
+    Returns
+    -------
+    int
+        The exit code (``--help`` lists them).
+    """
     args = _parser().parse_args(argv)
     try:
         for spec in args.plugin:
@@ -131,5 +142,6 @@ def run(argv=None) -> int:
 
 
 def main() -> None:
+    """Run the command line and exit with its code."""
     _startup.release()  # python -m heurtune.<command>: its imports are done, its own handling takes over
     sys.exit(_startup.run_command(run))

@@ -136,7 +136,17 @@ class RunSpec:
 
 
 def problem_id(exp, case: str) -> str:
-    """A short hash of everything that defines a case's tuning problem (for comparisons)."""
+    """A short hash of everything that defines a case's tuning problem (for comparisons).
+
+    Parameters
+    ----------
+    exp : ExperimentBase
+    case : str
+
+    Returns
+    -------
+    str
+    """
     return problem_fingerprint(exp.problem(case))
 
 
@@ -146,7 +156,24 @@ def plan(exp, *, runs=None, max_epochs=None, seed=None, smoke=False) -> list:
     fixed controller (``[[baselines]]`` of QTP experiments, e.g. printed gains).
 
     An optimiser entry with ``cases`` tunes only those cases; its index (and hence its runs'
-    seeds) is its place in the config all the same."""
+    seeds) is its place in the config all the same.
+
+    Parameters
+    ----------
+    exp : ExperimentBase
+    runs : int, optional
+        Runs per case and optimiser (default: the config's).
+    max_epochs : int, optional
+        Overrides every optimiser's generations.
+    seed : int, optional
+        The root seed (default: the config's).
+    smoke : bool
+        The smoke budgets (2 runs, 2 generations, small populations).
+
+    Returns
+    -------
+    list of RunSpec
+    """
     if not exp.optimisers and not any(exp.baseline_names(c) for c in exp.cases):
         raise ConfigError(f"{exp.name}: no [[optimisers]] to run")
     n_runs = runs if runs is not None else exp.config.get("runs", 10)
@@ -427,6 +454,12 @@ RUN_STATUSES = ("feasible", "infeasible", "failed")
 def run_status(prob, x) -> dict:
     """How a run's best candidate fares under the tuning scenario, for ``runs.parquet``.
 
+    Parameters
+    ----------
+    prob : TuningProblem
+    x : ndarray (d,)
+        The run's best candidate.
+
     Returns
     -------
     dict
@@ -536,6 +569,13 @@ def status_table(root, name: str | None = None) -> pd.DataFrame:
     when a name is given): runs done, runs planned by the last command that ran there, and
     whether all of them are done and gathered into ``runs.parquet``.
 
+    Parameters
+    ----------
+    root : str or Path
+        The folder holding result folders (``results``).
+    name : str, optional
+        Only this experiment's folder.
+
     Returns
     -------
     pandas.DataFrame
@@ -605,7 +645,44 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
 
     Before any run starts, one evaluation of every case is calibrated and the planned work
     printed (:mod:`heurtune.runner.workplan`); a case whose evaluation would take more than a
-    minute is a ConfigError unless ``force``."""
+    minute is a ConfigError unless ``force``.
+
+    Parameters
+    ----------
+    name : str
+        A shipped experiment's name or a path to its ``.toml`` file.
+    runs, max_epochs, seed : int, optional
+        Override the config's runs per case and optimiser, generations and root seed.
+    jobs : int
+        Runs in parallel.
+    out : str or Path, optional
+        The output folder (default ``results/<name>``).
+    smoke : bool
+        Tiny budgets: a check, not a study.
+    fresh : bool
+        Start over: the folder's earlier results are removed.
+    backend : {"loky", "dask"}
+    scheduler : str, optional
+        The Dask scheduler's address.
+    plugins : sequence of str
+        Plugins to load first (``--plugin``).
+    progress_stream : file-like, optional
+        Where the plan and the progress line go (default ``sys.stderr``).
+    figures : bool
+        Draw the figures.
+    executor : concurrent.futures.Executor, optional
+        Takes whole runs instead of the pool.
+    device : {"cpu", "cpu-batch", "gpu"}
+    lockstep : bool, optional
+        Advance the pending runs together (default: on for the batched devices).
+    force : bool
+        Run even when one evaluation is predicted to take more than a minute.
+
+    Returns
+    -------
+    Path
+        The output folder.
+    """
     if lockstep is None:
         lockstep = device != "cpu"
     progress_stream = sys.stdout if progress_stream is None else progress_stream  # the current one
@@ -976,6 +1053,17 @@ def summary_table(runs: pd.DataFrame, exp) -> pd.DataFrame:
     ``compare``), conv_epoch, conv_evals (the convergence
     point in evaluations; NaN for runs written before it was recorded) and n_evals (means over
     all runs), wall_s (summed), best_run, and the best run's gains (one column per variable).
+
+    Parameters
+    ----------
+    runs : pandas.DataFrame
+        Rows of ``runs.parquet``.
+    exp : ExperimentBase
+        The experiment (its variable names).
+
+    Returns
+    -------
+    pandas.DataFrame
     """
     rows = []
     for (case, oi), grp in runs.groupby(["case", "optimiser_index"], sort=False):
@@ -1113,6 +1201,7 @@ def run(argv=None) -> int:
 
 
 def main() -> None:
+    """Run the command line and exit with its code."""
     _startup.release()  # python -m heurtune.<command>: its imports are done, its own handling takes over
     code = _startup.run_command(run)
     if code in (130, 143):

@@ -268,7 +268,13 @@ class Progress:
 
 def clear_heartbeats(parts) -> None:
     """Remove heartbeats left by an earlier, interrupted invocation (a run that restarts from
-    scratch would otherwise count its old evaluations), and their temporary files."""
+    scratch would otherwise count its old evaluations), and their temporary files.
+
+    Parameters
+    ----------
+    parts : str or Path
+        The results folder's ``parts/``.
+    """
     parts = Path(parts)
     for path in [*parts.glob("*" + HEARTBEAT_SUFFIX), *parts.glob(".*.progress.*.json")]:
         try:

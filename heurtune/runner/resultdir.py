@@ -54,6 +54,10 @@ def run_fingerprint(spec, problem_identity: dict) -> dict:
     problem_identity : dict
         ``prob.identity()`` of its case (a baseline run's too: its fixed gains are evaluated on
         that problem).
+
+    Returns
+    -------
+    dict
     """
     return dict(problem=_jsonable(problem_identity), algorithm=spec.algorithm, optimiser_index=spec.optimiser_index,
                 settings=_jsonable(spec.settings), budget=_jsonable(spec.budget), seed=int(spec.root_seed),
@@ -75,20 +79,53 @@ def _default(value):
 
 
 def fingerprint_of(path) -> dict | None:
-    """The fingerprint stored in a part's metadata; None without one. Raises on a damaged file."""
+    """The fingerprint stored in a part's metadata; None without one. Raises on a damaged file.
+
+    Parameters
+    ----------
+    path : str or Path
+        A part file.
+
+    Returns
+    -------
+    dict or None
+    """
     meta = pq.read_schema(path).metadata or {}
     text = meta.get(METADATA_KEY)
     return None if text is None else json.loads(text)
 
 
 def fingerprint_digest(fingerprint: dict) -> str:
-    """A short hash of a run's fingerprint (``planned.json`` keeps these for ``--status``)."""
+    """A short hash of a run's fingerprint (``planned.json`` keeps these for ``--status``).
+
+    Parameters
+    ----------
+    fingerprint : dict
+
+    Returns
+    -------
+    str
+    """
     return hashlib.sha256(json.dumps(fingerprint, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def matching_parts(parts: Path, names, digests: dict | None) -> set:
     """The runs among ``names`` whose run part reads and, where ``digests`` says what the plan
-    expects (:func:`fingerprint_digest` by run), carries that fingerprint."""
+    expects (:func:`fingerprint_digest` by run), carries that fingerprint.
+
+    Parameters
+    ----------
+    parts : Path
+        The results folder's ``parts/``.
+    names : iterable of str
+        Run names.
+    digests : dict of str to str, or None
+        The expected digest of each run; None accepts any readable part.
+
+    Returns
+    -------
+    set of str
+    """
     out = set()
     for name in names:
         path = Path(parts) / f"{name}.run.parquet"
@@ -105,7 +142,19 @@ def matching_parts(parts: Path, names, digests: dict | None) -> set:
 
 def differing_keys(found: dict, expected: dict, prefix: str = "") -> list:
     """Dotted names of the keys whose values differ between two fingerprints (nested dicts
-    compared key by key: ``problem.bounds.Q11``, ``settings.pa``, ``budget.max_epochs``)."""
+    compared key by key: ``problem.bounds.Q11``, ``settings.pa``, ``budget.max_epochs``).
+
+    Parameters
+    ----------
+    found, expected : dict
+        Two fingerprints.
+    prefix : str
+        The dotted path of these dicts (for the recursion).
+
+    Returns
+    -------
+    list of str
+    """
     keys = []
     for key in sorted(set(found) | set(expected)):
         a, b = found.get(key, "<absent>"), expected.get(key, "<absent>")
@@ -119,7 +168,20 @@ def differing_keys(found: dict, expected: dict, prefix: str = "") -> list:
 def read_part(path, spec=None):
     """A part's table and fingerprint: ``(DataFrame, dict or None)``. Raises ``ValueError``
     with the reason when the file is damaged or (``spec`` given, a run part) its content names
-    another run than its file name."""
+    another run than its file name.
+
+    Parameters
+    ----------
+    path : str or Path
+        A part file.
+    spec : RunSpec, optional
+        The run the part should hold.
+
+    Returns
+    -------
+    tuple
+        ``(DataFrame, dict or None)``.
+    """
     try:
         table = pq.read_table(path)
     except Exception as exc:  # truncated, empty, not parquet: pyarrow raises several types
@@ -181,6 +243,21 @@ def check_parts(parts: Path, specs, fingerprints: dict, *, dry=False) -> PartChe
     ``parts/corrupt/`` with a warning on stderr (``dry``: only reported in ``set_aside``); parts of another config are reported in
     ``mismatched`` and parts of an earlier heurtune, which carry no fingerprint, in ``legacy``,
     neither moved.
+
+    Parameters
+    ----------
+    parts : Path
+        The results folder's ``parts/``.
+    specs : iterable of RunSpec
+        The planned runs.
+    fingerprints : dict of str to dict
+        The fingerprint the current config gives each run.
+    dry : bool
+        Only report; move nothing.
+
+    Returns
+    -------
+    PartCheck
     """
     check = PartCheck()
     parts = Path(parts)
@@ -218,7 +295,16 @@ def check_parts(parts: Path, specs, fingerprints: dict, *, dry=False) -> PartChe
 
 
 def set_aside(parts: Path, name: str, reason: str) -> None:
-    """Move every file of run ``name`` from ``parts`` to ``parts/corrupt/``, with a one-line warning."""
+    """Move every file of run ``name`` from ``parts`` to ``parts/corrupt/``, with a one-line warning.
+
+    Parameters
+    ----------
+    parts : Path
+    name : str
+        The run.
+    reason : str
+        Why, for the warning.
+    """
     for path in sorted(Path(parts).glob(f"{name}.*")):
         if path.is_file():
             _move_aside(path)
@@ -227,7 +313,14 @@ def set_aside(parts: Path, name: str, reason: str) -> None:
 
 
 def set_aside_file(path, reason: str) -> None:
-    """Move one damaged part (a multistart's saved solves) to ``corrupt/`` beside it, with a warning."""
+    """Move one damaged part (a multistart's saved solves) to ``corrupt/`` beside it, with a warning.
+
+    Parameters
+    ----------
+    path : str or Path
+    reason : str
+        Why, for the warning.
+    """
     dest = _move_aside(Path(path))
     print(f"warning: {path}: {reason}; set aside as {dest}, its work is done again", file=sys.stderr)
 
@@ -329,7 +422,14 @@ class FolderLock:
 
 
 def clear_folder(folder: Path, keep=(LOCK_FILE,)) -> None:
-    """Remove everything in ``folder`` except the names in ``keep`` (``--fresh`` under the lock)."""
+    """Remove everything in ``folder`` except the names in ``keep`` (``--fresh`` under the lock).
+
+    Parameters
+    ----------
+    folder : Path
+    keep : iterable of str
+        Names left in place.
+    """
     for path in Path(folder).iterdir():
         if path.name in keep:
             continue

@@ -48,7 +48,16 @@ CALIBRATION_SEED = 20261128  # fixed, and apart from every run's seed
 
 
 def format_duration(seconds: float) -> str:
-    """``"0.8 s"``, ``"42 s"``, ``"3 min 20 s"``, ``"2 h 05 min"`` or ``"3.2 days"``."""
+    """``"0.8 s"``, ``"42 s"``, ``"3 min 20 s"``, ``"2 h 05 min"`` or ``"3.2 days"``.
+
+    Parameters
+    ----------
+    seconds : float
+
+    Returns
+    -------
+    str
+    """
     if not math.isfinite(seconds):
         return "for ever"
     if seconds < 10:
@@ -71,6 +80,19 @@ def planned_evaluations(spec, dim: int, n_constraints: int, n_objectives: int = 
     False when the count is an estimate: the dry runs on two different stand-in objectives
     disagree (gradient methods, whose line searches depend on the values; the larger count is
     given), or a ``tol`` or ``max_time`` may stop the run earlier. A baseline is one evaluation.
+
+    Parameters
+    ----------
+    spec : RunSpec
+    dim : int
+        Decision variables.
+    n_constraints : int
+    n_objectives : int
+
+    Returns
+    -------
+    tuple
+        ``(count, exact)``.
     """
     if spec.baseline:
         return 1, True
@@ -193,6 +215,20 @@ def calibrate(prob, n: int = CALIBRATION_CANDIDATES, steps: int = CALIBRATION_ST
     the candidates and scenario copies are the calibration's own, the runs are untouched.
     ``step_s`` is None when no drawn candidate was simulated (the runner then borrows the
     figure of another case of the experiment).
+
+    Parameters
+    ----------
+    prob : TuningProblem
+    n : int
+        Candidates to simulate.
+    steps : int
+        Simulated steps of the longer cut.
+    max_drawn : int
+        Candidates drawn at most.
+
+    Returns
+    -------
+    Calibration
     """
     prob.warm_up()
     rng = np.random.default_rng(CALIBRATION_SEED)
@@ -244,7 +280,17 @@ def calibrate(prob, n: int = CALIBRATION_CANDIDATES, steps: int = CALIBRATION_ST
 
 def borrow_step_cost(calibrations: dict) -> dict:
     """Cases whose drawn candidates were all rejected before simulation take the mean cost per
-    step of the other cases (the same plant family's kernel); returns the completed dict."""
+    step of the other cases (the same plant family's kernel); returns the completed dict.
+
+    Parameters
+    ----------
+    calibrations : dict of str to Calibration
+        By case.
+
+    Returns
+    -------
+    dict of str to Calibration
+    """
     known = [c.step_s for c in calibrations.values() if c.step_s is not None]
     if not known:
         return dict(calibrations)
@@ -256,7 +302,14 @@ def borrow_step_cost(calibrations: dict) -> dict:
 
 def check_evaluation_time(cal: Calibration, limit: float = EVALUATION_LIMIT_S) -> None:
     """Raise a one-line ConfigError when one evaluation of ``cal.case`` is predicted to take
-    longer than ``limit`` seconds (a scenario horizon far too long for its step, say)."""
+    longer than ``limit`` seconds (a scenario horizon far too long for its step, say).
+
+    Parameters
+    ----------
+    cal : Calibration
+    limit : float
+        Seconds.
+    """
     seconds = cal.evaluation_s
     if cal.steps is not None and math.isnan(seconds):
         raise ConfigError(f"case {cal.case!r}: one evaluation simulates {cal.steps:,} steps and its cost could not "
@@ -283,6 +336,11 @@ def estimate_line(calibrations: dict, pending_evals: dict, total_runs: int, work
         Runs still to do.
     workers : int
         Evaluations in parallel.
+
+    Returns
+    -------
+    line : str
+    seconds : float or None
     """
     evals = sum(n for n, _, _ in pending_evals.values())
     unknown = sum(u for _, u, _ in pending_evals.values())
