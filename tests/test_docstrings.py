@@ -45,6 +45,24 @@ MODULES = [
     "heurtune.runner.progress",
     "heurtune.runner.evaluate",
     "heurtune.runner.check_plugin",
+    "heurtune.objectives.qtp",
+    "heurtune.objectives.qtp.batch_design",
+    "heurtune.objectives.qtp.bond_graph",
+    "heurtune.objectives.qtp.continuous",
+    "heurtune.objectives.qtp.continuous_kernels",
+    "heurtune.objectives.qtp.controllers",
+    "heurtune.objectives.qtp.gpu",
+    "heurtune.objectives.qtp.loop",
+    "heurtune.objectives.qtp.margins",
+    "heurtune.objectives.qtp.model",
+    "heurtune.objectives.qtp.oustaloup",
+    "heurtune.objectives.qtp.problem",
+    "heurtune.objectives.qtp.structure_checks",
+    "heurtune.objectives.qtp.structures",
+    "heurtune.objectives.qtp.structures.fopid",
+    "heurtune.objectives.qtp.structures.pid",
+    "heurtune.objectives.qtp.thesis.printed",
+    "heurtune.objectives.qtp.thesis.tables",
 ]
 
 
@@ -78,8 +96,8 @@ def test_public_function_documents_its_parameters_and_returns(qualname, fn):
         documented = set()
         for line in body.splitlines():
             if line and not line.startswith(" "):
-                for part in line.split(":")[0].split(","):
-                    documented.add(part.strip().lstrip("*"))
+                # "name : type", "a, b : type", "**extra", or the compact "a : (4,) ...; b : (2,) ..."
+                documented.update(re.findall(r"\**([A-Za-z_]\w*)\s*(?=[:,]|$)", line))
         missing = [p.name for p in params if p.name not in documented]
         assert not missing, f"{qualname}: parameters not in its Parameters section: {missing}"
     returns = sig.return_annotation

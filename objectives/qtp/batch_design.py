@@ -137,7 +137,25 @@ def folqi_controllers(kind: str, values: np.ndarray, names, A, B, *, oustaloup_o
     LinearController or the ControllerDesignError of that candidate (as
     :func:`~heurtune.objectives.qtp.controllers.folqi_design` raises it). Candidates whose integrators share a modal layout are
     built together; the others (two integrators, alpha out of range, non-positive weights) one
-    by one."""
+    by one.
+
+    Parameters
+    ----------
+    kind : {"folqi", "iolqi"}
+    values : ndarray (k, d)
+        The candidates.
+    names : sequence of str
+        Their variables, in column order.
+    A, B : ndarray
+        The plant linearisation.
+    oustaloup_order, band, realisation, pairing
+        FOLQI's options (``[controller]``).
+
+    Returns
+    -------
+    list
+        Per candidate, a LinearController or its ControllerDesignError.
+    """
     col = {name: i for i, name in enumerate(names)}
     k = values.shape[0]
     q = values[:, [col[n] for n in ("Q11", "Q22", "Q33", "Q44")]]
@@ -206,7 +224,18 @@ def _returned(design):
 
 def stability_margins(loop, ctrls) -> np.ndarray:
     """Largest real part of each controller's linearised closed-loop eigenvalues (as
-    :meth:`ClosedLoop.stability_margin`), minimal controllers of one size in one stacked call."""
+    :meth:`ClosedLoop.stability_margin`), minimal controllers of one size in one stacked call.
+
+    Parameters
+    ----------
+    loop : ClosedLoop
+    ctrls : sequence of LinearController
+
+    Returns
+    -------
+    ndarray
+        One margin per controller (negative: stable).
+    """
     out = np.empty(len(ctrls))
     by_size = {}
     for i, ctrl in enumerate(ctrls):
@@ -244,7 +273,18 @@ def _modal_pattern(ctrl) -> tuple | None:
 
 def discretise_many(ctrls, dt: float) -> list:
     """``[ctrl.discretise(dt) for ctrl in ctrls]``, the modal ones of one layout in one pass
-    (the same element-wise arithmetic as :meth:`LinearController.discretise`)."""
+    (the same element-wise arithmetic as :meth:`LinearController.discretise`).
+
+    Parameters
+    ----------
+    ctrls : sequence of LinearController
+    dt : float
+        The sample period.
+
+    Returns
+    -------
+    list of DiscreteController
+    """
     out = [None] * len(ctrls)
     groups = {}
     for i, ctrl in enumerate(ctrls):
@@ -282,7 +322,20 @@ def design_batch(loop, names, X) -> tuple:
     """Design and check every candidate of ``X`` (k, d) for ``loop``: the controllers (None
     where there is none), the reasons ("" when designed and stable) and the margins (for the
     unstable ones), as :meth:`heurtune.objectives.qtp.problem.Problem._design` gives them one
-    by one. Candidates with non-finite values get ``invalid_parameter``."""
+    by one. Candidates with non-finite values get ``invalid_parameter``.
+
+    Parameters
+    ----------
+    loop : ClosedLoop
+    names : sequence of str
+        The variables, in column order.
+    X : ndarray (k, d)
+
+    Returns
+    -------
+    tuple
+        ``(controllers, reasons, margins)``, one entry per candidate.
+    """
     k = X.shape[0]
     ctrls = [None] * k
     reasons = np.full(k, "", dtype=object)

@@ -105,12 +105,34 @@ class BondGraphElements:
 
 
 def pressure_of_level(h, elements: BondGraphElements) -> np.ndarray:
-    """Hydrostatic pressure ``P = rho g h`` (dyn/cm^2) at the bottom of a level ``h`` (cm)."""
+    """Hydrostatic pressure ``P = rho g h`` (dyn/cm^2) at the bottom of a level ``h`` (cm).
+
+    Parameters
+    ----------
+    h : array_like
+        Levels in cm.
+    elements : BondGraphElements
+
+    Returns
+    -------
+    ndarray
+    """
     return np.asarray(h, dtype=np.float64) * elements.rho_g
 
 
 def level_of_pressure(P, elements: BondGraphElements) -> np.ndarray:
-    """Level ``h = P / (rho g)`` (cm) of a hydrostatic pressure ``P`` (dyn/cm^2)."""
+    """Level ``h = P / (rho g)`` (cm) of a hydrostatic pressure ``P`` (dyn/cm^2).
+
+    Parameters
+    ----------
+    P : array_like
+        Pressures in dyn/cm^2.
+    elements : BondGraphElements
+
+    Returns
+    -------
+    ndarray
+    """
     return np.asarray(P, dtype=np.float64) / elements.rho_g
 
 
@@ -154,6 +176,10 @@ def pressure_rhs(P, u, elements: BondGraphElements) -> np.ndarray:
 def pressure_coefficients(elements: BondGraphElements) -> np.ndarray:
     """Kernel coefficients of the pressure equations (layout of ``_kernels.plant_coefficients``).
 
+    Parameters
+    ----------
+    elements : BondGraphElements
+
     Returns
     -------
     numpy.ndarray, shape (10,)
@@ -180,6 +206,14 @@ def linearise_pressure(p: QTPParams, rho: float = RHO_WATER, op: OperatingPoint 
     ``(A, rho g B, C / (rho g))``: the state matrix is unchanged (the change of variables is a
     scalar multiple of the identity), the inputs act ``rho g`` times more strongly and the
     measured levels are ``h1, h2 = P1, P2 / (rho g)``.
+
+    Parameters
+    ----------
+    p : QTPParams
+    rho : float
+        Water's density (g/cm^3).
+    op : OperatingPoint, optional
+        Default: the operating point of ``p``.
 
     Returns
     -------

@@ -114,7 +114,17 @@ class ContinuousController:
 
 def step_at_reference(kind: str | None) -> float:
     """The step a controller type declares at the reference tolerance (None, or a type that
-    declares none: the smallest any registered type declares)."""
+    declares none: the smallest any registered type declares).
+
+    Parameters
+    ----------
+    kind : str or None
+        A controller type.
+
+    Returns
+    -------
+    float
+    """
     try:  # the per-evaluation path: one lookup
         declared = get_structure("qtp", kind).extras.get("step_at_reference")
     except ConfigError:  # None, or a type not registered
@@ -127,7 +137,18 @@ def step_at_reference(kind: str | None) -> float:
 
 def step_for_tolerance(tolerance: float, kind: str | None = None) -> float:
     """The step of the continuous loop for a largest level error of ``tolerance`` cm under a
-    controller of type ``kind`` (None: the smallest of the known types' steps)."""
+    controller of type ``kind`` (None: the smallest of the known types' steps).
+
+    Parameters
+    ----------
+    tolerance : float
+    kind : str, optional
+
+    Returns
+    -------
+    float
+        Within [MIN_STEP, MAX_STEP].
+    """
     h = step_at_reference(kind) * (tolerance / REFERENCE_TOLERANCE) ** 0.25
     return float(min(max(h, MIN_STEP), MAX_STEP))
 
@@ -136,7 +157,21 @@ def explicit_step(A: np.ndarray, B: np.ndarray, D: np.ndarray, tolerance: float)
     """The longest step the explicit part allows a controller whose static feedback is ``D``
     (2, 4): ``EXPLICIT_STEP_RADIUS (tolerance / REFERENCE_TOLERANCE)^(1/4) / rho``, ``rho`` the
     spectral radius of ``A + B D`` (the linearised plant under that feedback, whose fast modes
-    the method does not integrate exactly), within [MIN_STEP, MAX_STEP]."""
+    the method does not integrate exactly), within [MIN_STEP, MAX_STEP].
+
+    Parameters
+    ----------
+    A : ndarray (4, 4)
+    B : ndarray (4, 2)
+        The plant linearisation.
+    D : ndarray (2, 4)
+    tolerance : float
+        The largest level error in cm.
+
+    Returns
+    -------
+    float
+    """
     rho = float(np.max(np.abs(np.linalg.eigvals(A + B @ D))))
     if not math.isfinite(rho):
         return MIN_STEP
@@ -147,7 +182,18 @@ def explicit_step(A: np.ndarray, B: np.ndarray, D: np.ndarray, tolerance: float)
 def folded_feedback(cc: ContinuousController, h: float) -> np.ndarray:
     """The static feedback (2, 4) that the explicit part of a step ``h`` sees: ``D`` plus, for
     every modal state with ``|lam| h > 1``, its static gain ``-C_i b_i / lam_i`` on the signal it
-    reads. Dense blocks are left out."""
+    reads. Dense blocks are left out.
+
+    Parameters
+    ----------
+    cc : ContinuousController
+    h : float
+        The step.
+
+    Returns
+    -------
+    ndarray (2, 4)
+    """
     D = np.array(cc.D, dtype=np.float64)
     fast = np.flatnonzero(np.abs(cc.lam) * h > 1.0)
     if fast.size:
@@ -220,6 +266,20 @@ def plan_steps(horizon: float, step: float, output_disturbance, disturbance_time
 
     A breakpoint is a disturbance time inside (0, horizon) whose step is not zero. Each
     segment after a breakpoint grades its first step.
+
+    Parameters
+    ----------
+    horizon : float
+    step : float
+        The longest step.
+    output_disturbance : array_like (2,)
+    disturbance_time : float
+    input_disturbance : array_like (2,)
+    input_disturbance_time : float
+
+    Returns
+    -------
+    StepPlan
     """
     d_out = np.asarray(output_disturbance, dtype=np.float64)
     d_in = np.asarray(input_disturbance, dtype=np.float64)

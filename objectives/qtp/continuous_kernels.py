@@ -179,6 +179,13 @@ def phi_matrix_levels(A, h, out):
     ``phi_k(2X) = 2^-k (phi_0(X) phi_k(X) + sum_{j=1..k} phi_j(X) / (k-j)!)``; the last
     N_LEVELS doublings are the levels. (The kernels run the same functions,
     :func:`_phi_scaled` and :func:`_phi_double`, level by level in their own buffers.)
+
+    Parameters
+    ----------
+    A : ndarray (n, n)
+    h : float
+    out : ndarray (N_LEVELS, N_PHI, n, n)
+        Written in place.
     """
     n = A.shape[0]
     if n == 0:
@@ -1154,7 +1161,17 @@ _W10_ROWS = 16
 
 def workspace_shapes(nd: int, nq: int) -> list:
     """Shapes and dtypes of the working arrays of :func:`continuous_lane`, in its order, for
-    ``nd`` modal and ``nq`` dense controller states (exact: the lane reads its sizes from them)."""
+    ``nd`` modal and ``nq`` dense controller states (exact: the lane reads its sizes from them).
+
+    Parameters
+    ----------
+    nd : int
+    nq : int
+
+    Returns
+    -------
+    list of (tuple, dtype)
+    """
     nz, d, q = nd + nq, nd, nq
     f, i8, b1 = np.float64, np.int64, np.bool_
     return [((N_STEP_LEVELS, N_ROWS, nz), f), ((N_STEP_LEVELS, N_COUPLINGS, 2, 4), f),
@@ -1186,10 +1203,12 @@ def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm,
     Aq : (nq, nq), Bq : (nq, 4), Cq : (2, nq): the dense controller blocks
     Dc : (2, 4) static feedback; channel : (nd + nq,) int64, the pump of each controller state
     seg_t0, seg_h : (S,) start and step of each segment (segments start at 0 and at every
-        discontinuity); seg_steps : (S,) int64, steps of ``seg_h`` in it; seg_graded : (S,)
-        bool, whether the first of those steps is taken as h/16, h/16, h/8, h/4, h/2;
-        seg_dist, seg_uin : (S, 2) output and input disturbance in force; seg_post : (S,) bool,
-        whether the segment lies after the output disturbance time ``t_dist``
+        discontinuity)
+    seg_steps : (S,) int64, steps of ``seg_h`` in it
+    seg_graded : (S,) bool, whether the first of those steps is taken as h/16, h/16, h/8, h/4, h/2
+    seg_dist, seg_uin : (S, 2) output and input disturbance in force
+    seg_post : (S,) bool, whether the segment lies after the output disturbance time ``t_dist``
+    t_dist : float, the output disturbance time
     horizon : float, end time T
     saturate : bool; u_min, u_max : pump limits with conditional-integration anti-windup (the
         states of a pump's channel are held while its controller output lies outside them)

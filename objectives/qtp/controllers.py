@@ -287,6 +287,18 @@ def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.n
     ``scipy.linalg.solve_continuous_are`` (whose balancing and QZ steps matter for larger, badly
     scaled problems); the tests compare both, and python-control's ``lqr``.
 
+    Parameters
+    ----------
+    A : ndarray (n, n)
+    B : ndarray (n, m)
+    Q : ndarray (n, n)
+    R : ndarray (m, m)
+
+    Returns
+    -------
+    ndarray (m, n)
+        K.
+
     Raises
     ------
     ControllerDesignError
@@ -348,7 +360,31 @@ def _error_of_pump(pairing: str, pump: int) -> int:
 def folqi_design(values: dict, A, B, alphas, order, band, realisation, pairing="diagonal") -> LinearController:
     """FOLQI (IOLQI with ``alphas = (1, 1)``) of thesis eq. 3.9: ``du = -K dx + diag(Ki_r / s^alpha_r) e``
     with ``K`` from the Riccati equation of the weights and each pump integrating the error
-    ``pairing`` gives it."""
+    ``pairing`` gives it.
+
+    Parameters
+    ----------
+    values : dict
+        ``Q11..Q44``, ``R11``, ``R22``, ``Ki1``, ``Ki2`` (and ``alpha1``, ``alpha2`` when read).
+    A, B : ndarray
+        The plant linearisation.
+    alphas : (float, float)
+        The fractional orders (1, 1 for IOLQI).
+    order : int
+        Oustaloup's order.
+    band : (float, float)
+        Oustaloup's band in rad/s.
+    realisation : {"direct", "integer_split"}
+    pairing : {"diagonal", "anti-diagonal"}
+
+    Returns
+    -------
+    LinearController
+
+    Raises
+    ------
+    ControllerDesignError
+    """
     Q = np.diag([values["Q11"], values["Q22"], values["Q33"], values["Q44"]])
     R = np.diag([values["R11"], values["R22"]])
     K = lqr_gain(A, B, Q, R)
@@ -396,6 +432,16 @@ def ladr_design(values: dict, pairing: str = "diagonal") -> LinearController:
     With ``pairing = "anti-diagonal"`` each channel regulates the other lower tank: channel 1
     observes tanks 2 and 4 (pump 1 reaches tank 2 through tank 4), channel 2 tanks 1 and 3; the
     gains keep their printed slots.
+
+    Parameters
+    ----------
+    values : dict
+        The gains of Appendix A (``beta..``, ``b1..b4``, ``r1..r4``).
+    pairing : {"diagonal", "anti-diagonal"}
+
+    Returns
+    -------
+    LinearController
     """
     b = [values[f"b{i}"] for i in (1, 2, 3, 4)]
     if min(b) <= 0.0:
@@ -450,6 +496,17 @@ def lqi_design(values: dict, A, B) -> LinearController:
     controller's states are the two exact integrators; their 2 x 2 output matrix is ``-Kxi``
     (both errors drive both pumps). For anti-windup, integrator j belongs to the pump it drives
     most strongly.
+
+    Parameters
+    ----------
+    values : dict
+        ``Q11..Q44``, ``Qi1``, ``Qi2``, ``R11``, ``R22``.
+    A, B : ndarray
+        The plant linearisation.
+
+    Returns
+    -------
+    LinearController
     """
     n, m = A.shape[0], B.shape[1]
     Aa = np.zeros((n + m, n + m))
@@ -468,7 +525,16 @@ def lqi_design(values: dict, A, B) -> LinearController:
 
 
 def dc_gain(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
-    """Steady-state gain ``G(0) = -C A^-1 B`` of a stable linear plant."""
+    """Steady-state gain ``G(0) = -C A^-1 B`` of a stable linear plant.
+
+    Parameters
+    ----------
+    A, B, C : ndarray
+
+    Returns
+    -------
+    ndarray
+    """
     return -C @ np.linalg.solve(A, B)
 
 

@@ -52,7 +52,12 @@ except ImportError:  # numba without its CUDA target
 
 
 def available() -> bool:
-    """Whether a CUDA GPU (or Numba's CUDA simulator) can run the kernel."""
+    """Whether a CUDA GPU (or Numba's CUDA simulator) can run the kernel.
+
+    Returns
+    -------
+    bool
+    """
     if cuda is None:
         return False
     try:
@@ -266,6 +271,13 @@ def simulate_lanes(*, P, level_per_state, h_init, h_op, ad, bd, state_input, Ad,
     """Run the lanes of :func:`heurtune.objectives.qtp.batch_kernels.simulate_batch` (same
     arguments, without the outputs) on the GPU, one thread each.
 
+    Parameters
+    ----------
+    P, level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel, segments
+        As :func:`heurtune.objectives.qtp.batch_kernels.simulate_batch` takes them.
+    dt, n_steps, noise, lane_noise, band_pct
+        Likewise.
+
     Returns
     -------
     status : (L,) int64 ndarray
@@ -323,6 +335,13 @@ def _make_continuous_kernel():
 def simulate_continuous_lanes(lanes, level_per_state, x_init, h_op, band_pct):
     """:func:`heurtune.objectives.qtp.continuous_kernels.simulate_continuous_lanes` on the GPU,
     one thread a lane (same arguments).
+
+    Parameters
+    ----------
+    lanes : dict
+        The lanes' inputs (:func:`heurtune.objectives.qtp.continuous.pack_lanes`).
+    level_per_state, x_init, h_op, band_pct
+        As the CPU function takes them.
 
     Returns
     -------

@@ -197,7 +197,16 @@ PRESETS = {
 
 
 def preset(name: str) -> QTPParams:
-    """Return a QTP preset by name (``min``, ``nmp``, ``P-``, ``P+``)."""
+    """Return a QTP preset by name (``min``, ``nmp``, ``P-``, ``P+``).
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    QTPParams
+    """
     try:
         return PRESETS[name]
     except KeyError:
@@ -223,6 +232,14 @@ def operating_point(p: QTPParams) -> OperatingPoint:
         a2 sqrt(2 g h2) = (1 - g1) k1 u1 + g2 k2 u2
 
     and the upper levels follow from their own balances.
+
+    Parameters
+    ----------
+    p : QTPParams
+
+    Returns
+    -------
+    OperatingPoint
 
     Raises
     ------
@@ -257,7 +274,20 @@ def operating_point(p: QTPParams) -> OperatingPoint:
 
 
 def qtp_rhs(h: np.ndarray, u: np.ndarray, p: QTPParams) -> np.ndarray:
-    """Nonlinear QTP right-hand side dh/dt (levels clipped at 0 under the square roots)."""
+    """Nonlinear QTP right-hand side dh/dt (levels clipped at 0 under the square roots).
+
+    Parameters
+    ----------
+    h : ndarray (4,)
+        Levels in cm.
+    u : ndarray (2,)
+        Pump voltages in V.
+    p : QTPParams
+
+    Returns
+    -------
+    ndarray (4,)
+    """
     A, a, (k1, k2), (g1, g2), g = p.A, p.a, p.k, p.gamma, p.g
     q = [a[i] * math.sqrt(2.0 * g * max(h[i], 0.0)) for i in range(4)]
     return np.array([
@@ -270,6 +300,12 @@ def qtp_rhs(h: np.ndarray, u: np.ndarray, p: QTPParams) -> np.ndarray:
 
 def linearise(p: QTPParams, op: OperatingPoint | None = None):
     """Linearise the QTP about its operating point.
+
+    Parameters
+    ----------
+    p : QTPParams
+    op : OperatingPoint, optional
+        Default: the operating point of ``p``.
 
     Returns
     -------
@@ -299,6 +335,15 @@ def transmission_zeros(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarra
     """Finite transmission zeros of a square system (D = 0) from the Rosenbrock pencil.
 
     The zeros are the finite generalised eigenvalues of ``([[A, B], [C, 0]], diag(I, 0))``.
+
+    Parameters
+    ----------
+    A, B, C : ndarray
+
+    Returns
+    -------
+    ndarray
+        Sorted.
     """
     import scipy.linalg
 
@@ -311,6 +356,15 @@ def transmission_zeros(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarra
 
 
 def is_minimum_phase(p: QTPParams) -> bool:
-    """True when every transmission zero of the linearised QTP lies in the open left half plane."""
+    """True when every transmission zero of the linearised QTP lies in the open left half plane.
+
+    Parameters
+    ----------
+    p : QTPParams
+
+    Returns
+    -------
+    bool
+    """
     z = transmission_zeros(*linearise(p))
     return bool(np.all(z.real < 0))

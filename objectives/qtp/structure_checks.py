@@ -125,7 +125,16 @@ CHECKS = {"design": check_design, "pairing": check_pairing, "deterministic": che
 
 
 def run_checks(structure) -> list:
-    """``[(check, passed, reason), ...]`` of :data:`CHECKS` on ``structure``."""
+    """``[(check, passed, reason), ...]`` of :data:`CHECKS` on ``structure``.
+
+    Parameters
+    ----------
+    structure : ControllerStructure
+
+    Returns
+    -------
+    list of (str, bool, str)
+    """
     return run_named_checks(CHECKS, structure)
 
 

@@ -35,17 +35,40 @@ FAMILY = "qtp"
 
 
 def structure(kind: str):
-    """The registered structure ``kind`` (one-line ConfigError naming the allowed ones)."""
+    """The registered structure ``kind`` (one-line ConfigError naming the allowed ones).
+
+    Parameters
+    ----------
+    kind : str
+
+    Returns
+    -------
+    ControllerStructure
+    """
     return get_structure(FAMILY, kind)
 
 
 def names() -> tuple:
-    """Every registered QTP controller type, sorted."""
+    """Every registered QTP controller type, sorted.
+
+    Returns
+    -------
+    tuple of str
+    """
     return structure_names(FAMILY)
 
 
 def controller_label(kind: str) -> str:
-    """A type's label in tables and figures (``"FOLQI"``); an unknown type as it is."""
+    """A type's label in tables and figures (``"FOLQI"``); an unknown type as it is.
+
+    Parameters
+    ----------
+    kind : str
+
+    Returns
+    -------
+    str
+    """
     try:
         return structure(kind).label
     except ConfigError:
@@ -53,23 +76,56 @@ def controller_label(kind: str) -> str:
 
 
 def paired_types() -> tuple:
-    """The types whose integral action follows ``[controller] pairing``."""
+    """The types whose integral action follows ``[controller] pairing``.
+
+    Returns
+    -------
+    tuple of str
+    """
     return tuple(sorted(s.name for s in structures_of(FAMILY) if s.paired))
 
 
 def decision_names(kind: str) -> tuple:
-    """Names of the tuning variables of a controller type, in decision-vector order."""
+    """Names of the tuning variables of a controller type, in decision-vector order.
+
+    Parameters
+    ----------
+    kind : str
+
+    Returns
+    -------
+    tuple of str
+    """
     return structure(kind).variables
 
 
 def default_bounds(kind: str) -> dict:
-    """Default ``(low, high)`` of each variable of a controller type (see each structure)."""
+    """Default ``(low, high)`` of each variable of a controller type (see each structure).
+
+    Parameters
+    ----------
+    kind : str
+
+    Returns
+    -------
+    dict of str to (float, float)
+    """
     return dict(structure(kind).bounds)
 
 
 def variable_domain(name: str) -> tuple:
     """Where a tuning variable is meaningful, ``(low, strict)``, as the first structure that
-    has it declares (``(-inf, False)`` for a name none declares)."""
+    has it declares (``(-inf, False)`` for a name none declares).
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    tuple
+        ``(low, strict)``.
+    """
     for s in structures_of(FAMILY):
         if name in s.variables:
             return s.domain(name)
@@ -78,7 +134,18 @@ def variable_domain(name: str) -> tuple:
 
 def loop_options(kind: str, options: dict) -> dict:
     """The options of a loop of type ``kind``: the structure's defaults updated by ``options``
-    and ``pairing`` last (a one-line ConfigError for a key the structure does not read)."""
+    and ``pairing`` last (a one-line ConfigError for a key the structure does not read).
+
+    Parameters
+    ----------
+    kind : str
+    options : dict
+        The config's ``[controller]`` options (``pairing`` among them).
+
+    Returns
+    -------
+    dict
+    """
     s = structure(kind)
     out = s.default_options()
     pairing = options.get("pairing", "diagonal")
@@ -111,6 +178,10 @@ def build_controller(kind: str, values: dict, A, B, C=None, **options) -> Linear
         gain (a PID's decoupler).
     **options
         The structure's options (:func:`loop_options`), and ``pairing``.
+
+    Returns
+    -------
+    LinearController
 
     Raises
     ------

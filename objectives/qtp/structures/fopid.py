@@ -47,7 +47,18 @@ def _realised(part):
 
 def fopid_design(values: dict, plant, options: dict) -> LinearController:
     """The FOPID controller of ``values`` as a LinearController (blocks: per loop the
-    integral part, then the derivative part)."""
+    integral part, then the derivative part).
+
+    Parameters
+    ----------
+    values : dict
+    plant : PlantLinearisation
+    options : dict
+
+    Returns
+    -------
+    LinearController
+    """
     order, band, realisation = options["oustaloup_order"], options["band"], options["realisation"]
     pairing = options["pairing"]
     parts = []  # (pump, error, gain, (A, b, c, d))

@@ -41,7 +41,18 @@ PID_BOUNDS = {"Kp": (0.0, 10.0), "Ki": (1e-4, 1.0), "Kd": (0.0, 2.0)}
 
 def decoupler_gain(plant, pairing: str, decoupler: str):
     """The static decoupler ``Dd`` (2, 2) between the loops' outputs and the pumps, or None
-    for ``"none"``: ``G(0)^-1 M``, ``M[e_r, r] = G(0)[e_r, r]`` for pump r's error e_r."""
+    for ``"none"``: ``G(0)^-1 M``, ``M[e_r, r] = G(0)[e_r, r]`` for pump r's error e_r.
+
+    Parameters
+    ----------
+    plant : PlantLinearisation
+    pairing : str
+    decoupler : {"none", "inverse_dc"}
+
+    Returns
+    -------
+    ndarray (2, 2) or None
+    """
     if decoupler == "none":
         return None
     G0 = dc_gain(plant.A, plant.B, plant.C)
@@ -53,13 +64,37 @@ def decoupler_gain(plant, pairing: str, decoupler: str):
 
 
 def decoupled(C, D, plant, pairing, decoupler):
-    """``(Dd C, Dd D)`` for the decoupler (the loops' output matrices unchanged for none)."""
+    """``(Dd C, Dd D)`` for the decoupler (the loops' output matrices unchanged for none).
+
+    Parameters
+    ----------
+    C, D : ndarray
+        The loops' output matrices (2 rows).
+    plant : PlantLinearisation
+    pairing : str
+    decoupler : {"none", "inverse_dc"}
+
+    Returns
+    -------
+    tuple
+    """
     Dd = decoupler_gain(plant, pairing, decoupler)
     return (C, D) if Dd is None else (Dd @ C, Dd @ D)
 
 
 def pid_design(values: dict, plant, options: dict) -> LinearController:
-    """The PID controller of ``values`` (Kp1, Ki1, Kd1, Kp2, Ki2, Kd2) as a LinearController."""
+    """The PID controller of ``values`` (Kp1, Ki1, Kd1, Kp2, Ki2, Kd2) as a LinearController.
+
+    Parameters
+    ----------
+    values : dict
+    plant : PlantLinearisation
+    options : dict
+
+    Returns
+    -------
+    LinearController
+    """
     N = float(options["derivative_filter"])
     pairing = options["pairing"]
     A = np.zeros((4, 4))
@@ -82,7 +117,17 @@ def pid_design(values: dict, plant, options: dict) -> LinearController:
 
 
 def decoupler_sign(plant, options: dict) -> int:
-    """Sign of ``det Dd`` (1 without a decoupler), for the integral-action check."""
+    """Sign of ``det Dd`` (1 without a decoupler), for the integral-action check.
+
+    Parameters
+    ----------
+    plant : PlantLinearisation
+    options : dict
+
+    Returns
+    -------
+    int
+    """
     Dd = decoupler_gain(plant, options["pairing"], options.get("decoupler", "none"))
     return 1 if Dd is None or np.linalg.det(Dd) > 0 else -1
 

@@ -74,7 +74,17 @@ def _key(table) -> str:
 
 
 def table_file(table) -> str:
-    """The CSV file name of a table, e.g. ``table_4_3.csv`` for ``"4.3"``."""
+    """The CSV file name of a table, e.g. ``table_4_3.csv`` for ``"4.3"``.
+
+    Parameters
+    ----------
+    table : str or float
+        The table's number.
+
+    Returns
+    -------
+    str
+    """
     return f"table_{_key(table).replace('.', '_')}.csv"
 
 

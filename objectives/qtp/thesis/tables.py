@@ -750,7 +750,16 @@ def _md_cell(s) -> str:
 
 
 def render_markdown(table: ThesisTable) -> str:
-    """The .md text of a table: title, a 'heurtune:' header line, notes, one pipe table per part."""
+    """The .md text of a table: title, a 'heurtune:' header line, notes, one pipe table per part.
+
+    Parameters
+    ----------
+    table : ThesisTable
+
+    Returns
+    -------
+    str
+    """
     lines = [f"# {table.title}", "", table.meaning, ""]
     for note in table.notes:
         lines.append(f"- note: {note}")
@@ -780,7 +789,16 @@ def _tex(s) -> str:
 
 
 def render_latex(table: ThesisTable) -> str:
-    """The .tex text of a table: one booktabs ``table`` environment per part (needs booktabs)."""
+    """The .tex text of a table: one booktabs ``table`` environment per part (needs booktabs).
+
+    Parameters
+    ----------
+    table : ThesisTable
+
+    Returns
+    -------
+    str
+    """
     out = [f"% {_tex(table.title)}", f"% {_tex(table.meaning)}"]
     for note in table.notes:
         out.append(f"% note: {_tex(note)}")
