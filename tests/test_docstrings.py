@@ -63,6 +63,13 @@ MODULES = [
     "heurtune.objectives.qtp.structures.pid",
     "heurtune.objectives.qtp.thesis.printed",
     "heurtune.objectives.qtp.thesis.tables",
+    "heurtune.objectives.tito.design",
+    "heurtune.objectives.tito.model",
+    "heurtune.objectives.tito.problem",
+    "heurtune.objectives.tito.report",
+    "heurtune.objectives.tito.sim",
+    "heurtune.objectives.tito.two_tank",
+    "heurtune.objectives.tito.family",
 ]
 
 

@@ -196,7 +196,19 @@ def _finite_scalars(label: str, **vals) -> dict:
 
 def parallel_controller(Kp, Ki, Kd=0.0, N=100.0) -> ParallelPID:
     """The :class:`ParallelPID` of :func:`pid_freqresp`: gains as given, ``Tf`` from
-    :func:`pid_filter_time` (0 for a PI). Raises ConfigError for non-finite gains or ``N <= 0``."""
+    :func:`pid_filter_time` (0 for a PI). Raises ConfigError for non-finite gains or ``N <= 0``.
+
+    Parameters
+    ----------
+    Kp, Ki, Kd : float
+        Parallel gains.
+    N : float
+        Derivative filter ratio.
+
+    Returns
+    -------
+    ParallelPID
+    """
     v = _finite_scalars("parallel_controller", Kp=Kp, Ki=Ki, Kd=Kd, N=N)
     Tf = float(pid_filter_time(v["Kp"], v["Ki"], v["Kd"], v["N"]))
     return ParallelPID(Kp=v["Kp"], Ki=v["Ki"], Kd=v["Kd"], Tf=Tf)
@@ -206,6 +218,15 @@ def pi_from_parallel(Kp, Ki) -> PIController:
     """The :class:`PIController` ``Kc (1 + 1/(Ti s))`` with parallel gains ``Kp + Ki/s``.
 
     ``Kc = Kp``, ``Ti = Kp / Ki``; :meth:`PIController.parallel` returns ``(Kp, Ki, 0)``.
+
+    Parameters
+    ----------
+    Kp, Ki : float
+        Parallel gains.
+
+    Returns
+    -------
+    PIController
 
     Raises
     ------
@@ -225,6 +246,17 @@ def pid_from_parallel(Kp, Ki, Kd, N=100.0) -> PIDController:
     Inverts :meth:`PIDController.parallel`: ``Kc`` is the larger-magnitude root of
     ``Kc^2 - Kp Kc + Kd Ki = 0``, ``Ti = Kc/Ki``, ``Td = Kd/Kc`` (so ``Ti >= Td``), ``Tf = Td/N``.
     Its :meth:`~PIDController.freqresp` equals :func:`pid_freqresp` for the same gains.
+
+    Parameters
+    ----------
+    Kp, Ki, Kd : float
+        Parallel gains.
+    N : float
+        Derivative filter ratio.
+
+    Returns
+    -------
+    PIDController
 
     Raises
     ------
@@ -923,6 +955,11 @@ def bandwidth_design_eval(Pw, w, X, kind, N, Am_min, phim_min_deg, Mt_max, *, re
         PID filter ratio ``Td/Tf`` (unused for PI).
     Am_min, phim_min_deg, Mt_max : float
         Specifications (> 0; ``phim_min_deg`` in degrees).
+    return_metrics : bool
+        Also return the loop metrics.
+    tail : array_like, shape (n, m), optional
+        Passed to :func:`loop_metrics_batch` (bounds of ``|L|`` beyond each sample, for loops
+        that do not roll off).
 
     Returns
     -------
@@ -931,9 +968,6 @@ def bandwidth_design_eval(Pw, w, X, kind, N, Am_min, phim_min_deg, Mt_max, *, re
     stable : numpy.ndarray of bool, shape (n,)
     metrics : LoopMetrics
         Only with ``return_metrics=True``: the loop metrics the verdicts come from.
-
-    ``tail`` (shape ``(n, m)``) is passed to :func:`loop_metrics_batch` (bounds of ``|L|`` beyond
-    each sample, for loops that do not roll off).
     """
     if kind not in ("pi", "pid"):
         raise ConfigError(f"bandwidth_design_eval: kind must be 'pi' or 'pid', got {kind!r}")

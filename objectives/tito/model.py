@@ -263,7 +263,16 @@ PRESETS = {
 
 
 def preset(name: str) -> TITOPlant:
-    """Return a TITO preset by name (``qts``, ``ccts``, ``csts``, ``two_tank``, ``wood_berry``)."""
+    """Return a TITO preset by name (``qts``, ``ccts``, ``csts``, ``two_tank``, ``wood_berry``).
+
+    Parameters
+    ----------
+    name : str
+
+    Returns
+    -------
+    TITOPlant
+    """
     try:
         return PRESETS[name]
     except KeyError:
@@ -395,6 +404,10 @@ def inverted_decoupler(plant: TITOPlant, *, delay_compensation: bool = False, ca
     column, so it is implemented here as ``[[d11 p3, p4], [p3, d22 p4]]`` (p3 from ``θ22 - θ21``,
     p4 from ``θ11 - θ12``). Properness (relative degree of the ratio >= 0) is required in both cases;
     paper 002 does not discuss it, paper 000's plants all satisfy it.
+
+    Returns
+    -------
+    Decoupler
     """
     if case not in (1, 2):
         raise ConfigError(f"decoupler case must be 1 or 2, got {case!r}")
@@ -475,6 +488,10 @@ def fit_fopdt(z: Callable, *, w_min: float = 1e-6, w_max: float = 1e3, n: int = 
         Vectorised frequency response ``z(w) -> complex array`` (``w`` in rad/s).
     w_min, w_max, n : float, float, int
         Log search grid; the grid must resolve the phase (step well below pi) up to the crossover.
+
+    Returns
+    -------
+    FOPDT
 
     Raises
     ------
@@ -598,6 +615,14 @@ def gpm_pi(fopdt: FOPDT, Am: float, phim_deg: float) -> tuple:
     ``wp = (Am phim + (pi/2) Am (Am - 1)) / ((Am^2 - 1) L)``, ``Kc = wp T / (Am K)``,
     ``Ti = 1 / (2 wp - 4 wp^2 L / pi + 1/T)`` for ``C(s) = Kc (1 + 1/(Ti s))``.
 
+    Parameters
+    ----------
+    fopdt : FOPDT
+    Am : float
+        Gain margin.
+    phim_deg : float
+        Phase margin in degrees.
+
     Returns
     -------
     (Kc, Ti) : tuple of float
@@ -621,6 +646,22 @@ def gpm_pid(fopdt: FOPDT, Am: float, phim_deg: float, *, Td: float | None = None
 
     ``PIDController.parallel()`` converts to the parallel form ``Kp + Ki/s + Kd s`` (ignoring the
     filter) used in the papers' printed controllers.
+
+    Parameters
+    ----------
+    fopdt : FOPDT
+    Am : float
+        Gain margin.
+    phim_deg : float
+        Phase margin in degrees.
+    Td : float, optional
+        Derivative time; None: paper 001's ``Td = Tf = Ti``.
+    N : float
+        Derivative filter ratio when ``Td`` is given.
+
+    Returns
+    -------
+    PIDController
     """
     if not (math.isfinite(N) and N >= 1):
         raise ConfigError(f"gpm_pid: N must be >= 1, got {N!r}")
@@ -655,6 +696,19 @@ def exact_margins(plant: Callable, controller: Callable, *, w_min: float = 1e-6,
     ``FOPDT.freqresp``, ``Decoupler.z11``, ``PIController.freqresp``). The first phase crossover
     (unwrapped ``arg L = -pi``) and the first gain crossover (``|L| = 1``) are bracketed on a
     log grid and refined with brentq.
+
+    Parameters
+    ----------
+    plant, controller : callable
+        Frequency responses of w (rad/s).
+    w_min, w_max : float
+        The search range in rad/s.
+    n : int
+        Points of the log grid.
+
+    Returns
+    -------
+    Margins
     """
     def loop(w):
         w = _as_w(w)

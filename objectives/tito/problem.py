@@ -66,6 +66,17 @@ _FREQ_METRICS = LOOP_METRICS[7:]
 
 
 def gain_names(kind: str) -> tuple:
+    """The decision variables of a decentralised PI or PID.
+
+    Parameters
+    ----------
+    kind : {"pi", "pid"}
+
+    Returns
+    -------
+    tuple of str
+        ``Kp1, Ki1, Kp2, Ki2`` (and ``Kd1``, ``Kd2`` for a PID, loop by loop).
+    """
     per = ("Kp", "Ki") if kind == "pi" else ("Kp", "Ki", "Kd")
     return tuple(f"{g}{i}" for i in (1, 2) for g in per)
 
@@ -73,7 +84,20 @@ def gain_names(kind: str) -> tuple:
 def default_bounds(kind: str, gpm_x: np.ndarray | None, signs) -> dict:
     """Bounds when the config gives none: loop ``i``'s gains share the sign of its element's
     static gain ``q_ii(0)`` (``signs``), up to 5 times the GPM design's magnitude (Kd: 20 times
-    its Kp), or up to 10 without a GPM design."""
+    its Kp), or up to 10 without a GPM design.
+
+    Parameters
+    ----------
+    kind : {"pi", "pid"}
+    gpm_x : ndarray, optional
+        The GPM design's gains.
+    signs : sequence of float
+        The signs of ``q_11(0)``, ``q_22(0)``.
+
+    Returns
+    -------
+    dict of str to (float, float)
+    """
     per = ("Kp", "Ki") if kind == "pi" else ("Kp", "Ki", "Kd")
     out = {}
     for i, sign in zip((1, 2), signs):
@@ -107,6 +131,19 @@ class DesignChain:
 
 
 def fopdt_fit(chain_element, label: str):
+    """The FOPDT fit of an element, or None and the reason.
+
+    Parameters
+    ----------
+    chain_element : TFElement
+    label : str
+        Names the element in the reason.
+
+    Returns
+    -------
+    tuple
+        ``(FOPDT or None, reason)``.
+    """
     try:
         return tito.fit_fopdt(chain_element), ""
     except ConfigError as exc:

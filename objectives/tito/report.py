@@ -67,6 +67,13 @@ def spectral_radius_figure(results: dict, path, title: str = "") -> None:
     """``rho(W T(jw))`` for input and output uncertainty, one line per design, with the limit 1.
 
     ``results`` maps a label to a :class:`~heurtune.objectives.robustness.SpectralRadiusResult`.
+
+    Parameters
+    ----------
+    results : dict
+    path : str or Path
+        The PNG file.
+    title : str
     """
     from heurtune.analysis.figures import new_figure
 
@@ -92,7 +99,19 @@ def _save(fig, path) -> None:
 
 def write_outputs(exp, runs: pd.DataFrame, best: pd.DataFrame, out_dir: Path, *, figures: bool = True) -> None:
     """``design.parquet``, ``robustness.parquet``, ``performance.{parquet,md}`` and the
-    spectral-radius figures of a TITO experiment's best designs."""
+    spectral-radius figures of a TITO experiment's best designs.
+
+    Parameters
+    ----------
+    exp : ExperimentBase
+    runs : pandas.DataFrame
+        Rows of ``runs.parquet``.
+    best : pandas.DataFrame
+        The best run of every case and optimiser.
+    out_dir : Path
+    figures : bool
+        Also draw the figures.
+    """
     out_dir = Path(out_dir)
     designs, robust = [], []
     spectral = {}

@@ -182,6 +182,13 @@ def discretise_rational(num, den, dt: float):
 
     Returns ``(Ad, Bd, C, D)`` with ``x[k+1] = Ad x[k] + Bd w[k]``, ``y[k] = C x[k] + D w[k]``
     (``Ad`` of shape ``(m, m)``, ``Bd`` and ``C`` of shape ``(m,)``).
+
+    Parameters
+    ----------
+    num, den : array_like
+        Polynomial coefficients, highest power first.
+    dt : float
+        The sample period.
     """
     num = np.trim_zeros(np.atleast_1d(np.asarray(num, dtype=np.float64)), "f")
     den = np.trim_zeros(np.atleast_1d(np.asarray(den, dtype=np.float64)), "f")
@@ -204,7 +211,19 @@ def discretise_rational(num, den, dt: float):
 
 
 def vary_plant(plant: TITOPlant, variation: float, vary=("K", "lags", "L")) -> TITOPlant:
-    """Plant with the parameters named in ``vary`` of every element multiplied by ``1 + variation``."""
+    """Plant with the parameters named in ``vary`` of every element multiplied by ``1 + variation``.
+
+    Parameters
+    ----------
+    plant : TITOPlant
+    variation : float
+        Relative change (``0.1``: +10 %).
+    vary : iterable of {"K", "lags", "L"}
+
+    Returns
+    -------
+    TITOPlant
+    """
     f = 1.0 + float(variation)
 
     def one(e: TFElement) -> TFElement:
@@ -462,7 +481,10 @@ def loop_metrics(df: pd.DataFrame, windows: dict | None = None, *, band_pct: flo
     (max ``|u_i|``), ``rms_e`` (root mean square of ``e_i`` over the samples) and ``tv_u``
     (total variation ``sum |u_i[k+1] - u_i[k]|``).
 
-    Returns a DataFrame indexed by loop (1, 2).
+    Returns
+    -------
+    pandas.DataFrame
+        Indexed by loop (1, 2).
     """
     t = df["t"].to_numpy()
     if windows is None:

@@ -218,6 +218,16 @@ def two_tank_rhs(h, u, params: TwoTankParams) -> np.ndarray:
     """Nonlinear right-hand side ``dh/dt`` (cm/s) for levels ``h`` (cm) and pump inputs ``u`` (V).
 
     Levels are clipped at 0 under the roots; the coupling flow uses the signed square root.
+
+    Parameters
+    ----------
+    h : array_like (2,)
+    u : array_like (2,)
+    params : TwoTankParams
+
+    Returns
+    -------
+    ndarray (2,)
     """
     c1, c2, c12, e1, e2 = params.coefficients()
     p1, p2 = max(float(h[0]), 0.0), max(float(h[1]), 0.0)
@@ -237,6 +247,16 @@ def operating_point(params: TwoTankParams, levels=None) -> OperatingPoint:
     Each tank balance is linear in its own pump input::
 
         eta1 u1 = c1 sqrt(h1) + c12 ssqrt(h1 - h2),   eta2 u2 = c2 sqrt(h2) - c12 ssqrt(h1 - h2)
+
+    Parameters
+    ----------
+    params : TwoTankParams
+    levels : array_like (2,), optional
+        Default ``params.levels``.
+
+    Returns
+    -------
+    OperatingPoint
 
     Raises
     ------
@@ -269,6 +289,15 @@ def equilibrium_levels(params: TwoTankParams, inputs) -> np.ndarray:
 
     Solved by bracketing on ``h1``: tank 1's balance gives ``h2(h1)``, and the total outflow
     ``c1 sqrt(h1) + c2 sqrt(h2)`` increases with ``h1`` until it equals the total inflow.
+
+    Parameters
+    ----------
+    params : TwoTankParams
+    inputs : array_like (2,)
+
+    Returns
+    -------
+    ndarray (2,)
     """
     own = _prefix(params.name)
     u1, u2 = _pair(own, "inputs", inputs, "V", strict=False)
@@ -316,6 +345,12 @@ def _conductances(params: TwoTankParams, h) -> tuple:
 def linearise(params: TwoTankParams, levels=None):
     """Small-signal model about the equilibrium at ``levels`` (default ``params.levels``).
 
+    Parameters
+    ----------
+    params : TwoTankParams
+    levels : array_like (2,), optional
+        Default ``params.levels``.
+
     Returns
     -------
     A : (2, 2) ndarray
@@ -348,6 +383,17 @@ def linear_tito_plant(params: TwoTankParams, levels=None, name: str | None = Non
     ``1/(k2 + k12)`` and ``1/(k1 + k12)``, and ``L = Ly_i + Lu_j``. With the coupling closed
     (``a12 = 0``) the off-diagonal elements are zero. Complex poles cannot occur; a
     non-positive pole (no outlet reachable) is reported as a ConfigError.
+
+    Parameters
+    ----------
+    params : TwoTankParams
+    levels : array_like (2,), optional
+        Default ``params.levels``.
+    name : str, optional
+
+    Returns
+    -------
+    TITOPlant
     """
     A, B, _ = linearise(params, levels)
     own = _prefix(params.name)
@@ -405,6 +451,10 @@ def calibrate(target, T_slow: float, *, A: float, levels, pump_delays=(0.0, 0.0)
         Slow time constant, s.
     A, levels, pump_delays, sensor_delays, g, name
         As in :class:`TwoTankParams`; ``A`` only sets the scale of the areas and pump flows.
+
+    Returns
+    -------
+    TwoTankParams
     """
     K = target.dc_gain() if isinstance(target, TITOPlant) else np.asarray(target, dtype=float)
     if K.shape != (2, 2) or not np.all(np.isfinite(K)):
@@ -442,6 +492,14 @@ def from_config(cfg) -> TwoTankParams:
     ``eta`` (number or ``[eta1, eta2]``), ``g``, ``levels = [h1, h2]`` or ``inputs = [u1, u2]``
     (the equilibrium levels of those pump inputs; not both), ``pump_delays``, ``sensor_delays``.
     The operating point is checked (a ConfigError names the infeasible levels).
+
+    Parameters
+    ----------
+    cfg : dict
+
+    Returns
+    -------
+    TwoTankParams
     """
     if not isinstance(cfg, dict):
         raise ConfigError(f"[plant]: must be a table with keys {', '.join(CONFIG_KEYS)}, got {cfg!r}")
