@@ -46,7 +46,25 @@ class APSOSettings:
 
 
 def apso_move(X, gbest, z, alpha: float, beta: float, width):
-    """One APSO move; ``z`` (n, d) ~ N(0, 1), ``width`` = Ub - Lb."""
+    """One APSO move; ``z`` (n, d) ~ N(0, 1), ``width`` = Ub - Lb.
+
+    Parameters
+    ----------
+    X : ndarray (n, d)
+        Positions.
+    gbest : ndarray (d,)
+        The best so far.
+    z : ndarray (n, d)
+        Draws ~ N(0, 1).
+    alpha, beta : float
+        Noise and attraction.
+    width : ndarray (d,)
+        ``Ub - Lb``.
+
+    Returns
+    -------
+    ndarray (n, d)
+    """
     return X + beta * (gbest - X) + alpha * z * width
 
 

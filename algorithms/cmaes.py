@@ -73,6 +73,17 @@ def ranking_values(f, v, compare) -> np.ndarray:
     ones under Deb's rules) follow as ``top + 1 + k + max(violation so far)``, k their place
     after the leading ones. The values are non-decreasing along the engine's order, so pycma
     ranks as the engine does; where they are the objective, pycma's tolerances read them.
+
+    Parameters
+    ----------
+    f, v : ndarray (n,)
+        Objectives and total violations.
+    compare : Comparator
+        The engine's ranking.
+
+    Returns
+    -------
+    ndarray (n,)
     """
     f = np.asarray(f, dtype=np.float64)
     v = np.asarray(v, dtype=np.float64)

@@ -83,7 +83,20 @@ class _OnFace:
 
 def face_of(x, lower, upper, active_tol):
     """``(x on its face, free coordinates)``: the coordinates of ``x`` within ``active_tol`` of
-    the range of a bound are set on it, the others are free (a boolean mask)."""
+    the range of a bound are set on it, the others are free (a boolean mask).
+
+    Parameters
+    ----------
+    x : ndarray (d,)
+    lower, upper : ndarray (d,)
+    active_tol : float
+        Fraction of each coordinate's range.
+
+    Returns
+    -------
+    tuple
+        ``(x on its face, free mask)``.
+    """
     width = upper - lower
     at_lower = x - lower <= active_tol * width
     at_upper = upper - x <= active_tol * width

@@ -43,20 +43,61 @@ class CSSettings:
 
 
 def mantegna_sigma(beta: float) -> float:
-    """sigma_u of Mantegna's algorithm for a Levy-stable step of index ``beta``."""
+    """sigma_u of Mantegna's algorithm for a Levy-stable step of index ``beta``.
+
+    Parameters
+    ----------
+    beta : float
+
+    Returns
+    -------
+    float
+    """
     num = math.gamma(1 + beta) * math.sin(math.pi * beta / 2)
     den = math.gamma((1 + beta) / 2) * beta * 2 ** ((beta - 1) / 2)
     return (num / den) ** (1 / beta)
 
 
 def levy_flight(nests, best, u, v, z, beta: float, step_scale: float):
-    """New nests by Levy flights; ``u`` (n, d) ~ N(0, sigma_u^2), ``v``, ``z`` (n, d) ~ N(0, 1)."""
+    """New nests by Levy flights; ``u`` (n, d) ~ N(0, sigma_u^2), ``v``, ``z`` (n, d) ~ N(0, 1).
+
+    Parameters
+    ----------
+    nests : ndarray (n, d)
+    best : ndarray (d,)
+    u, v, z : ndarray (n, d)
+        The draws.
+    beta : float
+        Levy index.
+    step_scale : float
+
+    Returns
+    -------
+    ndarray (n, d)
+    """
     step = u / np.abs(v) ** (1.0 / beta)
     return nests + step_scale * step * (nests - best) * z
 
 
 def discovery(nests, k_uniform, perm1, perm2, r: float, pa: float):
-    """Abandon-and-rebuild step; ``k_uniform`` (n, d) ~ U(0, 1), ``r`` ~ U(0, 1)."""
+    """Abandon-and-rebuild step; ``k_uniform`` (n, d) ~ U(0, 1), ``r`` ~ U(0, 1).
+
+    Parameters
+    ----------
+    nests : ndarray (n, d)
+    k_uniform : ndarray (n, d)
+        Draws ~ U(0, 1): a coordinate moves where ``> pa``.
+    perm1, perm2 : ndarray (n,)
+        Permutations of the nests.
+    r : float
+        Draw ~ U(0, 1), the step size.
+    pa : float
+        Discovery probability.
+
+    Returns
+    -------
+    ndarray (n, d)
+    """
     keep_moving = k_uniform > pa
     return nests + r * (nests[perm1] - nests[perm2]) * keep_moving
 

@@ -74,12 +74,32 @@ class FireflySettings:
 
 
 def alpha_decay_delta(max_generations: int) -> float:
-    """Yang's ``delta = 1 - (1e-4 / 0.9)^(1 / MaxGeneration)``."""
+    """Yang's ``delta = 1 - (1e-4 / 0.9)^(1 / MaxGeneration)``.
+
+    Parameters
+    ----------
+    max_generations : int
+
+    Returns
+    -------
+    float
+    """
     return 1.0 - (1e-4 / 0.9) ** (1.0 / max_generations)
 
 
 def brighter_matrix(compare, f, v) -> np.ndarray:
-    """``B[i, j]``: is firefly ``j`` strictly better than firefly ``i``?"""
+    """``B[i, j]``: is firefly ``j`` strictly better than firefly ``i``?
+
+    Parameters
+    ----------
+    compare : Comparator
+    f, v : ndarray (n,)
+        Objectives and total violations.
+
+    Returns
+    -------
+    ndarray (n, n) of bool
+    """
     f, v = np.asarray(f), np.asarray(v)
     return np.asarray(compare.better(f[None, :], v[None, :], f[:, None], v[:, None]), dtype=bool)
 
@@ -93,6 +113,19 @@ def move_fireflies(X_sorted, brighter, uniform_draws, alpha: float, beta0: float
     when ``brighter[i, j]``; ``scale`` = |Ub - Lb|. Firefly ``i`` visits ``j = 0, 1, ...`` in
     order, each move starting from where the previous one left it. Fireflies do not interact
     within a generation, so the loop runs over ``j`` and moves all attracted ``i`` at once.
+
+    Parameters
+    ----------
+    X_sorted : ndarray (n, d)
+    brighter : ndarray (n, n) of bool
+    uniform_draws : ndarray (n, n, d)
+    alpha, beta0, beta_min, gamma : float
+        Yang's randomisation, attractiveness at distance 0, its floor, and absorption.
+    scale : ndarray (d,)
+
+    Returns
+    -------
+    ndarray (n, d)
     """
     Xs = np.asarray(X_sorted, dtype=np.float64)
     X = Xs.copy()

@@ -52,7 +52,13 @@ class GASettings:
 
 def check_variation(settings) -> None:
     """The checks of the SBX and mutation settings (``eta_c``, ``p_c``, ``eta_m``, ``p_m``)
-    shared by the optimisers built on these operators (ValueError naming the setting)."""
+    shared by the optimisers built on these operators (ValueError naming the setting).
+
+    Parameters
+    ----------
+    settings : dataclass
+        With ``eta_c``, ``p_c``, ``eta_m`` and ``p_m``.
+    """
     if not settings.eta_c >= 0:
         raise ValueError(f"eta_c must be >= 0, got {settings.eta_c}")
     if not 0 <= settings.p_c <= 1:
@@ -67,6 +73,18 @@ def tournament(f, v, a, b, coin, compare):
     """Winners of binary tournaments ``a[k]`` vs ``b[k]`` (index arrays).
 
     ``coin`` (k,) ~ U(0, 1) breaks ties: ``a`` wins a tie when ``coin < 0.5``.
+
+    Parameters
+    ----------
+    f, v : ndarray
+        Objectives and total violations.
+    a, b : ndarray of int
+    coin : ndarray (k,)
+    compare : Comparator
+
+    Returns
+    -------
+    ndarray of int
     """
     f, v = np.asarray(f), np.asarray(v)
     a, b = np.asarray(a), np.asarray(b)
@@ -99,6 +117,18 @@ def sbx(p1, p2, lower, upper, eta, p_c, u_pair, u_var, u_beta, u_swap):
         c1 = (y1 + y2 - betaq1 (y2 - y1)) / 2,  c2 = (y1 + y2 + betaq2 (y2 - y1)) / 2
 
     Returns the two children (k, d), clipped to the box.
+
+    Parameters
+    ----------
+    p1, p2 : ndarray (k, d)
+        Parents.
+    lower, upper : ndarray (d,)
+    eta : float
+        Distribution index.
+    p_c : float
+        Crossover probability per pair.
+    u_pair, u_var, u_beta, u_swap : ndarray
+        The draws.
     """
     p1, p2 = np.atleast_2d(np.asarray(p1, dtype=np.float64)), np.atleast_2d(np.asarray(p2, dtype=np.float64))
     lower, upper = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
@@ -132,6 +162,21 @@ def polynomial_mutation(X, lower, upper, eta, p_m, u_do, u_delta):
         x' = x + dq w   (clipped to the box)
 
     Variables with zero width are left alone.
+
+    Parameters
+    ----------
+    X : ndarray (k, d)
+    lower, upper : ndarray (d,)
+    eta : float
+        Distribution index.
+    p_m : float
+        Mutation probability per variable.
+    u_do, u_delta : ndarray (k, d)
+        The draws.
+
+    Returns
+    -------
+    ndarray (k, d)
     """
     X = np.atleast_2d(np.asarray(X, dtype=np.float64))
     lower, upper = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
@@ -149,7 +194,19 @@ def polynomial_mutation(X, lower, upper, eta, p_m, u_do, u_delta):
 
 
 def survive(f, v, n, compare):
-    """Indices of the ``n`` best of a merged parent + offspring pool (best first)."""
+    """Indices of the ``n`` best of a merged parent + offspring pool (best first).
+
+    Parameters
+    ----------
+    f, v : ndarray
+        Objectives and total violations of the pool.
+    n : int
+    compare : Comparator
+
+    Returns
+    -------
+    ndarray of int
+    """
     return compare.order(f, v)[:n]
 
 

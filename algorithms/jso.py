@@ -59,12 +59,33 @@ class JSOSettings:
 
 
 def initial_population(dim: int, n_min: int = 4) -> int:
-    """``round(25 ln(D) sqrt(D))``, at least ``n_min`` (D = 10: 182)."""
+    """``round(25 ln(D) sqrt(D))``, at least ``n_min`` (D = 10: 182).
+
+    Parameters
+    ----------
+    dim : int
+    n_min : int
+
+    Returns
+    -------
+    int
+    """
     return max(n_min, int(round(25.0 * math.log(dim) * math.sqrt(dim)))) if dim > 1 else n_min
 
 
 def cr_floor(cr, t: float) -> np.ndarray:
-    """``max(CR, 0.7)`` while ``t < 0.25``, ``max(CR, 0.6)`` while ``t < 0.5``, else ``CR``."""
+    """``max(CR, 0.7)`` while ``t < 0.25``, ``max(CR, 0.6)`` while ``t < 0.5``, else ``CR``.
+
+    Parameters
+    ----------
+    cr : ndarray
+    t : float
+        The fraction of the budget spent.
+
+    Returns
+    -------
+    ndarray
+    """
     cr = np.asarray(cr, dtype=np.float64)
     if t < 0.25:
         return np.maximum(cr, 0.7)
@@ -74,26 +95,73 @@ def cr_floor(cr, t: float) -> np.ndarray:
 
 
 def f_cap(f, t: float) -> np.ndarray:
-    """``min(F, 0.7)`` while ``t < 0.6``, else ``F``."""
+    """``min(F, 0.7)`` while ``t < 0.6``, else ``F``.
+
+    Parameters
+    ----------
+    f : ndarray
+    t : float
+        The fraction of the budget spent.
+
+    Returns
+    -------
+    ndarray
+    """
     f = np.asarray(f, dtype=np.float64)
     return np.minimum(f, 0.7) if t < 0.6 else f
 
 
 def weighted_f(f, t: float) -> np.ndarray:
     """The weight of the pbest term: ``0.7 F`` while ``t < 0.2``, ``0.8 F`` while ``t < 0.4``,
-    ``1.2 F`` after."""
+    ``1.2 F`` after.
+
+    Parameters
+    ----------
+    f : ndarray
+    t : float
+        The fraction of the budget spent.
+
+    Returns
+    -------
+    ndarray
+    """
     f = np.asarray(f, dtype=np.float64)
     return (0.7 if t < 0.2 else 0.8 if t < 0.4 else 1.2) * f
 
 
 def jso_p(t: float, p_max: float = 0.25) -> float:
-    """``p`` from ``p_max / 2`` at ``t = 0`` to ``p_max`` at ``t = 1``, linearly."""
+    """``p`` from ``p_max / 2`` at ``t = 0`` to ``p_max`` at ``t = 1``, linearly.
+
+    Parameters
+    ----------
+    t : float
+        The fraction of the budget spent.
+    p_max : float
+
+    Returns
+    -------
+    float
+    """
     p_min = p_max / 2
     return p_min + (p_max - p_min) * min(max(t, 0.0), 1.0)
 
 
 def current_to_pbest_w(X, F, Fw, pbest, r1, r2_vectors):
-    """``v_i = x_i + Fw_i (x_pbest_i - x_i) + F_i (x_r1_i - x_r2_i)`` (rows)."""
+    """``v_i = x_i + Fw_i (x_pbest_i - x_i) + F_i (x_r1_i - x_r2_i)`` (rows).
+
+    Parameters
+    ----------
+    X : ndarray (n, d)
+    F, Fw : ndarray (n,)
+        Scale factors of the difference and of the pbest term.
+    pbest, r1 : ndarray of int (n,)
+    r2_vectors : ndarray (n, d)
+        ``x_r2`` rows (from the population or the archive).
+
+    Returns
+    -------
+    ndarray (n, d)
+    """
     F = np.asarray(F, dtype=np.float64)[:, None]
     Fw = np.asarray(Fw, dtype=np.float64)[:, None]
     return X + Fw * (X[pbest] - X) + F * (X[r1] - r2_vectors)
@@ -102,7 +170,21 @@ def current_to_pbest_w(X, F, Fw, pbest, r1, r2_vectors):
 def update_memory(m_cr: float, m_f: float, s_cr, s_f, delta) -> tuple:
     """The new ``(M_CR[k], M_F[k])``: each the mean of its old value and L-SHADE's update (the
     weighted Lehmer mean of the generation's successes, :func:`heurtune.algorithms.lshade.update_memory`,
-    whose terminal rule for ``M_CR`` holds); unchanged without successes."""
+    whose terminal rule for ``M_CR`` holds); unchanged without successes.
+
+    Parameters
+    ----------
+    m_cr, m_f : float
+        The memory slot's values.
+    s_cr, s_f : ndarray
+        The successful CR and F of the generation.
+    delta : ndarray
+        Their improvements (the weights).
+
+    Returns
+    -------
+    tuple of float
+    """
     if len(s_cr) == 0:
         return m_cr, m_f
     cr, f = lshade_update_memory(m_cr, m_f, s_cr, s_f, delta)

@@ -62,14 +62,35 @@ class LSHADESettings:
 
 
 def sample_cr(m_cr, rng) -> np.ndarray:
-    """``CR_i ~ N(M_CR, 0.1)`` clipped to [0, 1]; 0 where the slot is terminal."""
+    """``CR_i ~ N(M_CR, 0.1)`` clipped to [0, 1]; 0 where the slot is terminal.
+
+    Parameters
+    ----------
+    m_cr : ndarray (n,)
+        The memory slot of each individual (``TERMINAL``, -1: terminal).
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    ndarray (n,)
+    """
     m_cr = np.asarray(m_cr, dtype=np.float64)
     cr = np.clip(m_cr + 0.1 * rng.standard_normal(m_cr.shape), 0.0, 1.0)
     return np.where(m_cr == TERMINAL, 0.0, cr)
 
 
 def sample_f(m_f, rng) -> np.ndarray:
-    """``F_i ~ Cauchy(M_F, 0.1)``, drawn again while ``F_i <= 0``, cut to 1 above it."""
+    """``F_i ~ Cauchy(M_F, 0.1)``, drawn again while ``F_i <= 0``, cut to 1 above it.
+
+    Parameters
+    ----------
+    m_f : ndarray (n,)
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    ndarray (n,)
+    """
     m_f = np.asarray(m_f, dtype=np.float64)
     f = m_f + 0.1 * np.tan(np.pi * (rng.random(m_f.shape) - 0.5))
     bad = f <= 0
@@ -80,13 +101,38 @@ def sample_f(m_f, rng) -> np.ndarray:
 
 
 def current_to_pbest(X, F, pbest, r1, r2_vectors):
-    """``v_i = x_i + F_i (x_pbest_i - x_i) + F_i (x_r1_i - x_r2_i)`` (rows)."""
+    """``v_i = x_i + F_i (x_pbest_i - x_i) + F_i (x_r1_i - x_r2_i)`` (rows).
+
+    Parameters
+    ----------
+    X : ndarray (n, d)
+    F : ndarray (n,)
+    pbest, r1 : ndarray of int (n,)
+    r2_vectors : ndarray (n, d)
+
+    Returns
+    -------
+    ndarray (n, d)
+    """
     F = np.asarray(F, dtype=np.float64)[:, None]
     return X + F * (X[pbest] - X) + F * (X[r1] - r2_vectors)
 
 
 def binomial_crossover(X, V, CR, j_rand, uniform):
-    """``u_ij = v_ij`` where ``uniform_ij <= CR_i`` or ``j = j_rand_i``, else ``x_ij``."""
+    """``u_ij = v_ij`` where ``uniform_ij <= CR_i`` or ``j = j_rand_i``, else ``x_ij``.
+
+    Parameters
+    ----------
+    X, V : ndarray (n, d)
+        Parents and mutants.
+    CR : ndarray (n,)
+    j_rand : ndarray of int (n,)
+    uniform : ndarray (n, d)
+
+    Returns
+    -------
+    ndarray (n, d)
+    """
     take = uniform <= np.asarray(CR, dtype=np.float64)[:, None]
     take[np.arange(len(X)), j_rand] = True
     return np.where(take, V, X)
@@ -94,13 +140,33 @@ def binomial_crossover(X, V, CR, j_rand, uniform):
 
 def halfway_repair(U, X, lower, upper):
     """A component of trial ``U`` below ``lower`` becomes ``(lower + x) / 2``, above ``upper``
-    ``(upper + x) / 2`` (x the parent's component)."""
+    ``(upper + x) / 2`` (x the parent's component).
+
+    Parameters
+    ----------
+    U, X : ndarray (n, d)
+        Trials and parents.
+    lower, upper : ndarray (d,)
+
+    Returns
+    -------
+    ndarray (n, d)
+    """
     U = np.where(U < lower, 0.5 * (lower + X), U)
     return np.where(U > upper, 0.5 * (upper + X), U)
 
 
 def lehmer_mean(values, weights) -> float:
-    """Weighted Lehmer mean ``sum w s^2 / sum w s``, weights normalised to sum 1."""
+    """Weighted Lehmer mean ``sum w s^2 / sum w s``, weights normalised to sum 1.
+
+    Parameters
+    ----------
+    values, weights : ndarray
+
+    Returns
+    -------
+    float
+    """
     s = np.asarray(values, dtype=np.float64)
     w = np.asarray(weights, dtype=np.float64)
     w = w / w.sum()
@@ -108,7 +174,21 @@ def lehmer_mean(values, weights) -> float:
 
 
 def update_memory(m_cr: float, m_f: float, s_cr, s_f, delta) -> tuple:
-    """The new ``(M_CR[k], M_F[k])`` from the successes of a generation (unchanged without any)."""
+    """The new ``(M_CR[k], M_F[k])`` from the successes of a generation (unchanged without any).
+
+    Parameters
+    ----------
+    m_cr, m_f : float
+        The memory slot's values.
+    s_cr, s_f : ndarray
+        The successful CR and F of the generation.
+    delta : ndarray
+        Their improvements (the weights).
+
+    Returns
+    -------
+    tuple of float
+    """
     if len(s_cr) == 0:
         return m_cr, m_f
     delta = np.asarray(delta, dtype=np.float64)
@@ -123,7 +203,20 @@ def update_memory(m_cr: float, m_f: float, s_cr, s_f, delta) -> tuple:
 
 def population_size(nfe: int, max_nfe: int, n_init: int, n_min: int) -> int:
     """Linear population size reduction: ``round(n_init + (n_min - n_init) nfe / max_nfe)``,
-    at least ``n_min``."""
+    at least ``n_min``.
+
+    Parameters
+    ----------
+    nfe : int
+        Evaluations spent.
+    max_nfe : int
+        The budget.
+    n_init, n_min : int
+
+    Returns
+    -------
+    int
+    """
     if not max_nfe:
         return n_init
     return max(n_min, int(round(n_init + (n_min - n_init) * min(nfe, max_nfe) / max_nfe)))

@@ -110,7 +110,17 @@ class NevergradOptimizer(Optimizer):
 
 def resolve(name: str) -> AlgorithmInfo:
     """The registry entry of nevergrad's optimiser ``name`` (a one-line ConfigError for a name
-    nevergrad does not have, naming some it has)."""
+    nevergrad does not have, naming some it has).
+
+    Parameters
+    ----------
+    name : str
+        Without the ``ng:`` prefix.
+
+    Returns
+    -------
+    AlgorithmInfo
+    """
     ng = _nevergrad()
     if name not in ng.optimizers.registry:
         known = ", ".join(n for n in ("NGOpt", "TwoPointsDE", "CMA", "PSO", "DE", "OnePlusOne")

@@ -46,7 +46,19 @@ class NSGA2Settings:
 
 
 def rank_and_crowding(F, v):
-    """Front index and crowding distance (within its front) of every candidate."""
+    """Front index and crowding distance (within its front) of every candidate.
+
+    Parameters
+    ----------
+    F : ndarray (n, m)
+    v : ndarray (n,)
+        Total violations (infeasible candidates rank after the feasible ones).
+
+    Returns
+    -------
+    ranks : ndarray of int (n,)
+    crowd : ndarray (n,)
+    """
     F = np.asarray(F, dtype=np.float64).reshape(len(v), -1)
     ranks = constrained_ranks(F, v)
     crowd = np.zeros(len(v))
@@ -58,7 +70,19 @@ def rank_and_crowding(F, v):
 
 def crowded_tournament(ranks, crowd, a, b, coin):
     """Winners of the tournaments ``a[k]`` vs ``b[k]``: lower front, then larger crowding
-    distance, then ``a`` when ``coin[k] < 0.5``."""
+    distance, then ``a`` when ``coin[k] < 0.5``.
+
+    Parameters
+    ----------
+    ranks : ndarray of int
+    crowd : ndarray
+    a, b : ndarray of int
+    coin : ndarray (k,)
+
+    Returns
+    -------
+    ndarray of int
+    """
     a, b = np.asarray(a), np.asarray(b)
     a_better = (ranks[a] < ranks[b]) | ((ranks[a] == ranks[b]) & (crowd[a] > crowd[b]))
     b_better = (ranks[b] < ranks[a]) | ((ranks[a] == ranks[b]) & (crowd[b] > crowd[a]))
@@ -66,7 +90,18 @@ def crowded_tournament(ranks, crowd, a, b, coin):
 
 
 def survivors(F, v, n):
-    """Indices of the ``n`` candidates NSGA-II keeps from a merged pool (Fig. 2)."""
+    """Indices of the ``n`` candidates NSGA-II keeps from a merged pool (Fig. 2).
+
+    Parameters
+    ----------
+    F : ndarray (n, m)
+    v : ndarray (n,)
+    n : int
+
+    Returns
+    -------
+    ndarray of int
+    """
     ranks, crowd = rank_and_crowding(F, v)
     keep = []
     for r in np.unique(ranks):

@@ -86,7 +86,16 @@ BOUNDS = ("engine", "reflect", "random")
 
 def handle_bounds(X, V, lower, upper, how: str, uniform=None):
     """Positions ``X`` and velocities ``V`` after the bound rule ``how`` (see the module
-    docstring); ``uniform`` (n, d) ~ U(0, 1) are the redraws of ``"random"``. Returns (X, V)."""
+    docstring); ``uniform`` (n, d) ~ U(0, 1) are the redraws of ``"random"``. Returns (X, V).
+
+    Parameters
+    ----------
+    X, V : ndarray (n, d)
+    lower, upper : ndarray (d,)
+    how : str
+        The bound rule.
+    uniform : ndarray (n, d), optional
+    """
     if how == "engine":
         return X, V
     out = (X < lower) | (X > upper)
@@ -105,7 +114,20 @@ def handle_bounds(X, V, lower, upper, how: str, uniform=None):
 
 
 def pso_step(X, V, P, g, r1, r2, w: float, c1: float, c2: float):
-    """One constriction-PSO step; ``r1``, ``r2`` (n, d) ~ U(0, 1). Returns (new X, new V)."""
+    """One constriction-PSO step; ``r1``, ``r2`` (n, d) ~ U(0, 1). Returns (new X, new V).
+
+    Parameters
+    ----------
+    X, V : ndarray (n, d)
+        Positions and velocities.
+    P : ndarray (n, d)
+        Personal bests.
+    g : ndarray (d,)
+        The global best.
+    r1, r2 : ndarray (n, d)
+    w, c1, c2 : float
+        Inertia and acceleration constants.
+    """
     V_new = w * V + c1 * r1 * (P - X) + c2 * r2 * (g - X)
     return X + V_new, V_new
 

@@ -167,7 +167,17 @@ class PymooOptimizer(Optimizer):
 
 def resolve(name: str) -> AlgorithmInfo:
     """The registry entry of pymoo's algorithm ``name`` (a one-line ConfigError for a name the
-    bridge does not know, listing those it does)."""
+    bridge does not know, listing those it does).
+
+    Parameters
+    ----------
+    name : str
+        Without the ``pymoo:`` prefix.
+
+    Returns
+    -------
+    AlgorithmInfo
+    """
     _pymoo()
     if name not in ALGORITHMS:
         raise ConfigError(f"the pymoo bridge has no algorithm {name!r}; allowed: {', '.join(ALGORITHMS)}")

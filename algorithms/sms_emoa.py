@@ -57,7 +57,16 @@ class SMSEMOASettings:
 
 def contributions(F) -> np.ndarray:
     """Exclusive hypervolume contribution of each point of a non-dominated front, against
-    ``nadir + range`` (a point extreme in any objective gets ``inf``)."""
+    ``nadir + range`` (a point extreme in any objective gets ``inf``).
+
+    Parameters
+    ----------
+    F : ndarray (k, m)
+
+    Returns
+    -------
+    ndarray (k,)
+    """
     F = np.asarray(F, dtype=np.float64)
     if len(F) <= 2:
         return np.full(len(F), np.inf)
@@ -71,7 +80,16 @@ def contributions(F) -> np.ndarray:
 def least_contributor(F) -> int:
     """Index of the member a feasible front (k, m) loses: a member with non-finite objectives
     (a failed candidate) first, else the least hypervolume contributor; with one member or one
-    objective (a tie), the newest."""
+    objective (a tie), the newest.
+
+    Parameters
+    ----------
+    F : ndarray (k, m)
+
+    Returns
+    -------
+    int
+    """
     if len(F) == 1 or F.shape[1] == 1:
         return len(F) - 1
     finite = np.all(np.isfinite(F), axis=1)
@@ -81,7 +99,17 @@ def least_contributor(F) -> int:
 
 
 def reduce_one(F, v) -> int:
-    """Index of the candidate SMS-EMOA drops from a pool of mu + 1."""
+    """Index of the candidate SMS-EMOA drops from a pool of mu + 1.
+
+    Parameters
+    ----------
+    F : ndarray (mu + 1, m)
+    v : ndarray (mu + 1,)
+
+    Returns
+    -------
+    int
+    """
     F = np.asarray(F, dtype=np.float64).reshape(len(v), -1)
     v = np.asarray(v, dtype=np.float64)
     ranks = constrained_ranks(F, v)
@@ -94,7 +122,18 @@ def reduce_one(F, v) -> int:
 def reduce_to(F, v, mu: int) -> np.ndarray:
     """Indices (sorted) of the ``mu`` candidates a generation keeps from a pool of mu + lambda:
     whole fronts in rank order while they fit; the splitting front, if infeasible, keeps its
-    smallest violations (ties: the older), else loses its least contributor one at a time."""
+    smallest violations (ties: the older), else loses its least contributor one at a time.
+
+    Parameters
+    ----------
+    F : ndarray (mu + lambda, m)
+    v : ndarray (mu + lambda,)
+    mu : int
+
+    Returns
+    -------
+    ndarray of int
+    """
     F = np.asarray(F, dtype=np.float64).reshape(len(v), -1)
     v = np.asarray(v, dtype=np.float64)
     ranks = constrained_ranks(F, v)

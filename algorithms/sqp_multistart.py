@@ -188,7 +188,17 @@ def _solve_pinned(task: _Task, item, Bounds, minimize):
 
 
 def even_caps(budget: int, k: int) -> list:
-    """``budget`` split over ``k`` starts in order: the first ``budget % k`` get one more."""
+    """``budget`` split over ``k`` starts in order: the first ``budget % k`` get one more.
+
+    Parameters
+    ----------
+    budget : int
+    k : int
+
+    Returns
+    -------
+    list of int
+    """
     q, r = divmod(budget, k)
     return [q + (1 if i < r else 0) for i in range(k)]
 
