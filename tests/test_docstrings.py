@@ -2,8 +2,9 @@
 
 For every public function of the modules below (their ``__all__``, or the names without a
 leading underscore), the docstring has a ``Parameters`` section naming each parameter of the
-signature (``*args``, ``**kwargs`` and keyword-only ones too; private ones, ``_name``, aside), and a ``Returns`` (or ``Yields``)
-section when the signature declares a return value other than None. The list grows module by
+signature (``*args``, ``**kwargs`` and keyword-only ones too; private ones, ``_name``, aside),
+and a ``Returns`` (or ``Yields``) section when the signature declares a return value other
+than None. The list grows module by
 module as their docstrings are brought to this form.
 """
 

@@ -99,7 +99,15 @@ from heurtune.core.io import atomic_path, check_output_file
 
 # The names of the analysis this module used to hold, re-exported: ``heurtune.analysis.compare.load_runs``
 # and the others keep working.
-__all__ = ["FORMATS", "REEVALUATION_COLUMNS", "load_runs", "summary_table", "BOOTSTRAP_SEED", "BOOTSTRAP_RESAMPLES", "CI_LEVEL", "A12_THRESHOLDS", "failed_runs", "successful_runs", "vargha_delaney_a12", "effect_magnitude", "bootstrap_ci", "median_ci", "a12_ci", "pairwise_tests", "holm", "kruskal_test", "dunn_test", "find_winners", "FriedmanResult", "critical_difference", "friedman_across_cases", "cd_diagram", "best_run_index", "best_runs", "reevaluation_table", "load_margins", "load_histories", "parse_labels", "margins_table", "report", "run", "main"]
+__all__ = [
+    "FORMATS", "REEVALUATION_COLUMNS", "load_runs", "summary_table", "BOOTSTRAP_SEED",
+    "BOOTSTRAP_RESAMPLES", "CI_LEVEL", "A12_THRESHOLDS", "failed_runs", "successful_runs",
+    "vargha_delaney_a12", "effect_magnitude", "bootstrap_ci", "median_ci", "a12_ci",
+    "pairwise_tests", "holm", "kruskal_test", "dunn_test", "find_winners", "FriedmanResult",
+    "critical_difference", "friedman_across_cases", "cd_diagram", "best_run_index", "best_runs",
+    "reevaluation_table", "load_margins", "load_histories", "parse_labels", "margins_table",
+    "report", "run", "main",
+]
 
 
 def _parser() -> argparse.ArgumentParser:

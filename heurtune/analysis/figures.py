@@ -144,7 +144,8 @@ def convergence_figure(history: pd.DataFrame, path, case=None, *, failures=None,
     ``best_f`` is carried forward from its last recorded epoch (a stopped run keeps its final
     best), and a run contributes nothing before its first recorded epoch. Values at or above
     ``FAILED_THRESHOLD`` (the failure sentinel of a run with no simulable candidate yet) rank as
-    +inf; epochs whose median is not finite are not drawn. The y-axis of a panel is logarithmic when all its plotted values are positive
+    +inf; epochs whose median is not finite are not drawn. The y-axis of a panel is logarithmic when
+    all its plotted values are positive
     and span more than two decades.
 
     Parameters

@@ -26,7 +26,9 @@ from heurtune.analysis.stats import (
 )
 from heurtune.core.errors import ConfigError
 
-__all__ = ["FORMATS", "LATEX_MAX_COLUMNS", "LATEX_PACKAGES", "report"]
+__all__ = [
+    "FORMATS", "LATEX_MAX_COLUMNS", "LATEX_PACKAGES", "report",
+]
 
 
 FORMATS = ("md", "csv", "latex")

@@ -17,7 +17,11 @@ import pandas as pd
 from heurtune.core.errors import ConfigError
 from heurtune.core.problem import FAILED_OBJECTIVE
 
-__all__ = ["check_metric", "REEVALUATION_COLUMNS", "REQUIRED_COLUMNS", "MARGIN_KEY_COLUMNS", "experiment_folder", "load_runs", "load_margins", "load_histories", "margins_table", "failed_runs", "successful_runs", "best_runs", "best_run_index", "reevaluation_table"]
+__all__ = [
+    "check_metric", "REEVALUATION_COLUMNS", "REQUIRED_COLUMNS", "MARGIN_KEY_COLUMNS",
+    "experiment_folder", "load_runs", "load_margins", "load_histories", "margins_table",
+    "failed_runs", "successful_runs", "best_runs", "best_run_index", "reevaluation_table",
+]
 
 
 REEVALUATION_COLUMNS = ("Mp1", "Mp2", "ts1", "ts2", "ess1", "ess2", "J1", "J2", "J")

@@ -16,7 +16,12 @@ from scipy import stats
 
 from heurtune.analysis.runs import _samples, check_metric, failed_runs, successful_runs
 
-__all__ = ["BOOTSTRAP_SEED", "BOOTSTRAP_RESAMPLES", "CI_LEVEL", "A12_THRESHOLDS", "vargha_delaney_a12", "effect_magnitude", "bootstrap_ci", "median_ci", "a12_ci", "summary_table", "holm", "kruskal_test", "dunn_test", "pairwise_tests", "find_winners", "FriedmanResult", "critical_difference", "friedman_across_cases"]
+__all__ = [
+    "BOOTSTRAP_SEED", "BOOTSTRAP_RESAMPLES", "CI_LEVEL", "A12_THRESHOLDS", "vargha_delaney_a12",
+    "effect_magnitude", "bootstrap_ci", "median_ci", "a12_ci", "summary_table", "holm",
+    "kruskal_test", "dunn_test", "pairwise_tests", "find_winners", "FriedmanResult",
+    "critical_difference", "friedman_across_cases",
+]
 
 
 #: Seed of every bootstrap interval (a fresh ``numpy.random.default_rng(BOOTSTRAP_SEED)`` each).

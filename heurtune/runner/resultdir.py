@@ -240,7 +240,8 @@ def check_parts(parts: Path, specs, fingerprints: dict, *, dry=False) -> PartChe
 
     A run part is reusable when it is readable, names its own run, carries the expected
     fingerprint, and its history part does too. Damaged or misnamed parts are moved to
-    ``parts/corrupt/`` with a warning on stderr (``dry``: only reported in ``set_aside``); parts of another config are reported in
+    ``parts/corrupt/`` with a warning on stderr (``dry``: only reported in ``set_aside``); parts of
+    another config are reported in
     ``mismatched`` and parts of an earlier heurtune, which carry no fingerprint, in ``legacy``,
     neither moved.
 

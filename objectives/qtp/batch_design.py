@@ -135,7 +135,8 @@ def folqi_controllers(kind: str, values: np.ndarray, names, A, B, *, oustaloup_o
                       realisation="direct", pairing="diagonal") -> list:
     """FOLQI or IOLQI controllers of ``values`` (k, d) named ``names``; each entry a
     LinearController or the ControllerDesignError of that candidate (as
-    :func:`~heurtune.objectives.qtp.controllers.folqi_design` raises it). Candidates whose integrators share a modal layout are
+    :func:`~heurtune.objectives.qtp.controllers.folqi_design` raises it). Candidates whose
+    integrators share a modal layout are
     built together; the others (two integrators, alpha out of range, non-positive weights) one
     by one.
 

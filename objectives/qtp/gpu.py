@@ -4,7 +4,8 @@ Two kernels. The continuous-time loop's (:func:`simulate_continuous_lanes`) call
 :func:`heurtune.objectives.qtp.continuous_kernels.continuous_lane`, the per-lane step of the
 one-candidate and the batched CPU paths, compiled from its Python source as a device function
 together with every kernel function it reaches; its working arrays live in global memory, one
-set per lane. The sampled loop's (:func:`simulate_lanes`) runs the loop of :func:`heurtune.objectives.qtp.kernels.simulate_loop` (metrics only)
+set per lane. The sampled loop's (:func:`simulate_lanes`) runs the loop of
+:func:`heurtune.objectives.qtp.kernels.simulate_loop` (metrics only)
 on the lane-last arrays of :func:`heurtune.objectives.qtp.batch_kernels.simulate_batch`, so that
 neighbouring threads read neighbouring addresses. The plant step, the metric folds and their
 finishing come from the CPU kernels' own Python source, compiled a second time as CUDA device
