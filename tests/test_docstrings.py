@@ -4,8 +4,9 @@ For every public function of the modules below (their ``__all__``, or the names 
 leading underscore), the docstring has a ``Parameters`` section naming each parameter of the
 signature (``*args``, ``**kwargs`` and keyword-only ones too; private ones, ``_name``, aside),
 and a ``Returns`` (or ``Yields``) section when the signature declares a return value other
-than None. The list grows module by
-module as their docstrings are brought to this form.
+than None. The list holds every public module of heurtune, its optimisers and its two plant
+families; ``heurtune.algorithms._gradient`` (private) and the plant-family plugins in
+``experiments/plugins`` are not on it.
 """
 
 import importlib
