@@ -211,7 +211,17 @@ def spectral_radius(M) -> np.ndarray:
 
 
 def max_singular_value(M) -> np.ndarray:
-    """Largest singular value of a matrix or stack of matrices (``inf`` where not finite)."""
+    """Largest singular value of a matrix or stack of matrices (``inf`` where not finite).
+
+    Parameters
+    ----------
+    M : array_like (..., m, n)
+
+    Returns
+    -------
+    ndarray
+        One value per matrix.
+    """
     M = np.asarray(M, dtype=complex)
     if M.ndim < 2:
         raise ConfigError(f"max_singular_value needs matrices, got shape {M.shape}")

@@ -398,6 +398,10 @@ def run(argv=None) -> int:
     ----------
     argv : list of str, optional
         Arguments without the program name; default ``sys.argv[1:]``.
+
+    Returns
+    -------
+    int
     """
     try:
         args = _parser().parse_args(argv)

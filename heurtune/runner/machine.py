@@ -9,7 +9,12 @@ __all__ = ["cpu_name"]
 
 def cpu_name() -> str:
     """The CPU's model name (``/proc/cpuinfo``), or what :mod:`platform` knows where that file
-    is absent."""
+    is absent.
+
+    Returns
+    -------
+    str
+    """
     try:
         with open("/proc/cpuinfo") as fh:
             for line in fh:
