@@ -119,8 +119,13 @@ class GradientSettings:
         "help": "converged when max|projected gradient * box width| <= gtol*max(1,|merit|)"})
     restart: bool = dataclasses.field(default=True, metadata={
         "help": "after convergence restart from a random point (else keep polishing)"})
-    line_search: str = dataclasses.field(default="armijo", metadata={
-        "help": "'armijo' (batched Armijo search) or 'unit' (the thesis' alpha_k = 1: one trial P(x + d), always taken)"})
+    line_search: str = dataclasses.field(
+        default="armijo",
+        metadata={
+            "help": "'armijo' (batched Armijo search) or 'unit' (the thesis' alpha_k = 1: one trial "
+            "P(x + d), always taken)"
+        },
+    )
     xtol: float = dataclasses.field(default=0.0, metadata={
         "help": "also converged when an accepted step moves no coordinate by xtol box widths or more (0: off)"})
 

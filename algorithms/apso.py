@@ -68,8 +68,13 @@ def apso_move(X, gbest, z, alpha: float, beta: float, width):
     return X + beta * (gbest - X) + alpha * z * width
 
 
-@register("apso", settings=APSOSettings, source="Yang (2010), Nature-Inspired Metaheuristic Algorithms, sec. 8.3",
-          description="Accelerated PSO: move towards the best so far plus decaying Gaussian noise (n evaluations per generation)")
+@register(
+    "apso",
+    settings=APSOSettings,
+    source="Yang (2010), Nature-Inspired Metaheuristic Algorithms, sec. 8.3",
+    description="Accelerated PSO: move towards the best so far plus decaying Gaussian noise "
+    "(n evaluations per generation)",
+)
 class AcceleratedPSO(Optimizer):
     def __init__(self, space, settings, rng, compare):
         super().__init__(space, settings, rng, compare)

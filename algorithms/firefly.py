@@ -51,7 +51,9 @@ from heurtune.core.registry import register
 @dataclasses.dataclass(frozen=True)
 class FireflySettings:
     n: int = dataclasses.field(default=100, metadata={"help": "fireflies"})
-    alpha: float = dataclasses.field(default=0.3, metadata={"help": "initial randomness (thesis mu = 0.3), times |Ub - Lb|"})
+    alpha: float = dataclasses.field(
+        default=0.3, metadata={"help": "initial randomness (thesis mu = 0.3), times |Ub - Lb|"}
+    )
     beta0: float = dataclasses.field(default=0.3, metadata={"help": "attractiveness at r = 0 (thesis beta = 0.3)"})
     beta_min: float = dataclasses.field(default=0.2, metadata={"help": "attractiveness floor (Yang's code: 0.2)"})
     gamma: float = dataclasses.field(default=1.0, metadata={"help": "light absorption coefficient"})
@@ -140,8 +142,13 @@ def move_fireflies(X_sorted, brighter, uniform_draws, alpha: float, beta0: float
     return X
 
 
-@register("firefly", settings=FireflySettings, source="Yang (2009/2010); Yang, fa_ndim.m / ffa_mincon.m",
-          description="Firefly algorithm: move towards every brighter firefly, decaying randomness (n evaluations per generation)")
+@register(
+    "firefly",
+    settings=FireflySettings,
+    source="Yang (2009/2010); Yang, fa_ndim.m / ffa_mincon.m",
+    description="Firefly algorithm: move towards every brighter firefly, decaying randomness "
+    "(n evaluations per generation)",
+)
 class Firefly(Optimizer):
     def __init__(self, space, settings, rng, compare):
         super().__init__(space, settings, rng, compare)

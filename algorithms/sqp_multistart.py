@@ -285,5 +285,12 @@ def _reuse(record, item, round_no):
     if not np.array_equal(np.asarray(record["x0"], dtype=np.float64), x0) or saved_cap != cap:
         raise ConfigError(f"saved local solve {start} started from another point or cap: "
                           "the checkpoint belongs to another run; start this run afresh")
-    return dict(record, start=start, round=round_no, cap=cap, x0=np.array(x0), x=np.asarray(record["x"], dtype=np.float64),
-                g=np.asarray(record["g"], dtype=np.float64).reshape(-1))
+    return dict(
+        record,
+        start=start,
+        round=round_no,
+        cap=cap,
+        x0=np.array(x0),
+        x=np.asarray(record["x"], dtype=np.float64),
+        g=np.asarray(record["g"], dtype=np.float64).reshape(-1),
+    )

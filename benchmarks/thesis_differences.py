@@ -83,10 +83,14 @@ T45 = [(0.8931, 0.7372, 1.9876, 1.9980, 0.2275, 0.4175, 5.6151, 0.5002, 0.8753, 
 FOLQI_NAMES = ("Q11", "Q22", "Q33", "Q44", "R11", "R22", "Ki1", "Ki2", "alpha1", "alpha2")
 
 T48 = {
-    ("iolqi", "min"): dict(Mp=(8.2777, 6.6129), ts=(32.5670, 20.1600), ess=(0.1066, 0.0775), J=(2.040, 1.755), Jt=3.795),
+    ("iolqi", "min"): dict(
+        Mp=(8.2777, 6.6129), ts=(32.5670, 20.1600), ess=(0.1066, 0.0775), J=(2.040, 1.755), Jt=3.795
+    ),
     ("ladr", "min"): dict(Mp=(6.0725, 5.9856), ts=(0.1180, 0.1060), ess=(2.2960, 2.1806), J=(2.109, 1.871), Jt=3.980),
     ("folqi", "min"): dict(Mp=(6.0720, 5.9856), ts=(0.2050, 0.2780), ess=(0.0180, 0.0993), J=(1.794, 1.509), Jt=3.302),
-    ("iolqi", "nmp"): dict(Mp=(9.3713, 12.5970), ts=(26.3810, 36.8130), ess=(0.0056, 0.0358), J=(2.128, 2.333), Jt=4.461),
+    ("iolqi", "nmp"): dict(
+        Mp=(9.3713, 12.5970), ts=(26.3810, 36.8130), ess=(0.0056, 0.0358), J=(2.128, 2.333), Jt=4.461
+    ),
     ("ladr", "nmp"): dict(Mp=(4.9500, 7.5023), ts=(0.0, 0.4090), ess=(2.3150, 4.9263), J=(2.133, 1.948), Jt=4.082),
     ("folqi", "nmp"): dict(Mp=(4.9500, 8.7694), ts=(0.0, 19.7290), ess=(0.0963, 0.6284), J=(1.932, 2.001), Jt=3.932),
 }
@@ -338,7 +342,9 @@ def part_a():
                 continue
             s = simulate(loop, c)
             m, J = step_metrics(s, band=5.0), effort(s)
-            feas = m["Mp1"] < 15 and m["Mp2"] < 15 and m["ts1"] < 70 and m["ts2"] < 70 and m["ess1"] < 3 and m["ess2"] < 3
+            feas = (
+                m["Mp1"] < 15 and m["Mp2"] < 15 and m["ts1"] < 70 and m["ts2"] < 70 and m["ess1"] < 3 and m["ess2"] < 3
+            )
             rows.append([label, r[10] * 1e3, J.sum(), "yes" if feas else "no"])
     print("converged FOLQI sets: printed J against heurtune's (ch. 4 spec met?)")
     table(["", "J thesis", "J heurtune", "feasible"], rows, first=18, width=10)
@@ -472,8 +478,19 @@ def part_c():
             pr = T48[(kind, case)]
             loop, c = controller(kind, case, GAINS[("ch4", kind, case)])
             if loop.stability_margin(c) >= 0:
-                rows.append([f"{kind.upper()} {case} (unstable here)", pr["Mp"][0], pr["Mp"][1], pr["ts"][0], pr["ts"][1],
-                             "", "", "", ""])
+                rows.append(
+                    [
+                        f"{kind.upper()} {case} (unstable here)",
+                        pr["Mp"][0],
+                        pr["Mp"][1],
+                        pr["ts"][0],
+                        pr["ts"][1],
+                        "",
+                        "",
+                        "",
+                        "",
+                    ]
+                )
                 continue
             m = step_metrics(simulate(loop, c), band=5.0)
             rows.append([f"{kind.upper()} {case}", pr["Mp"][0], pr["Mp"][1], pr["ts"][0], pr["ts"][1],
@@ -563,7 +580,10 @@ def part_c():
             rows.append([f"{key[0]} {key[1].upper()} min", printed[0][0], printed[0][1], d11.gain_crossover_rad_s,
                          d11.phase_margin_deg, printed[1][0], printed[1][1], d22.gain_crossover_rad_s,
                          d22.phase_margin_deg])
-        print("loops (1,1) and (2,2): printed crossover (rad/s) and phase margin (deg) against heurtune.objectives.qtp.margins")
+        print(
+            "loops (1,1) and (2,2): printed crossover (rad/s) and phase margin (deg) against "
+            "heurtune.objectives.qtp.margins"
+        )
         table(["", "wc11 thes", "PM11 thes", "wc11", "PM11", "wc22 thes", "PM22 thes", "wc22", "PM22"], rows,
               first=18)
     except Exception as exc:  # margins are context here, not a result of this script

@@ -37,8 +37,13 @@ def test_installed_wheel_imports_outside_the_repo(wheel, tmp_path):
                    check=True, capture_output=True)
     code = ("import heurtune, sys; p = heurtune.load_experiment('cs_folqi_qtp').problem('nmp'); "
             "print(heurtune.__file__); print(p.dim)")
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path,
-                         env={"PYTHONPATH": str(target), "PATH": "/usr/bin:/bin", "NUMBA_CACHE_DIR": str(tmp_path / "nb")})
+    res = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+        env={"PYTHONPATH": str(target), "PATH": "/usr/bin:/bin", "NUMBA_CACHE_DIR": str(tmp_path / "nb")},
+    )
     assert res.returncode == 0, res.stderr
     file, dim = res.stdout.split()
     assert file.startswith(str(target)) and dim == "10"

@@ -54,8 +54,18 @@ from heurtune.core.families import make_experiment
 from heurtune.core.io import atomic_path, check_output_folder
 from heurtune.core.problem import FAILED_OBJECTIVE
 
-__all__ = ["load_results", "ioh_lines", "write_ioh", "export_ioh", "matlab_name", "write_mat", "mat_readme", "export_mat",
-           "best_runs", "main"]
+__all__ = [
+    "load_results",
+    "ioh_lines",
+    "write_ioh",
+    "export_ioh",
+    "matlab_name",
+    "write_mat",
+    "mat_readme",
+    "export_mat",
+    "best_runs",
+    "main",
+]
 
 IOH_VERSION = "0.4.2"  # the ioh release whose Analyzer layout these files follow
 FORMATS = ("ioh", "mat")

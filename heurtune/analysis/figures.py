@@ -406,7 +406,9 @@ def plot_responses(traj, path, title: str = "", limits=None, labels=None) -> Non
         for i, ax in out_ax.items():
             line, = ax.plot(df["t"], df[f"y{i}"], lw=1.2, ls=style, label=f"{name}: y{i}")
             if f"h{i}" in df:
-                ax.plot(df["t"], df[f"h{i}"], lw=0.7, ls=style, alpha=0.5, color=line.get_color(), label=f"{name}: h{i}")
+                ax.plot(
+                    df["t"], df[f"h{i}"], lw=0.7, ls=style, alpha=0.5, color=line.get_color(), label=f"{name}: h{i}"
+                )
             if k == 0 and f"r{i}" in df:
                 ax.plot(df["t"], df[f"r{i}"], "k--", lw=0.8, label="set-point")
         for j, ax in in_ax.items():

@@ -235,7 +235,9 @@ def _blocks(runs: pd.DataFrame, metric: str, alpha: float, margins: pd.DataFrame
 
     blocks.append(("heading", 2, "Across cases"))
     if fried.cases_left_out:
-        blocks.append(("note", f"Cases left out (no algorithm has a successful run): {', '.join(fried.cases_left_out)}."))
+        blocks.append(
+            ("note", f"Cases left out (no algorithm has a successful run): {', '.join(fried.cases_left_out)}.")
+        )
     if fried.left_out:
         blocks.append(("note", f"Left out (no successful run in some case): {', '.join(fried.left_out)}."))
     if fried.skipped:

@@ -549,8 +549,9 @@ def run(algorithm: str, evaluator: Evaluator, space: SearchSpace, *, settings=No
     for key, value, least in (("max_evals", max_evals, 1), ("max_epochs", max_epochs, 0)):
         if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < least):
             raise ConfigError(f"{key} must be an integer >= {least}, got {value!r}")
-    if not isinstance(seed, np.random.SeedSequence) and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))
-                                                         or seed < 0):
+    if not isinstance(seed, np.random.SeedSequence) and (
+        isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0
+    ):
         raise ConfigError(f"seed must be an integer >= 0 or a numpy SeedSequence, got {seed!r}")
     if max_time is not None and not max_time > 0:
         raise ConfigError(f"max_time must be positive, got {max_time!r}")

@@ -76,7 +76,9 @@ def register_family(name: str, *, schema: dict, description: str, models: tuple 
             raise TypeError(f"plant family {name!r} must be a subclass of heurtune.core.problem.ExperimentBase")
         taken = [m for m in models if m in _FAMILIES and _FAMILIES[m].cls is not cls]
         if taken:
-            raise ValueError(f"plant model {taken[0]!r} is already registered (by {_FAMILIES[taken[0]].cls.__module__})")
+            raise ValueError(
+                f"plant model {taken[0]!r} is already registered (by {_FAMILIES[taken[0]].cls.__module__})"
+            )
         table = schema.setdefault("problem", {})
         if isinstance(table, dict):
             for key, spec in {**ROBUST_SCHEMA, **MULTI_OBJECTIVE_SCHEMA}.items():

@@ -435,7 +435,9 @@ class ExperimentBase:
                     raise ConfigError(f"{self.name}: problem.{key} needs problem.objectives")
             return
         if not 2 <= len(names) <= 3 or len(set(names)) != len(names):
-            raise ConfigError(f"{self.name}: problem.objectives must name two or three distinct objectives, got {names}")
+            raise ConfigError(
+                f"{self.name}: problem.objectives must name two or three distinct objectives, got {names}"
+            )
         unknown = [n for n in names if n not in allowed]
         if unknown:
             raise ConfigError(f"{self.name}: problem.objectives: unknown objective {unknown[0]!r}; "

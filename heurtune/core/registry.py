@@ -18,8 +18,19 @@ import typing
 import heurtune.algorithms as algorithms_package
 from heurtune.core.errors import ConfigError
 
-__all__ = ["AlgorithmInfo", "register", "register_bridge", "bridges", "bridge_checked", "get", "available", "load_algorithms",
-           "make_settings", "describe", "reference_markdown"]
+__all__ = [
+    "AlgorithmInfo",
+    "register",
+    "register_bridge",
+    "bridges",
+    "bridge_checked",
+    "get",
+    "available",
+    "load_algorithms",
+    "make_settings",
+    "describe",
+    "reference_markdown",
+]
 
 _REGISTRY: dict = {}
 _PLUGINS_LOADED = False

@@ -101,7 +101,9 @@ class RobustTuning:
 
     def evaluate(self, problem, X, **kwargs) -> Evaluation:
         """``problem.evaluate_scenarios(X, scenarios)``, aggregated."""
-        return aggregate_evaluations(problem.evaluate_scenarios(X, self.scenarios, **kwargs), self.aggregate, self.level)
+        return aggregate_evaluations(
+            problem.evaluate_scenarios(X, self.scenarios, **kwargs), self.aggregate, self.level
+        )
 
     def identity(self) -> dict:
         """What enters the problem_id."""

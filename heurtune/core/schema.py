@@ -106,7 +106,9 @@ def _describe(spec) -> str:
     if isinstance(spec, tuple) and spec and spec[0] == "range":
         return _describe(spec[1])
     if isinstance(spec, tuple) and spec and spec[0] in ("list", "map", "pair", "oneof"):
-        return {"list": "a list", "map": "a table", "pair": "two numbers [a, b]", "oneof": "one of several forms"}[spec[0]]
+        return {"list": "a list", "map": "a table", "pair": "two numbers [a, b]", "oneof": "one of several forms"}[
+            spec[0]
+        ]
     if isinstance(spec, tuple):
         if all(isinstance(s, str) for s in spec):
             return "one of " + ", ".join(repr(s) for s in spec)

@@ -10,8 +10,19 @@ import math
 
 import numpy as np
 
-__all__ = ["SHIFT", "sphere", "rosenbrock", "rastrigin", "ackley", "pressure_vessel", "zdt1", "dtlz2", "ZDT1_HYPERVOLUME",
-           "PROBLEMS", "BUDGETS"]
+__all__ = [
+    "SHIFT",
+    "sphere",
+    "rosenbrock",
+    "rastrigin",
+    "ackley",
+    "pressure_vessel",
+    "zdt1",
+    "dtlz2",
+    "ZDT1_HYPERVOLUME",
+    "PROBLEMS",
+    "BUDGETS",
+]
 
 SHIFT = 1.3  # optimum of the shifted functions at x_i = 1.3 (inside [-5, 5])
 

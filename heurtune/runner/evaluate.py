@@ -2,8 +2,8 @@
 
 Usage::
 
-    python -m heurtune.evaluate cs_folqi_qtp --case min \\
-        --x "Q11=0.4431,Q22=0.3027,Q33=0.4434,Q44=1.5722,R11=4.2253,R22=2.5994,Ki1=1.7411,Ki2=7.1716,alpha1=0.9814,alpha2=0.8437" \\
+    X="Q11=0.4431,Q22=0.3027,Q33=0.4434,Q44=1.5722,R11=4.2253,R22=2.5994,Ki1=1.7411,Ki2=7.1716,alpha1=0.9814,alpha2=0.8437"
+    python -m heurtune.evaluate cs_folqi_qtp --case min --x "$X" \\
         [--scenario nominal --scenario +30%] [--out traj.parquet] [--plot resp.png] [--plugin FILE]
 
 Prints one row per scenario: overshoot Mp (%), settling time ts (s) and steady-state error
@@ -44,7 +44,9 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--x", required=True, help='decision variables as "NAME=VALUE,NAME=VALUE,..."')
     ap.add_argument("--scenario", action="append", default=None,
                     help="scenario to evaluate (repeatable; default: all of the experiment's)")
-    ap.add_argument("--out", help="write trajectories (scenario, t, h1..h4 or r1, r2, y1, y2, u1, u2) to this parquet file")
+    ap.add_argument(
+        "--out", help="write trajectories (scenario, t, h1..h4 or r1, r2, y1, y2, u1, u2) to this parquet file"
+    )
     ap.add_argument("--plot", help="draw levels and pump voltages to this PNG file")
     ap.add_argument("--plugin", action="append", default=[],
                     help="plugin (a plant family, controller structures or optimisers): a .py file or module; "

@@ -374,8 +374,14 @@ def _front_table(prob, front: dict) -> pd.DataFrame:
 
 def _run_key(prob, spec: RunSpec) -> str:
     """A short hash of what a run's local solves depend on: problem, optimiser, budget, seed."""
-    payload = dict(problem=problem_fingerprint(prob), algorithm=spec.algorithm, settings=spec.settings, budget=spec.budget,
-                   seed=spec.root_seed, spawn_key=list(spec.spawn_key))
+    payload = dict(
+        problem=problem_fingerprint(prob),
+        algorithm=spec.algorithm,
+        settings=spec.settings,
+        budget=spec.budget,
+        seed=spec.root_seed,
+        spawn_key=list(spec.spawn_key),
+    )
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
@@ -752,9 +758,16 @@ def _run_locked(exp, config, specs, fingerprints, ids, out_dir, parts, *, fresh,
     with atomic_path(out_dir / "plan.json") as tmp:
         tmp.write_text(json.dumps(plan_key))
     with atomic_path(out_dir / PLANNED_FILE) as tmp:  # what --status compares the parts with
-        tmp.write_text(json.dumps(dict(experiment=exp.name, runs=[s.part_name for s in specs],
-                                       fingerprints={s.part_name: fingerprint_digest(fingerprints[s.part_name]) for s in specs},
-                                       smoke=bool(plan_key.get("smoke")))))
+        tmp.write_text(
+            json.dumps(
+                dict(
+                    experiment=exp.name,
+                    runs=[s.part_name for s in specs],
+                    fingerprints={s.part_name: fingerprint_digest(fingerprints[s.part_name]) for s in specs},
+                    smoke=bool(plan_key.get("smoke")),
+                )
+            )
+        )
     structure_warnings = exp.structure_warnings()
     for case, msg in structure_warnings.items():
         print(f"warning: {case}: {msg}", file=sys.stderr)
@@ -1028,8 +1041,10 @@ def _figures(exp, runs, history, best, out_dir):
         fronts = pd.read_parquet(out_dir / "pareto.parquet")
         for case in exp.cases:
             keys = best.loc[best["case"] == case, ["algorithm", "run"]].itertuples(index=False)
-            sel = fronts[(fronts["case"] == case)
-                         & pd.Series(list(zip(fronts["algorithm"], fronts["run"])), index=fronts.index).isin(list(keys))]
+            sel = fronts[
+                (fronts["case"] == case)
+                & pd.Series(list(zip(fronts["algorithm"], fronts["run"])), index=fronts.index).isin(list(keys))
+            ]
             if len(sel):
                 prob = exp.problem(case)
                 figures.pareto_figure(sel, out_dir / f"pareto_{_slug(case)}.png", prob.objective_names,
@@ -1123,7 +1138,12 @@ def _parser():
                     help="advance the runs together, each generation of all runs evaluated as one batch "
                          "(same results; default: on with --device cpu-batch or gpu)")
     ap.add_argument("--scheduler", help="Dask scheduler address, with --backend dask")
-    ap.add_argument("--plugin", action="append", default=[], help="plugin (optimisers, a plant family or controller structures): a .py file or module; repeatable")
+    ap.add_argument(
+        "--plugin",
+        action="append",
+        default=[],
+        help="plugin (optimisers, a plant family or controller structures): a .py file or module; repeatable",
+    )
     ap.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     ap.add_argument("--force", action="store_true",
                     help="run even when one evaluation is calibrated to take over a minute")

@@ -6,13 +6,14 @@ written atomically at most once a second, wherever the run executes (this proces
 worker, a Dask worker sharing the folder; elsewhere it gives up quietly). :class:`Progress`
 reads the heartbeats of the runs in flight once a second and redraws one line::
 
-    [######..................] 5/20 runs, 26,410/101,000 evals, 410 evals/s, 3 min 02 s left, best min: 4254.28 [cs], nmp: 3974.4 [cs]
+    [######..................] 5/20 runs, 26,410/101,000 evals, 410 evals/s, 3 min 02 s left, best min: 4254.28 [cs]
 
 Runs done count their actual evaluations, runs in flight their heartbeat, runs to come their
 planned evaluations (:func:`heurtune.runner.workplan.planned_evaluations`); the time left is
 the evaluations left at this invocation's measured rate, counted from the first evaluations
-seen (before that, at the rate the calibration predicted). On a terminal the line is redrawn in place; into a file or pipe it is
-written when a run ends and every ``log_interval`` seconds in between.
+seen (before that, at the rate the calibration predicted). On a terminal the line is redrawn in
+place; into a file or pipe it is written when a run ends and every ``log_interval`` seconds in
+between.
 """
 
 from __future__ import annotations

@@ -33,8 +33,23 @@ import pyarrow.parquet as pq
 
 from heurtune.core.errors import ConfigError
 
-__all__ = ["run_fingerprint", "fingerprint_of", "fingerprint_digest", "matching_parts", "differing_keys", "read_part", "PartCheck", "check_parts",
-           "set_aside", "set_aside_file", "clear_folder", "FolderLock", "METADATA_KEY", "LOCK_FILE", "CORRUPT_DIR"]
+__all__ = [
+    "run_fingerprint",
+    "fingerprint_of",
+    "fingerprint_digest",
+    "matching_parts",
+    "differing_keys",
+    "read_part",
+    "PartCheck",
+    "check_parts",
+    "set_aside",
+    "set_aside_file",
+    "clear_folder",
+    "FolderLock",
+    "METADATA_KEY",
+    "LOCK_FILE",
+    "CORRUPT_DIR",
+]
 
 # The parquet metadata key of a part's fingerprint.
 METADATA_KEY = b"heurtune.fingerprint"

@@ -36,8 +36,16 @@ from heurtune.core.engine import run as run_optimiser
 from heurtune.core.errors import ConfigError
 from heurtune.core.evaluator import Evaluator
 
-__all__ = ["Calibration", "calibrate", "borrow_step_cost", "check_evaluation_time", "planned_evaluations", "estimate_line",
-           "format_duration", "EVALUATION_LIMIT_S"]
+__all__ = [
+    "Calibration",
+    "calibrate",
+    "borrow_step_cost",
+    "check_evaluation_time",
+    "planned_evaluations",
+    "estimate_line",
+    "format_duration",
+    "EVALUATION_LIMIT_S",
+]
 
 # A single evaluation predicted to take longer than this is refused (unless --force).
 EVALUATION_LIMIT_S = 60.0
@@ -352,8 +360,12 @@ def estimate_line(calibrations: dict, pending_evals: dict, total_runs: int, work
     if unknown:
         counted = (f"{counted} + {unknown} runs with no evaluation cap (not known in advance)" if evals else
                    f"{unknown} runs with no evaluation cap: evaluations not known in advance")
-    when = (f"estimated time {'at least ' if unknown else ''}{format_duration(seconds)} on {workers} worker(s) "
-            f"if every candidate is simulated" if evals else "time left shown once a run of each such case and optimiser has ended")
+    when = (
+        f"estimated time {'at least ' if unknown else ''}{format_duration(seconds)} on {workers} worker(s) "
+        f"if every candidate is simulated"
+        if evals
+        else "time left shown once a run of each such case and optimiser has ended"
+    )
     line = (f"plan: {total_runs} runs, {counted}; one evaluation of a simulated candidate: {per_eval} "
             f"(calibrated on {CALIBRATION_CANDIDATES} candidates, {how}); {when}")
     return line, seconds

@@ -951,8 +951,9 @@ def continuous_lane(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm, Aq,
                                 mid = 0.5 * (a_ + b_)
                                 _dense_at(mid, hs, x, z, lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, c_e, s, d1, d2, h_op,
                                           Dc, pm[0], pm[1], scr, wst, w, xr, dur, pmc, phw, sqw, vq)
-                                _event_values(xr, dur, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, ga,
-                                              ue)
+                                _event_values(
+                                    xr, dur, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, ga, ue
+                                )
                                 if ga[k] > 0.0:
                                     b_ = mid
                                 else:

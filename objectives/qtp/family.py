@@ -305,7 +305,9 @@ class Experiment(ExperimentBase):
             names = decision_names(self.controller_of(case))
             missing = [n for n in names if n not in values or values[n] is None]
             if missing:
-                raise ConfigError(f"{where}: no value for {', '.join(missing)} (case {case!r} needs {', '.join(names)})")
+                raise ConfigError(
+                    f"{where}: no value for {', '.join(missing)} (case {case!r} needs {', '.join(names)})"
+                )
             if entry["name"] in out.get(case, {}):
                 raise ConfigError(f"{where}: baseline {entry['name']!r} given twice for case {case!r}")
             out.setdefault(case, {})[entry["name"]] = np.array([float(values[n]) for n in names])

@@ -120,8 +120,15 @@ def check_pickles(structure):
     assert np.array_equal(again.controller(x).D, loop.controller(x).D), "an unpickled loop designs differently"
 
 
-CHECKS = {"design": check_design, "pairing": check_pairing, "deterministic": check_deterministic, "corners": check_corners,
-          "simulates": check_simulates, "batch": check_batch, "pickles": check_pickles}
+CHECKS = {
+    "design": check_design,
+    "pairing": check_pairing,
+    "deterministic": check_deterministic,
+    "corners": check_corners,
+    "simulates": check_simulates,
+    "batch": check_batch,
+    "pickles": check_pickles,
+}
 
 
 def run_checks(structure) -> list:

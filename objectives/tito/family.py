@@ -75,8 +75,12 @@ SCHEMA = dict(COMMON_SCHEMA, **{
 })
 
 
-@register_family("tito", models=MODELS, schema=SCHEMA,
-                 description="two-input two-output coupled tanks with dead time (papers 000-002) under decentralised PI/PID")
+@register_family(
+    "tito",
+    models=MODELS,
+    schema=SCHEMA,
+    description="two-input two-output coupled tanks with dead time (papers 000-002) under decentralised PI/PID",
+)
 class TITOExperiment(ExperimentBase):
     """A named TITO experiment config (``[plant] model = "tito"`` or ``"two_tank_nonlinear"``).
 

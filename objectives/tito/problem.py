@@ -173,7 +173,9 @@ def _magnitude_tail(terms: list, w: np.ndarray) -> np.ndarray:
     """
     total = np.zeros(w.size)
     for num, den in terms:
-        gain = abs(np.prod([e.K for e in num]) / np.prod([e.K for e in den])) if den else abs(np.prod([e.K for e in num]))
+        gain = (
+            abs(np.prod([e.K for e in num]) / np.prod([e.K for e in den])) if den else abs(np.prod([e.K for e in num]))
+        )
         zeros = sorted([abs(t) for e in num for t in e.leads] + [abs(t) for e in den for t in e.lags], reverse=True)
         poles = sorted([abs(t) for e in num for t in e.lags] + [abs(t) for e in den for t in e.leads], reverse=True)
         zeros = [t for t in zeros if t > 0]
@@ -349,9 +351,15 @@ class TITOProblem(TuningProblem):
             ae = np.abs(ei)
             scale = float(np.max(np.abs(r[:, i])))
             band_i = band * (scale if scale > 0 else 1.0)
-            vals = dict(IAE=_trapz(ae, dt), ISE=_trapz(ei * ei, dt), ITAE=_trapz(t * ae, dt), ts=_settling(t, ae, band_i),
-                        max_u=float(np.max(np.abs(u[:, i]))), rms_e=float(np.sqrt(np.mean(ei * ei))),
-                        tv_u=float(np.sum(np.abs(np.diff(u[:, i])))))
+            vals = dict(
+                IAE=_trapz(ae, dt),
+                ISE=_trapz(ei * ei, dt),
+                ITAE=_trapz(t * ae, dt),
+                ts=_settling(t, ae, band_i),
+                max_u=float(np.max(np.abs(u[:, i]))),
+                rms_e=float(np.sqrt(np.mean(ei * ei))),
+                tv_u=float(np.sum(np.abs(np.diff(u[:, i])))),
+            )
             for key, v in vals.items():
                 row[self._midx[f"{key}{i + 1}"]] = v
             for wname, (t0, t1) in self.windows.items():

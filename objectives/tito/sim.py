@@ -149,7 +149,9 @@ class TITOScenario:
         vary = (self.vary,) if isinstance(self.vary, str) else tuple(self.vary)
         bad = [v for v in vary if v not in _VARY_KEYS]
         if bad:
-            raise ConfigError(f"scenario: unknown vary key(s) {', '.join(map(str, bad))}; allowed: {', '.join(_VARY_KEYS)}")
+            raise ConfigError(
+                f"scenario: unknown vary key(s) {', '.join(map(str, bad))}; allowed: {', '.join(_VARY_KEYS)}"
+            )
         for key, val in (("horizon", horizon), ("dt", dt), ("variation", variation), ("setpoints", setpoints),
                          ("input_disturbance", dists[0]), ("output_disturbance", dists[1]),
                          ("noise_power", power), ("noise_seed", int(self.noise_seed)), ("vary", vary)):

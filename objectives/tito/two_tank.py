@@ -190,7 +190,9 @@ class TwoTankParams:
         vary = (vary,) if isinstance(vary, str) else tuple(vary)
         bad = [v for v in vary if v not in VARY_KEYS]
         if bad:
-            raise ConfigError(f"two_tank vary: unknown key(s) {', '.join(map(str, bad))}; allowed: {', '.join(VARY_KEYS)}")
+            raise ConfigError(
+                f"two_tank vary: unknown key(s) {', '.join(map(str, bad))}; allowed: {', '.join(VARY_KEYS)}"
+            )
         f = 1.0 + d
         new = {}
         for key in ("A", "a1", "a2", "a12"):

@@ -65,7 +65,9 @@ def test_memory_is_the_weighted_lehmer_mean_with_its_terminal_rule():
     assert lehmer_mean([0.2, 0.8], [1.0, 3.0]) == pytest.approx(0.49 / 0.65, rel=1e-15)
     assert update_memory(0.5, 0.5, [], [], []) == (0.5, 0.5)
     cr, f = update_memory(0.5, 0.5, [0.2, 0.8], [0.4, 0.9], [1.0, 3.0])
-    assert cr == pytest.approx(0.49 / 0.65) and f == pytest.approx((0.25 * 0.16 + 0.75 * 0.81) / (0.25 * 0.4 + 0.75 * 0.9))
+    assert cr == pytest.approx(0.49 / 0.65) and f == pytest.approx(
+        (0.25 * 0.16 + 0.75 * 0.81) / (0.25 * 0.4 + 0.75 * 0.9)
+    )
     assert update_memory(0.5, 0.5, [0.0, 0.0], [0.4, 0.9], [1.0, 1.0])[0] == TERMINAL  # max S_CR = 0
     assert update_memory(TERMINAL, 0.5, [0.3], [0.4], [1.0])[0] == TERMINAL  # terminal stays terminal
 

@@ -141,7 +141,9 @@ def test_an_empty_ecdf_or_ert_panel_says_why(tmp_path, monkeypatch):
     figs = keep_figures(monkeypatch, figures)
     empty_ecdf = pd.DataFrame(columns=["case", "algorithm", "optimiser_index", "budget", "fraction"])
     anytime.plot_ecdf(empty_ecdf, tmp_path / "e.png", case="nmp")
-    empty_ert = pd.DataFrame(dict(case=["nmp"], algorithm=["cs"], optimiser_index=[0], target=[1.0], ert=[float("inf")]))
+    empty_ert = pd.DataFrame(
+        dict(case=["nmp"], algorithm=["cs"], optimiser_index=[0], target=[1.0], ert=[float("inf")])
+    )
     anytime.plot_fixed_target(empty_ert, tmp_path / "f.png", case="nmp")
     texts = [[t.get_text() for t in fig.axes[0].texts] for fig in figs]
     assert texts[0] == ["no run of case nmp has a feasible value: no target to reach"]

@@ -62,7 +62,9 @@ def test_check_plugin_runs_the_family_contract_and_names_a_broken_check(tmp_path
     assert out.getvalue().splitlines()[-1] == f"{len(CHECKS)} of {len(CHECKS)} checks passed"
     broken = tmp_path / "broken_tanks.py"
     text = plugin.read_text().replace('"conical_tanks"', '"broken_tanks"')
-    text = text.replace('return dict(family="broken_tanks",', 'return dict(noise=float(np.random.rand()), family="broken_tanks",')
+    text = text.replace(
+        'return dict(family="broken_tanks",', 'return dict(noise=float(np.random.rand()), family="broken_tanks",'
+    )
     broken.write_text(text)
     config = tmp_path / "broken.toml"
     config.write_text(PLUGIN_EXAMPLE.read_text().replace("plugins/conical_tanks.py", str(broken))

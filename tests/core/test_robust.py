@@ -26,10 +26,20 @@ def _ev(f, g, reason, metrics=None):
 
 
 # Three scenarios, four candidates; candidate 3 fails (unstable) in the second scenario only.
-A = _ev([1.0, 5.0, 2.0, 4.0], [[-0.5, -0.1], [0.2, -1.0], [-0.3, -0.3], [-0.1, -0.1]], ["", "", "", ""], [[10], [11], [12], [13]])
+A = _ev(
+    [1.0, 5.0, 2.0, 4.0],
+    [[-0.5, -0.1], [0.2, -1.0], [-0.3, -0.3], [-0.1, -0.1]],
+    ["", "", "", ""],
+    [[10], [11], [12], [13]],
+)
 B = _ev([3.0, 1.0, 2.0, FAILED_OBJECTIVE], [[-0.2, -0.4], [-0.5, -0.5], [0.1, -0.9], [FAILED_VIOLATION * 2] * 2],
         ["", "", "", "unstable"], [[20], [21], [22], [np.nan]])
-C = _ev([2.0, 3.0, 8.0, 1.0], [[-0.1, -0.9], [-0.1, 0.3], [-0.2, -0.2], [-0.1, -0.1]], ["", "", "", "diverged"], [[30], [31], [32], [np.nan]])
+C = _ev(
+    [2.0, 3.0, 8.0, 1.0],
+    [[-0.1, -0.9], [-0.1, 0.3], [-0.2, -0.2], [-0.1, -0.1]],
+    ["", "", "", "diverged"],
+    [[30], [31], [32], [np.nan]],
+)
 
 
 def test_worst_case_objective_constraints_and_reasons():
@@ -83,18 +93,27 @@ def test_robust_problem_equals_its_scenarios_aggregated(name):
 def test_robust_problems_have_their_own_problem_id():
     nominal, robust = heurtune.load_experiment("cs_folqi_qtp"), heurtune.load_experiment("robust_cs_folqi_qtp")
     assert problem_id(nominal, "min") != problem_id(robust, "min")
-    assert robust.problem("min").identity()["robust"] == {"scenarios": ["nominal", "-30%", "+30%"], "aggregate": "worst"}
+    assert robust.problem("min").identity()["robust"] == {
+        "scenarios": ["nominal", "-30%", "+30%"],
+        "aggregate": "worst",
+    }
     assert "robust" not in nominal.problem("min").identity()  # earlier problem ids unchanged
 
 
-@pytest.mark.parametrize("problem, message", [
-    ({"tuning_scenarios": ["nominal", "worst"]}, r"tuning_scenarios: unknown scenario 'worst'; allowed: nominal, -30%, \+30%"),
-    ({"aggregate": "worst"}, "problem.aggregate needs problem.tuning_scenarios"),
-    ({"tuning_scenarios": ["-30%", "+30%"], "tuning_scenario": "nominal"}, "tuning_scenario must be one of"),
-    ({"tuning_scenarios": ["-30%", "-30%"]}, "must name distinct scenarios"),
-    ({"tuning_scenarios": ["-30%"], "cvar_level": 0.5}, "cvar_level needs problem.aggregate = 'cvar'"),
-    ({"tuning_scenarios": ["-30%"], "aggregate": "cvar", "cvar_level": 1.0}, r"cvar_level must lie in \[0, 1\)"),
-])
+@pytest.mark.parametrize(
+    "problem, message",
+    [
+        (
+            {"tuning_scenarios": ["nominal", "worst"]},
+            r"tuning_scenarios: unknown scenario 'worst'; allowed: nominal, -30%, \+30%",
+        ),
+        ({"aggregate": "worst"}, "problem.aggregate needs problem.tuning_scenarios"),
+        ({"tuning_scenarios": ["-30%", "+30%"], "tuning_scenario": "nominal"}, "tuning_scenario must be one of"),
+        ({"tuning_scenarios": ["-30%", "-30%"]}, "must name distinct scenarios"),
+        ({"tuning_scenarios": ["-30%"], "cvar_level": 0.5}, "cvar_level needs problem.aggregate = 'cvar'"),
+        ({"tuning_scenarios": ["-30%"], "aggregate": "cvar", "cvar_level": 1.0}, r"cvar_level must lie in \[0, 1\)"),
+    ],
+)
 def test_robust_config_errors_are_one_line(problem, message):
     config = load_config("cs_folqi_qtp")
     config["problem"] = {k: v for k, v in config["problem"].items() if k != "tuning_scenario"}

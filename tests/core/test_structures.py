@@ -71,15 +71,25 @@ def test_the_example_plugin_passes_check_plugin():
     assert lines[-1] == f"{len(structure_checks.CHECKS)} of {len(structure_checks.CHECKS)} checks passed"
 
 
-@pytest.mark.parametrize("old, new, failing", [
-    # C with one row: the kernels' shapes are broken
-    ("return LinearController(A, B, Ki, D,", "return LinearController(A, B, Ki[:1], D[:1],", "design"),
-    # a crash at a corner of the bounds instead of a ControllerDesignError
-    ("    Kp = np.array(", "    if values['Kp11'] == 0.0:\n        raise ValueError('no')\n    Kp = np.array(", "corners"),
-    # a design that depends on hidden state
-    ("    Kp = np.array(", "    values = dict(values, Kp11=values['Kp11'] + np.random.rand())\n    Kp = np.array(",
-     "deterministic"),
-])
+@pytest.mark.parametrize(
+    "old, new, failing",
+    [
+        # C with one row: the kernels' shapes are broken
+        ("return LinearController(A, B, Ki, D,", "return LinearController(A, B, Ki[:1], D[:1],", "design"),
+        # a crash at a corner of the bounds instead of a ControllerDesignError
+        (
+            "    Kp = np.array(",
+            "    if values['Kp11'] == 0.0:\n        raise ValueError('no')\n    Kp = np.array(",
+            "corners",
+        ),
+        # a design that depends on hidden state
+        (
+            "    Kp = np.array(",
+            "    values = dict(values, Kp11=values['Kp11'] + np.random.rand())\n    Kp = np.array(",
+            "deterministic",
+        ),
+    ],
+)
 def test_a_broken_structure_plugin_fails_naming_the_check(tmp_path, old, new, failing):
     text = PLUGIN.read_text()
     assert old in text

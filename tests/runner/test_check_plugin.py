@@ -27,9 +27,12 @@ def test_the_guides_plugin_passes_every_check(tmp_path):
 
 def test_a_plugin_breaking_the_contract_fails_with_the_reason(tmp_path):
     path = tmp_path / "unseeded.py"
-    path.write_text(_guide_plugin(tmp_path).read_text()
-                    .replace('"guide_walk"', '"unseeded_walk"')
-                    .replace("self.rng.normal(size=self.X.shape)", "__import__('numpy').random.normal(size=self.X.shape)"))
+    path.write_text(
+        _guide_plugin(tmp_path)
+        .read_text()
+        .replace('"guide_walk"', '"unseeded_walk"')
+        .replace("self.rng.normal(size=self.X.shape)", "__import__('numpy').random.normal(size=self.X.shape)")
+    )
     out = io.StringIO()
     assert run([str(path)], stream=out) == 1
     text = out.getvalue()

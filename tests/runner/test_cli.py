@@ -9,7 +9,8 @@ import pytest
 
 from heurtune.runner.evaluate import run
 
-X = "Q11=0.4431,Q22=0.3027,Q33=0.4434,Q44=1.5722,R11=4.2253,R22=2.5994,Ki1=1.7411,Ki2=7.1716,alpha1=0.9814,alpha2=0.8437"
+X = ("Q11=0.4431,Q22=0.3027,Q33=0.4434,Q44=1.5722,R11=4.2253,R22=2.5994,Ki1=1.7411,Ki2=7.1716,"
+     "alpha1=0.9814,alpha2=0.8437")
 
 
 def test_table_parquet_and_plot(tmp_path, capsys):
@@ -32,20 +33,28 @@ def test_one_scenario(capsys):
     assert "+30%" in text and "nominal" not in text
 
 
-@pytest.mark.parametrize("args, message", [
-    (["nope", "--case", "min", "--x", X], "unknown experiment 'nope'"),
-    (["cs_folqi_qtp", "--case", "mid", "--x", X], "unknown case 'mid'"),
-    (["cs_folqi_qtp", "--case", "min", "--x", X + ",Q55=1"], "unknown variable 'Q55'"),
-    (["cs_folqi_qtp", "--case", "min", "--x", X.replace(",alpha2=0.8437", "")], "missing variable(s) alpha2"),
-    (["cs_folqi_qtp", "--case", "min", "--x", X.replace("Ki1=1.7411", "Ki1=12")], "Ki1=12 is outside its bounds [0.1, 10]"),
-    (["cs_folqi_qtp", "--case", "min", "--x", X.replace("Ki1=1.7411", "Ki1=abc")], "Ki1: 'abc' is not a number"),
-    (["cs_folqi_qtp", "--case", "min", "--x", X, "--scenario", "worst"], "unknown scenario 'worst'"),
-    (["cs_folqi_qtp", "--case", "min", "--x", X + ",Q11=1.0"], "Q11 is given twice (0.4431 and 1.0)"),
-    (["cs_folqi_qtp", "--case", "min", "--x", X, "--plot", "p.xyz"], "--plot p.xyz: unknown extension '.xyz'"),
-    (["cs_folqi_qtp", "--case", "min", "--x", X, "--out", "."], "--out . is a folder; give a file name"),
-    (["cs_folqi_qtp", "--case", "min", "--x", X, "--out", "pyproject.toml/x.parquet"],
-     "pyproject.toml is a file, not a folder"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["nope", "--case", "min", "--x", X], "unknown experiment 'nope'"),
+        (["cs_folqi_qtp", "--case", "mid", "--x", X], "unknown case 'mid'"),
+        (["cs_folqi_qtp", "--case", "min", "--x", X + ",Q55=1"], "unknown variable 'Q55'"),
+        (["cs_folqi_qtp", "--case", "min", "--x", X.replace(",alpha2=0.8437", "")], "missing variable(s) alpha2"),
+        (
+            ["cs_folqi_qtp", "--case", "min", "--x", X.replace("Ki1=1.7411", "Ki1=12")],
+            "Ki1=12 is outside its bounds [0.1, 10]",
+        ),
+        (["cs_folqi_qtp", "--case", "min", "--x", X.replace("Ki1=1.7411", "Ki1=abc")], "Ki1: 'abc' is not a number"),
+        (["cs_folqi_qtp", "--case", "min", "--x", X, "--scenario", "worst"], "unknown scenario 'worst'"),
+        (["cs_folqi_qtp", "--case", "min", "--x", X + ",Q11=1.0"], "Q11 is given twice (0.4431 and 1.0)"),
+        (["cs_folqi_qtp", "--case", "min", "--x", X, "--plot", "p.xyz"], "--plot p.xyz: unknown extension '.xyz'"),
+        (["cs_folqi_qtp", "--case", "min", "--x", X, "--out", "."], "--out . is a folder; give a file name"),
+        (
+            ["cs_folqi_qtp", "--case", "min", "--x", X, "--out", "pyproject.toml/x.parquet"],
+            "pyproject.toml is a file, not a folder",
+        ),
+    ],
+)
 def test_errors_are_one_line_with_exit_code_2(args, message, capsys):
     assert run(args) == 2
     err = capsys.readouterr().err

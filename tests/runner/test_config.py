@@ -41,29 +41,73 @@ def test_custom_plant_case(tmp_path):
     assert exp.problem("rig").loop.plant.A == (28.0, 32.0, 28.0, 32.0)
 
 
-@pytest.mark.parametrize("text, message", [
-    ('extends = "cs_folqi_qtp"\n[controller]\ntypo = 1\n', r"exp.toml: controller: unknown key 'typo'; allowed: type, oustaloup_order"),
-    ('extends = "cs_folqi_qtp"\nrunz = 3\n', r"exp.toml: unknown top-level key or table 'runz'; allowed: description, extends, runs"),
-    ('extends = "cs_folqi_qtp"\n[senario]\nhorizon = 1.0\n', r"exp.toml: unknown top-level key or table 'senario'; allowed: "),
-    ('extends = "cs_folqi_qtp"\n[controller]\ntype = "pdi"\n', r"controller.type: got 'pdi'; allowed: [a-z_, ]*\bfolqi, fopid, [a-z_, ]*\bpid\b"),
-    ('extends = "cs_folqi_qtp"\n[controller]\noustaloup_order = 2.5\n', r"controller.oustaloup_order: expected an integer"),
-    ('extends = "cs_folqi_qtp"\n[scenario]\nhorizon = "long"\n', r"scenario.horizon: expected a number"),
-    ('extends = "cs_folqi_qtp"\n[problem.bounds]\nKi1 = [5.0, 1.0]\n', r"problem.bounds.Ki1: lower 5.0 > upper 1.0"),
-    ('extends = "cs_folqi_qtp"\n[problem.bounds]\nKi9 = [1.0, 2.0]\n', r"unknown variable 'Ki9'; allowed: Q11"),
-    ('extends = "cs_folqi_qtp"\n[plant]\ncases = ["medium"]\n', r"unknown QTP preset 'medium'; allowed: min, nmp"),
-    ('extends = "cs_folqi_qtp"\n[scenario]\nhorizon = 350.005\n', r"must be a whole number of scenario.output_dt \(0.01\)"),
-    ('extends = "cs_folqi_qtp"\n[problem]\ntuning_scenario = "worst"\n', r"tuning_scenario 'worst'; allowed: nominal"),
-    ('extends = "cs_folqi_qtp"\n[problem]\nobjective = "speed"\n', r"problem.objective: got 'speed'; allowed: effort"),
-    ('extends = "no_such_experiment"\n', r"unknown experiment 'no_such_experiment'; allowed: .*cs_folqi_qtp"),
-    ('[plant\ncases = 1', r"exp.toml: not valid TOML"),
-    ('extends = "cs_folqi_qtp"\n[[optimisers]]\nname = "hillclimb"\n', r"optimisers\[0\]: unknown optimiser 'hillclimb'; allowed: .*cs"),
-    ('extends = "cs_folqi_qtp"\n[[optimisers]]\nname = "cs"\nsettings = {npop = 3}\n', r"optimisers\[0\]: cs: unknown setting 'npop'; allowed: n, pa"),
-    # every bad setting in the one line, not only the first
-    ('extends = "cs_folqi_qtp"\n[[optimisers]]\nname = "cs"\nsettings = {npop = 3, pa = "x", nn = 1}\n',
-     r"cs: unknown setting 'npop'; unknown setting 'nn'; setting pa must be float, got 'x'; allowed: n, pa"),
-    ('extends = "cs_folqi_qtp"\n[[optimisers]]\nname = "cs"\nbudget = 3\n', r"optimisers\[0\]: unknown key 'budget'; allowed: name, settings"),
-    ('extends = "cs_folqi_qtp"\n[plant]\ncases = ["rig"]\n[plant.custom.rig]\nA = [1, 1, 1, 1]\n', r"plant.custom.rig: missing a, k, gamma, levels"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        (
+            'extends = "cs_folqi_qtp"\n[controller]\ntypo = 1\n',
+            r"exp.toml: controller: unknown key 'typo'; allowed: type, oustaloup_order",
+        ),
+        (
+            'extends = "cs_folqi_qtp"\nrunz = 3\n',
+            r"exp.toml: unknown top-level key or table 'runz'; allowed: description, extends, runs",
+        ),
+        (
+            'extends = "cs_folqi_qtp"\n[senario]\nhorizon = 1.0\n',
+            r"exp.toml: unknown top-level key or table 'senario'; allowed: ",
+        ),
+        (
+            'extends = "cs_folqi_qtp"\n[controller]\ntype = "pdi"\n',
+            r"controller.type: got 'pdi'; allowed: [a-z_, ]*\bfolqi, fopid, [a-z_, ]*\bpid\b",
+        ),
+        (
+            'extends = "cs_folqi_qtp"\n[controller]\noustaloup_order = 2.5\n',
+            r"controller.oustaloup_order: expected an integer",
+        ),
+        ('extends = "cs_folqi_qtp"\n[scenario]\nhorizon = "long"\n', r"scenario.horizon: expected a number"),
+        (
+            'extends = "cs_folqi_qtp"\n[problem.bounds]\nKi1 = [5.0, 1.0]\n',
+            r"problem.bounds.Ki1: lower 5.0 > upper 1.0",
+        ),
+        ('extends = "cs_folqi_qtp"\n[problem.bounds]\nKi9 = [1.0, 2.0]\n', r"unknown variable 'Ki9'; allowed: Q11"),
+        ('extends = "cs_folqi_qtp"\n[plant]\ncases = ["medium"]\n', r"unknown QTP preset 'medium'; allowed: min, nmp"),
+        (
+            'extends = "cs_folqi_qtp"\n[scenario]\nhorizon = 350.005\n',
+            r"must be a whole number of scenario.output_dt \(0.01\)",
+        ),
+        (
+            'extends = "cs_folqi_qtp"\n[problem]\ntuning_scenario = "worst"\n',
+            r"tuning_scenario 'worst'; allowed: nominal",
+        ),
+        (
+            'extends = "cs_folqi_qtp"\n[problem]\nobjective = "speed"\n',
+            r"problem.objective: got 'speed'; allowed: effort",
+        ),
+        ('extends = "no_such_experiment"\n', r"unknown experiment 'no_such_experiment'; allowed: .*cs_folqi_qtp"),
+        ("[plant\ncases = 1", r"exp.toml: not valid TOML"),
+        (
+            'extends = "cs_folqi_qtp"\n[[optimisers]]\nname = "hillclimb"\n',
+            r"optimisers\[0\]: unknown optimiser 'hillclimb'; allowed: .*cs",
+        ),
+        (
+            'extends = "cs_folqi_qtp"\n[[optimisers]]\nname = "cs"\nsettings = {npop = 3}\n',
+            r"optimisers\[0\]: cs: unknown setting 'npop'; allowed: n, pa",
+        ),
+        # every bad setting in the one line, not only the first
+        (
+            'extends = "cs_folqi_qtp"\n[[optimisers]]\nname = "cs"\nsettings = {npop = 3, pa = "x", nn = 1}\n',
+            r"cs: unknown setting 'npop'; unknown setting 'nn'; setting pa must be float, got 'x'; allowed: n, pa",
+        ),
+        (
+            'extends = "cs_folqi_qtp"\n[[optimisers]]\nname = "cs"\nbudget = 3\n',
+            r"optimisers\[0\]: unknown key 'budget'; allowed: name, settings",
+        ),
+        (
+            'extends = "cs_folqi_qtp"\n[plant]\ncases = ["rig"]\n[plant.custom.rig]\nA = [1, 1, 1, 1]\n',
+            r"plant.custom.rig: missing a, k, gamma, levels",
+        ),
+    ],
+)
 def test_config_errors_are_one_line_and_name_the_key(tmp_path, text, message):
     with pytest.raises(ConfigError, match=message) as info:
         load(tmp_path, text)

@@ -60,7 +60,9 @@ def test_same_results_with_one_and_two_workers(smoke, tmp_path):
     assert run(["cs_folqi_qtp", "--smoke", "--jobs", "2", "--out", str(out), "--no-figures"]) == 0
     a = pd.read_parquet(smoke / "runs.parquet").sort_values(["case", "run"]).reset_index(drop=True)
     b = pd.read_parquet(out / "runs.parquet").sort_values(["case", "run"]).reset_index(drop=True)
-    pd.testing.assert_frame_equal(a[["case", "run", "best_f", "n_evals"] + GAINS], b[["case", "run", "best_f", "n_evals"] + GAINS])
+    pd.testing.assert_frame_equal(
+        a[["case", "run", "best_f", "n_evals"] + GAINS], b[["case", "run", "best_f", "n_evals"] + GAINS]
+    )
 
 
 def test_rerun_resumes_without_redoing(smoke, capsys):
@@ -73,7 +75,9 @@ def test_rerun_resumes_without_redoing(smoke, capsys):
 
 def test_interrupted_run_resumes_and_completes(tmp_path):
     cfg = tmp_path / "slowish.toml"
-    cfg.write_text('extends = "cs_folqi_qtp"\nruns = 4\n[[optimisers]]\nname = "cs"\nsettings = { n = 6 }\nmax_epochs = 4\n')
+    cfg.write_text(
+        'extends = "cs_folqi_qtp"\nruns = 4\n[[optimisers]]\nname = "cs"\nsettings = { n = 6 }\nmax_epochs = 4\n'
+    )
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "heurtune.experiment", str(cfg), "--out", str(out), "--no-figures"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)

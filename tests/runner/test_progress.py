@@ -31,7 +31,9 @@ def test_the_engine_reports_every_epoch_and_the_run_is_the_same_without_it():
     assert [c[0] for c in calls] == watched.history["n_evals"].tolist()
     assert calls[-1][2] == watched.f and calls[-1][3] == 0.0
     assert watched.f == alone.f and np.array_equal(watched.x, alone.x)
-    pd.testing.assert_frame_equal(watched.history.drop(columns="wall_time_s"), alone.history.drop(columns="wall_time_s"))
+    pd.testing.assert_frame_equal(
+        watched.history.drop(columns="wall_time_s"), alone.history.drop(columns="wall_time_s")
+    )
 
 
 def test_heartbeat_writes_at_most_once_per_interval_and_travels_to_workers(tmp_path):
@@ -51,7 +53,9 @@ def test_heartbeat_writes_at_most_once_per_interval_and_travels_to_workers(tmp_p
 
 
 def _kept(**row):
-    return pd.Series(dict(dict(case="min", algorithm="cs", feasible=True, best_f=10.0, violation=0.0, n_evals=100), **row))
+    return pd.Series(
+        dict(dict(case="min", algorithm="cs", feasible=True, best_f=10.0, violation=0.0, n_evals=100), **row)
+    )
 
 
 def test_the_line_counts_runs_in_flight_and_shows_their_best(tmp_path):
@@ -98,9 +102,13 @@ def test_runs_with_no_count_in_advance_take_that_of_their_finished_siblings(tmp_
     bar = Progress(3, 1, stream, finished_rows=[_kept(algorithm="sqp_multistart", n_evals=400)],
                    planned={"a": ("min", "sqp_multistart", None), "b": ("min", "sqp_multistart", None)})
     assert bar.evaluations() == (400, 1200)
-    bar2 = Progress(2, 0, io.StringIO(), planned={"a": ("min", "sqp_multistart", None), "b": ("min", "sqp_multistart", None)})
+    bar2 = Progress(
+        2, 0, io.StringIO(), planned={"a": ("min", "sqp_multistart", None), "b": ("min", "sqp_multistart", None)}
+    )
     assert bar2.evaluations() == (0, None)
-    bar2.update(dict(case="min", algorithm="sqp_multistart", feasible=True, best_f=1.0, violation=0.0, n_evals=500), "a")
+    bar2.update(
+        dict(case="min", algorithm="sqp_multistart", feasible=True, best_f=1.0, violation=0.0, n_evals=500), "a"
+    )
     assert bar2.evaluations() == (500, 1000)
     assert "1/2 runs, 500/1,000 evals" in bar2.stream.getvalue()
 

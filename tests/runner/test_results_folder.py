@@ -232,7 +232,9 @@ def test_a_read_only_output_is_one_line(copy, capsys):
 def test_a_best_run_whose_design_fails_still_gathers(tmp_path, capsys):
     """Bounds so wide that the best gains fail the design when the margins are computed: the
     margins record the failure, and the summary and every other file are written."""
-    cfg = write_config(tmp_path, base=BASE.replace("runs = 2", "runs = 1") + "[problem.bounds]\nQ11 = [1e-300, 1e300]\n")
+    cfg = write_config(
+        tmp_path, base=BASE.replace("runs = 2", "runs = 1") + "[problem.bounds]\nQ11 = [1e-300, 1e300]\n"
+    )
     out = tmp_path / "out"
     capsys.readouterr()
     assert run([str(cfg), "--out", str(out), "--no-figures"]) == 0

@@ -22,9 +22,12 @@ def _config(folder, name="sqp_small", max_iter=3, extra=""):
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{name}.toml"
     path.write_text(
-        'extends = "sqp_folqi_qtp"\nruns = 1\n' + extra
+        'extends = "sqp_folqi_qtp"\nruns = 1\n'
+        + extra
         + "[scenario]\nhorizon = 60.0\ndt = 0.05\n"
-        + f'[[optimisers]]\nname = "sqp_multistart"\nsettings = {{ starts = {STARTS}, max_iter = {max_iter}, batch = 3 }}\n')
+        + '[[optimisers]]\nname = "sqp_multistart"\n'
+        + f"settings = {{ starts = {STARTS}, max_iter = {max_iter}, batch = 3 }}\n"
+    )
     return path
 
 

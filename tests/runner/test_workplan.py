@@ -100,8 +100,15 @@ class _Timed(TuningProblem):
         steps = round(sc.horizon / sc.dt)
         time.sleep(len(X) * self.fixed + simulated.sum() * steps * self.per_step)
         n = len(X)
-        return Evaluation(f=X.sum(axis=1), g=np.zeros((n, 0)), feasible=np.ones(n, bool), metrics=np.zeros((n, 0)),
-                          metric_names=(), constraint_names=(), reason=np.where(simulated, "", "unstable").astype(object))
+        return Evaluation(
+            f=X.sum(axis=1),
+            g=np.zeros((n, 0)),
+            feasible=np.ones(n, bool),
+            metrics=np.zeros((n, 0)),
+            metric_names=(),
+            constraint_names=(),
+            reason=np.where(simulated, "", "unstable").astype(object),
+        )
 
     def identity(self):
         return {}
@@ -127,7 +134,9 @@ def test_calibration_separates_the_fixed_and_the_per_step_cost():
 
 def test_a_measured_evaluation_over_the_limit_is_refused_too():
     cal = Calibration("toy", None, 75.0, None, 0, 8, "the configured scenario")
-    with pytest.raises(ConfigError, match=r"^case 'toy': one evaluation took 1 min 15 s here \(the configured scenario\)"):
+    with pytest.raises(
+        ConfigError, match=r"^case 'toy': one evaluation took 1 min 15 s here \(the configured scenario\)"
+    ):
         check_evaluation_time(cal)
     check_evaluation_time(dataclasses.replace(cal, fixed_s=59.0))
 
@@ -190,8 +199,10 @@ def test_the_plan_line_says_what_is_not_known_in_advance():
     cals = {"a": Calibration("a", 1000, 1e-3, 1e-6, 8, 8, "1000 and 500 steps")}  # 2 ms per evaluation
     line, seconds = estimate_line(cals, {"a": (3000, 0, False)}, 3, 2)
     assert seconds == pytest.approx(3.0)
-    assert line == ("plan: 3 runs, 3,000 evaluations; one evaluation of a simulated candidate: a 2 ms (calibrated on "
-                    "8 candidates, 1000 and 500 steps); estimated time 3.0 s on 2 worker(s) if every candidate is simulated")
+    assert line == (
+        "plan: 3 runs, 3,000 evaluations; one evaluation of a simulated candidate: a 2 ms (calibrated on "
+        "8 candidates, 1000 and 500 steps); estimated time 3.0 s on 2 worker(s) if every candidate is simulated"
+    )
     line, _ = estimate_line(cals, {"a": (3000, 1, True)}, 4, 2)
     assert "about 3,000 evaluations + 1 runs with no evaluation cap" in line and "estimated time at least 3.0 s" in line
     line, _ = estimate_line(cals, {"a": (0, 4, False)}, 4, 2)

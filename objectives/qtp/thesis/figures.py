@@ -218,7 +218,9 @@ def chapter_figures(chapter: int, exp, out_dir, *, runs=None, history=None) -> l
                     designs[controller_label(ctrl)] = d
             if designs:
                 p = out_dir / f"figure_{fig_no}_{plant}.png"
-                response_overlay_figure(designs, p, title=f"Responses under d(t), {_COND[plant]} (heurtune's best runs)")
+                response_overlay_figure(
+                    designs, p, title=f"Responses under d(t), {_COND[plant]} (heurtune's best runs)"
+                )
                 written.append(p)
         for plant, fig_no in (("min", "4_9"), ("nmp", "4_10")):
             case = _case(exp, plant, "folqi")
@@ -243,7 +245,9 @@ def chapter_figures(chapter: int, exp, out_dir, *, runs=None, history=None) -> l
                         designs[_LABEL[alg]] = d
                 if designs:
                     p = out_dir / f"figure_{chapter}_responses_{plant}-{ctrl}.png"
-                    response_overlay_figure(designs, p, title=f"{controller_label(ctrl)}, {_COND[plant]}: best run per algorithm")
+                    response_overlay_figure(
+                        designs, p, title=f"{controller_label(ctrl)}, {_COND[plant]}: best run per algorithm"
+                    )
                     written.append(p)
     if history is not None and not history.empty and {"case", "algorithm", "run", "epoch", "best_f"} <= set(history):
         p = out_dir / f"figure_{chapter}_convergence.png"

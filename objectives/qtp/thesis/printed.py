@@ -104,7 +104,9 @@ def _text(table: str) -> str:
     try:
         return path.read_text(encoding="utf-8")
     except FileNotFoundError:
-        raise ConfigError(f"thesis table {table} has no data file {table_file(table)} (installation incomplete?)") from None
+        raise ConfigError(
+            f"thesis table {table} has no data file {table_file(table)} (installation incomplete?)"
+        ) from None
 
 
 def printed_table(table, *, raw: bool = False) -> pd.DataFrame:

@@ -651,10 +651,13 @@ def _margin_table(inp: _Inputs, chapter: int, table: str) -> ThesisTable:
             _triple((disp, vals), "pm", "PM deg", r["phase_margin_deg"],
                     hit["phase_margin_deg"] if hit is not None else math.nan)
             rows.append((disp, vals))
-    meaning = ("heurtune: gain-crossover frequency and phase margin of the loop 'input i, output j' as "
-               "heurtune.objectives.qtp.margins.loop_margins defines it; part A of the printed gains, part B of heurtune's best run "
-               "(margins.parquet); rows matched by their place in the thesis' loop order; empty heurtune crossover and "
-               "'inf' PM: no gain crossover")
+    meaning = (
+        "heurtune: gain-crossover frequency and phase margin of the loop 'input i, output j' as "
+        "heurtune.objectives.qtp.margins.loop_margins defines it; part A of the printed gains, part B of "
+        "heurtune's best run "
+        "(margins.parquet); rows matched by their place in the thesis' loop order; empty heurtune crossover and "
+        "'inf' PM: no gain crossover"
+    )
     parts = [_part("A: margins of the printed gains", rows_a), _part("B: margins of heurtune's best run", rows_b)]
     return ThesisTable(table, _title(table), meaning, parts, [])
 
@@ -861,11 +864,18 @@ def write_chapter(chapter: int, exp, out_dir, *, runs=None, history=None, margin
     tdir.mkdir(parents=True, exist_ok=True)
     tables = chapter_tables(chapter, exp, runs=runs, history=history, margins=margins, starts=starts)
     written = []
-    index = [f"# Thesis Chapter {chapter}: printed tables beside heurtune", "",
-             f"Experiment: {getattr(exp, 'name', '')}. Each quantity: printed, heurtune, diff (heurtune - printed) "
-             "and, for gains, efforts and margins, diff % (relative to printed). Efforts are absolute "
-             "(J = integral of u^2; the thesis' J x 10^3 multiplied out). See heurtune.objectives.qtp.thesis.tables.", "",
-             "## Tables", "", "| table | files | heurtune columns hold |", "|---|---|---|"]
+    index = [
+        f"# Thesis Chapter {chapter}: printed tables beside heurtune",
+        "",
+        f"Experiment: {getattr(exp, 'name', '')}. Each quantity: printed, heurtune, diff (heurtune - printed) "
+        "and, for gains, efforts and margins, diff % (relative to printed). Efforts are absolute "
+        "(J = integral of u^2; the thesis' J x 10^3 multiplied out). See heurtune.objectives.qtp.thesis.tables.",
+        "",
+        "## Tables",
+        "",
+        "| table | files | heurtune columns hold |",
+        "|---|---|---|",
+    ]
     for t in tables:
         md = _write_text(tdir / f"{t.stem}.md", render_markdown(t))
         tex = _write_text(tdir / f"{t.stem}.tex", render_latex(t))

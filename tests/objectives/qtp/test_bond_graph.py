@@ -208,11 +208,19 @@ def _rel(a, b):
 SCENARIOS = {
     "nominal": Scenario(dt=0.01),
     "uncertain": Scenario(dt=0.01, uncertainty=1.3),
-    "disturbed": Scenario(dt=0.01, noise_sd=0.05, noise_seed=4, input_disturbance=(0.3, -0.2),
-                          input_disturbance_time=120.0, saturation=(0.0, 10.0)),
+    "disturbed": Scenario(
+        dt=0.01,
+        noise_sd=0.05,
+        noise_seed=4,
+        input_disturbance=(0.3, -0.2),
+        input_disturbance_time=120.0,
+        saturation=(0.0, 10.0),
+    ),
     # P-: a -8 cm measured step drives the pumps to 10 V and overflows tanks 1 and 2; +6 cm
     # shuts the pumps (0 V) and empties tank 3.
-    "overflow": Scenario(dt=0.01, horizon=200.0, disturbance_time=10.0, output_disturbance=(-8.0, -8.0), limits="physical"),
+    "overflow": Scenario(
+        dt=0.01, horizon=200.0, disturbance_time=10.0, output_disturbance=(-8.0, -8.0), limits="physical"
+    ),
     "empty": Scenario(dt=0.01, horizon=200.0, disturbance_time=10.0, output_disturbance=(6.0, 6.0), limits="physical"),
 }
 

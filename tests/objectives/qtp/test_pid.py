@@ -142,11 +142,20 @@ def test_names_bounds_and_options():
         build_controller("pid", PID_MIN, A, B, C, oustaloup_order=5)
 
 
-@pytest.mark.parametrize("text, message", [
-    ('[controller]\ntype = "pid"\nderivative_filter = 0\n', "controller.derivative_filter"),
-    ('[controller]\ntype = "pid"\ndecoupler = "full"\n', "controller.decoupler: got 'full'; allowed: none, inverse_dc"),
-    ('[controller]\ntype = "pid"\n[problem.bounds]\nKp1 = [-1.0, 1.0]\n', "problem.bounds.Kp1: the lower bound must be >= 0"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ('[controller]\ntype = "pid"\nderivative_filter = 0\n', "controller.derivative_filter"),
+        (
+            '[controller]\ntype = "pid"\ndecoupler = "full"\n',
+            "controller.decoupler: got 'full'; allowed: none, inverse_dc",
+        ),
+        (
+            '[controller]\ntype = "pid"\n[problem.bounds]\nKp1 = [-1.0, 1.0]\n',
+            "problem.bounds.Kp1: the lower bound must be >= 0",
+        ),
+    ],
+)
 def test_bad_pid_configs_get_one_line_errors(tmp_path, text, message):
     path = tmp_path / "exp.toml"
     path.write_text('extends = "cs_pid_qtp"\n' + text)

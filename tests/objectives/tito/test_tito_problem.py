@@ -178,22 +178,43 @@ def test_robustness_report_of_the_gpm_design(ccts):
     assert sr.rho_input.shape == sr.w.shape
 
 
-@pytest.mark.parametrize("text, message", [
-    ('[plant]\nmodel = "tito"\ncases = ["ccts"]\n[controller]\ntype = "pi"\nbaselines = ["gpm"]\n[decoupler]\ncase = 3\n',
-     "decoupler.case must be 1 or 2"),
-    ('[plant]\nmodel = "tito"\ncases = ["nope"]\n[controller]\nbaselines = ["gpm"]\n', "unknown TITO preset 'nope'"),
-    ('[plant]\nmodel = "tito"\ncases = ["ccts"]\n[controller]\ntype = "pid"\nbogus = 1\n', "unknown key 'bogus'"),
-    ('[plant]\nmodel = "tito"\ncases = ["ccts"]\n[problem]\nobjective = "speed"\n', "allowed: iae, ise, itae, bandwidth"),
-    ('[plant]\nmodel = "tito"\ncases = ["ccts"]\n', "give [[optimisers]] or controller.baselines"),
-    ('[plant]\nmodel = "tito"\ncases = ["r"]\n[plant.custom.r]\ng11 = { K = 1.0, lags = [10.0], L = 5.0 }\n'
-     'g12 = { K = 0.5, lags = [10.0], L = 1.0 }\ng21 = { K = 0.5, lags = [10.0], L = 8.0 }\n'
-     'g22 = { K = 1.0, lags = [10.0], L = 2.0 }\n[controller]\nbaselines = ["gpm"]\n', "non-causal"),
-    ('[plant]\nmodel = "tito"\ncases = ["r"]\n[plant.custom.r]\ng11 = { K = 1.0, lags = [10.0] }\n'
-     '[controller]\nbaselines = ["gpm"]\n', "missing key.s. g12, g21, g22"),
-    ('[plant]\nmodel = "tito"\ncases = ["r"]\n[plant.custom.r]\ng11 = { K = 1.0, tau = [10.0] }\n'
-     'g12 = { K = 0.5 }\ng21 = { K = 0.5 }\ng22 = { K = 1.0, lags = [3.0], L = 1.0 }\n'
-     '[controller]\nbaselines = ["gpm"]\n', "g11: unknown key.s. tau; allowed: K, leads, lags, L"),
-])
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        (
+            '[plant]\nmodel = "tito"\ncases = ["ccts"]\n[controller]\ntype = "pi"\nbaselines = ["gpm"]\n'
+            '[decoupler]\ncase = 3\n',
+            "decoupler.case must be 1 or 2",
+        ),
+        (
+            '[plant]\nmodel = "tito"\ncases = ["nope"]\n[controller]\nbaselines = ["gpm"]\n',
+            "unknown TITO preset 'nope'",
+        ),
+        ('[plant]\nmodel = "tito"\ncases = ["ccts"]\n[controller]\ntype = "pid"\nbogus = 1\n', "unknown key 'bogus'"),
+        (
+            '[plant]\nmodel = "tito"\ncases = ["ccts"]\n[problem]\nobjective = "speed"\n',
+            "allowed: iae, ise, itae, bandwidth",
+        ),
+        ('[plant]\nmodel = "tito"\ncases = ["ccts"]\n', "give [[optimisers]] or controller.baselines"),
+        (
+            '[plant]\nmodel = "tito"\ncases = ["r"]\n[plant.custom.r]\ng11 = { K = 1.0, lags = [10.0], L = 5.0 }\n'
+            "g12 = { K = 0.5, lags = [10.0], L = 1.0 }\ng21 = { K = 0.5, lags = [10.0], L = 8.0 }\n"
+            'g22 = { K = 1.0, lags = [10.0], L = 2.0 }\n[controller]\nbaselines = ["gpm"]\n',
+            "non-causal",
+        ),
+        (
+            '[plant]\nmodel = "tito"\ncases = ["r"]\n[plant.custom.r]\ng11 = { K = 1.0, lags = [10.0] }\n'
+            '[controller]\nbaselines = ["gpm"]\n',
+            "missing key.s. g12, g21, g22",
+        ),
+        (
+            '[plant]\nmodel = "tito"\ncases = ["r"]\n[plant.custom.r]\ng11 = { K = 1.0, tau = [10.0] }\n'
+            "g12 = { K = 0.5 }\ng21 = { K = 0.5 }\ng22 = { K = 1.0, lags = [3.0], L = 1.0 }\n"
+            '[controller]\nbaselines = ["gpm"]\n',
+            "g11: unknown key.s. tau; allowed: K, leads, lags, L",
+        ),
+    ],
+)
 def test_config_errors_name_the_key(tmp_path, text, message):
     with pytest.raises(ConfigError, match=message.replace("[[", r"\[\[").replace("]]", r"\]\]")):
         heurtune.load_experiment(write_config(tmp_path, text))
