@@ -11,7 +11,7 @@ with ``benchmark_qtp``'s problem (pairing by the sign of det G(0), pumps and tan
 physical limits, IAE, Mp < 10 %, ts < 70 s, ess < 1 %, nominal plant) and prints, per decade
 of each gain, the share of candidates whose loop is stable, the share that is feasible and the
 median IAE of the feasible ones. The default bounds of the ``pid`` and ``fopid`` structures
-(:mod:`heurtune.objectives.qtp.structures`) come from it; docs/controllers.md quotes its output.
+(:mod:`heurtune.objectives.qtp.structures`) come from it; docs/model.md ("PID and FOPID") quotes its output.
 """
 
 from __future__ import annotations

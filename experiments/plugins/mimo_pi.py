@@ -3,7 +3,7 @@
     du = Kp e + Ki integral(e),    e = r - y = -[dy1, dy2],    Kp, Ki full 2 x 2 matrices
 
 Eight decision variables ``Kp11, Kp12, Kp21, Kp22, Ki11, Ki12, Ki21, Ki22`` (``Kp_ij`` from the
-error of level j to pump i). The whole file is what docs/controllers.md walks through: a design
+error of level j to pump i). The whole file is the example docs/controllers.md shows: a design
 function from the values to a LinearController, and one register_structure call. Load it with
 ``--plugin experiments/plugins/mimo_pi.py`` or a config's ``plugins`` (example_plugin_controller)
 and check it with ``python -m heurtune.check_plugin experiments/plugins/mimo_pi.py``.

@@ -10,8 +10,8 @@ the filter of ``s^mu``, whose gain above the band is ``wh^mu``, so that ``Kd`` i
 high-frequency gain of ``Kd wh^mu`` (500 Kd at mu = 0.9 and the default band). The optional
 decoupler is the PID's (``decoupler``).
 
-Default bounds (``benchmarks/sweep_pid_gains.py``, docs/controllers.md): Kp in [0, 20], Ki in
-[0.01, 2], Kd in [0, 0.5], lambda in [0.1, 2], mu in [0.1, 0.9].
+Default bounds (:data:`FOPID_BOUNDS`, from ``benchmarks/sweep_pid_gains.py``; docs/model.md, "PID and
+FOPID"): Kp in [0, 10], Ki in [1e-4, 1], Kd in [0, 0.5], lambda in [0.1, 2], mu in [0.1, 0.9].
 """
 
 from __future__ import annotations

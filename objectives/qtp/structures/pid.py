@@ -15,8 +15,8 @@ The realisation: per loop an exact integrator ``z_I' = e`` and the filter state
 ``z_F' = -N z_F + e``; ``Kd s / (1 + s / N) = Kd N - Kd N^2 / (s + N)``, so
 ``v = Ki z_I - Kd N^2 z_F + (Kp + Kd N) e``. Both states are modal (diagonal, one input).
 
-Default bounds (``benchmarks/sweep_pid_gains.py``, docs/controllers.md): Kp in [0, 20], Ki in
-[0.01, 2], Kd in [0, 20] (V/cm, V/(cm s), V s/cm).
+Default bounds (:data:`PID_BOUNDS`, from ``benchmarks/sweep_pid_gains.py``; docs/model.md, "PID and
+FOPID"): Kp in [0, 10], Ki in [1e-4, 1], Kd in [0, 2] (V/cm, V/(cm s), V s/cm).
 """
 
 from __future__ import annotations
