@@ -26,7 +26,18 @@ from heurtune.objectives.qtp.kernels import (
     LEVEL_LIMIT,
     METRIC_BLOCK,
     N_METRICS,
+    NP,
     OUT_STATE,
+    P_CLIP,
+    P_HMAX,
+    P_I_IN,
+    P_I_OUT,
+    P_IN,
+    P_OUT,
+    P_SAT,
+    P_UMAX,
+    P_UMIN,
+    P_UOP,
     STATUS_DIVERGED,
     STATUS_OK,
     _finish_input,
@@ -74,14 +85,6 @@ def _rk4_fast(h1, h2, h3, h4, f1, f2, f3, f4, c0, c1, c2, c3, c4, c5, dt):
             q4 - sixth * c3 * o4, lowest >= 0.0)
 
 
-# Rows of the per-lane parameter table ``P`` (NP, L) of simulate_batch: plant coefficients,
-# operating voltages, pump limits, flags (1.0 or 0.0), disturbances and their first samples
-# (as floats: exact for any horizon that fits in memory) and tank heights.
-P_COEF, P_UOP, P_UMIN, P_UMAX, P_SAT, P_CLIP = 0, 10, 12, 13, 14, 15
-P_OUT, P_IN, P_I_OUT, P_I_IN, P_HMAX = 16, 18, 20, 21, 22
-NP = 26
-
-
 @njit(cache=True, fastmath=_FAST)
 def simulate_batch(P, level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel, segments,
                    dt, n_steps, noise, lane_noise, band_pct, metrics, status):
@@ -96,7 +99,8 @@ def simulate_batch(P, level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd
 
     Parameters
     ----------
-    P : (NP, L) per-lane parameters, rows ``P_*`` of this module: ``c`` (10 rows, see
+    P : (NP, L) per-lane parameters, one column of :func:`~heurtune.objectives.qtp.kernels.scenario_table`
+        per lane (rows ``P_*`` of :mod:`~heurtune.objectives.qtp.kernels`): ``c`` (10 rows, see
         ``plant_coefficients``), ``u_op`` (2), ``u_min``, ``u_max``, ``saturate``,
         ``clip_levels`` (1.0 or 0.0), ``out_dist`` (2), ``in_dist`` (2), ``i_out_dist``,
         ``i_in_dist`` (sample indices) and ``h_max`` (4), as :func:`simulate_loop` takes them

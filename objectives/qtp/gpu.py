@@ -129,8 +129,9 @@ def _make_kernel():
     n_metrics, level_limit = _kernels.N_METRICS, _kernels.LEVEL_LIMIT
     ok_status, diverged_status = _kernels.STATUS_OK, _kernels.STATUS_DIVERGED
     # the rows of the lane parameters, as plain integers (constants of the compiled kernel)
-    P_UOP, P_UMIN, P_UMAX, P_SAT, P_CLIP = _batch.P_UOP, _batch.P_UMIN, _batch.P_UMAX, _batch.P_SAT, _batch.P_CLIP
-    P_OUT, P_IN, P_I_OUT, P_I_IN, P_HMAX = _batch.P_OUT, _batch.P_IN, _batch.P_I_OUT, _batch.P_I_IN, _batch.P_HMAX
+    P_UOP, P_UMIN, P_UMAX = _kernels.P_UOP, _kernels.P_UMIN, _kernels.P_UMAX
+    P_SAT, P_CLIP, P_HMAX = _kernels.P_SAT, _kernels.P_CLIP, _kernels.P_HMAX
+    P_OUT, P_IN, P_I_OUT, P_I_IN = _kernels.P_OUT, _kernels.P_IN, _kernels.P_I_OUT, _kernels.P_I_IN
 
     @cuda.jit
     def kernel(P, level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel, segments,

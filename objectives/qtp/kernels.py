@@ -31,6 +31,56 @@ N_METRICS = len(METRIC_NAMES)
 # controller's matrix-vector products; NaN and inf keep their IEEE meaning (divergence checks).
 _FAST = {"reassoc", "contract", "nsz", "arcp"}
 
+# Rows of a scenario's parameter table ``P`` (NP,), read by simulate_loop (one column of it by
+# simulate_scenarios and by the batched and GPU kernels, whose tables hold one per lane): plant
+# coefficients, operating voltages, pump limits, flags (1.0 or 0.0), the measured-level and
+# pump-voltage disturbances and their first samples (as floats: exact for any horizon that
+# fits in memory) and the tank heights. Built by scenario_table.
+P_COEF, P_UOP, P_UMIN, P_UMAX, P_SAT, P_CLIP = 0, 10, 12, 13, 14, 15
+P_OUT, P_IN, P_I_OUT, P_I_IN, P_HMAX = 16, 18, 20, 21, 22
+NP = 26
+
+
+def scenario_table(c, u_op, saturate, u_min, u_max, clip_levels, h_max, out_dist, i_out_dist, in_dist, i_in_dist):
+    """A scenario's parameter table ``P`` as the sampled-loop kernels take it.
+
+    Parameters
+    ----------
+    c : (10,) array_like
+        Plant coefficients (:func:`plant_coefficients`, or the bond-graph ones).
+    u_op : (2,) array_like
+        Operating voltages.
+    saturate : bool
+        Whether the applied voltages are clipped to [u_min, u_max] (with anti-windup).
+    u_min, u_max : float
+        Pump voltage limits (read only when ``saturate``).
+    clip_levels : bool
+        Whether each level stays within [0, h_max_i].
+    h_max : (4,) array_like
+        Tank heights in state units (read only when ``clip_levels``).
+    out_dist : (2,) array_like
+        Measured-level disturbance, in force from sample ``i_out_dist`` on.
+    i_out_dist : int
+    in_dist : (2,) array_like
+        Pump-voltage disturbance, in force from sample ``i_in_dist`` on.
+    i_in_dist : int
+
+    Returns
+    -------
+    (NP,) ndarray
+        Rows ``P_*`` of this module.
+    """
+    P = np.empty(NP)
+    P[P_COEF:P_COEF + 10] = c
+    P[P_UOP:P_UOP + 2] = u_op
+    P[P_UMIN], P[P_UMAX] = u_min, u_max
+    P[P_SAT], P[P_CLIP] = float(bool(saturate)), float(bool(clip_levels))
+    P[P_OUT:P_OUT + 2] = out_dist
+    P[P_IN:P_IN + 2] = in_dist
+    P[P_I_OUT], P[P_I_IN] = i_out_dist, i_in_dist
+    P[P_HMAX:P_HMAX + 4] = h_max
+    return P
+
 
 def plant_coefficients(p):
     """Coefficients of the QTP right-hand side, so that the kernels need no division.
@@ -383,9 +433,8 @@ def _modal_sum(z, ad, bd, lo, hi, w):
 
 
 @njit(cache=True, fastmath=_FAST)
-def simulate_loop(c, level_per_state, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel, segments,
-                  dt, n_steps, i_out_dist, out_dist, i_in_dist, in_dist, noise,
-                  saturate, u_min, u_max, clip_levels, h_max, band_pct, metrics, y_rec, u_rec, h_rec, substeps=1):
+def simulate_loop(P, level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel, segments,
+                  dt, n_steps, noise, band_pct, metrics, y_rec, u_rec, h_rec, substeps=1):
     """Fixed-step closed loop: sampled linear controller, RK4 nonlinear plant, metrics.
 
     The plant state ``x`` follows the square-root law of :func:`plant_coefficients` (levels
@@ -415,9 +464,15 @@ def simulate_loop(c, level_per_state, h_init, h_op, u_op, ad, bd, state_input, A
 
     Parameters
     ----------
-    c : (10,) plant coefficients (see plant_coefficients)
+    P : (NP,) the scenario's parameter table (:func:`scenario_table`, rows ``P_*`` of this
+        module): plant coefficients ``c`` (10, see plant_coefficients), operating voltages
+        ``u_op`` (2), pump limits ``u_min``, ``u_max``, the flags ``saturate`` and
+        ``clip_levels`` (1.0 or 0.0), the measured-level disturbance ``out_dist`` (2) from
+        sample ``i_out_dist`` on, the pump-voltage disturbance ``in_dist`` (2) from sample
+        ``i_in_dist`` on, and the tank heights ``h_max`` (4, state units, read only when
+        ``clip_levels``)
     level_per_state : float, level per unit of state, ``s`` above (1.0 for the level model)
-    h_init : (4,) initial state; h_op : (4,) operating levels; u_op : (2,) operating voltages
+    h_init : (4,) initial state; h_op : (4,) operating levels
     ad, bd : (nd,) modal factors and input gains; state_input : (nd,) int64 in 0..3
     Ad : (nq, nq), Bd : (nq, 4) dense part; Cc : (2, nd + nq); Dc : (2, 4)
     state_channel : (nd + nq,) int64, pump each state belongs to
@@ -425,12 +480,7 @@ def simulate_loop(c, level_per_state, h_init, h_op, u_op, ad, bd, state_input, A
         ``[0, segments[1])`` and ``[segments[1], segments[2])`` read w0 and w1 and add up, with
         weight 1, into u1 and u2
     dt : float; n_steps : int, the horizon is ``n_steps * dt``
-    i_out_dist : int, first sample with the measured-level disturbance ``out_dist`` (2,)
-    i_in_dist : int, first sample with the pump-voltage disturbance ``in_dist`` (2,)
     noise : (n_steps + 1, 4) measurement noise, or shape (0, 4) for none
-    saturate : bool; u_min, u_max : float, limits of the applied voltages
-    clip_levels : bool; h_max : (4,) tank heights in state units (cm for the level model;
-        read only when ``clip_levels``)
     band_pct : float, settling band of the metrics, percent of the operating level
     metrics : (N_METRICS,) output, in the order of METRIC_NAMES; hmin, hmax cover the true
         levels and umin, umax the applied voltages (what ``u_rec`` records: after saturation,
@@ -450,6 +500,13 @@ def simulate_loop(c, level_per_state, h_init, h_op, u_op, ad, bd, state_input, A
     last : int
         Index of the last finite sample.
     """
+    c = P[P_COEF:P_COEF + 10]
+    u_op = P[P_UOP:P_UOP + 2]
+    u_min, u_max = P[P_UMIN], P[P_UMAX]
+    saturate = P[P_SAT] > 0.0
+    clip_levels = P[P_CLIP] > 0.0
+    out_dist, in_dist, h_max = P[P_OUT:P_OUT + 2], P[P_IN:P_IN + 2], P[P_HMAX:P_HMAX + 4]
+    i_out_dist, i_in_dist = int(P[P_I_OUT]), int(P[P_I_IN])
     nd = ad.shape[0]
     nq = Ad.shape[0]
     # unit states of pumps 1 and 2: [0, g1) and [g1, nu); other modal: [nu, nd); dense: [nd, nd + nq)
@@ -605,24 +662,25 @@ def simulate_loop(c, level_per_state, h_init, h_op, u_op, ad, bd, state_input, A
 
 
 @njit(cache=True, fastmath=_FAST)
-def simulate_scenarios(c, level_per_state, h_init, h_op, u_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel,
-                       segments, dt, n_steps, i_out_dist, out_dist, i_in_dist, in_dist, noise,
-                       saturate, u_min, u_max, clip_levels, h_max, band_pct, metrics, status):
+def simulate_scenarios(P, level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel,
+                       segments, dt, n_steps, noise, band_pct, metrics, status):
     """:func:`simulate_loop` of one controller under ``S`` scenarios in one call (metrics only).
 
-    The per-scenario inputs are stacked on a first axis of length ``S``: ``c`` (S, 10),
-    ``u_op`` (S, 2), ``i_out_dist``, ``i_in_dist`` (S,) int64, ``out_dist``, ``in_dist`` (S, 2),
-    ``noise`` (S, n_steps + 1, 4) or (S, 0, 4), ``saturate``, ``clip_levels`` (S,) bool,
-    ``u_min``, ``u_max`` (S,), ``h_max`` (S, 4); the controller, ``h_init``, ``h_op``, ``dt``,
-    ``n_steps`` and ``band_pct`` are shared (one plant step per sample). Writes ``metrics``
-    (S, N_METRICS) and ``status`` (S,), each row exactly what :func:`simulate_loop` gives for
-    that scenario.
+    Parameters
+    ----------
+    P : (NP, S) the scenarios' parameter tables (:func:`scenario_table`), one column each
+    level_per_state, h_init, h_op : as :func:`simulate_loop`, shared
+    ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel, segments : the discrete controller,
+        as :func:`simulate_loop` takes it
+    dt, n_steps, band_pct : as :func:`simulate_loop`, shared (one plant step per sample)
+    noise : (S, n_steps + 1, 4) measurement noise, or (S, 0, 4) for none
+    metrics : (S, N_METRICS) output; status : (S,) int64 output, each row exactly what
+        :func:`simulate_loop` gives for that scenario
     """
     y_rec = np.empty((0, 2))
     u_rec = np.empty((0, 2))
     h_rec = np.empty((0, 4))
-    for s in range(c.shape[0]):
-        status[s], _ = simulate_loop(c[s], level_per_state, h_init, h_op, u_op[s], ad, bd, state_input, Ad, Bd, Cc,
-                                     Dc, state_channel, segments, dt, n_steps, i_out_dist[s], out_dist[s],
-                                     i_in_dist[s], in_dist[s], noise[s], saturate[s], u_min[s], u_max[s],
-                                     clip_levels[s], h_max[s], band_pct, metrics[s], y_rec, u_rec, h_rec)
+    for s in range(P.shape[1]):
+        status[s], _ = simulate_loop(P[:, s].copy(), level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd, Cc,
+                                     Dc, state_channel, segments, dt, n_steps, noise[s], band_pct, metrics[s], y_rec,
+                                     u_rec, h_rec)

@@ -527,24 +527,21 @@ class ClosedLoop:
             record_levels = record
         if scenario.continuous:
             return self._run_continuous(ctrl, scenario, settling_band, record, record_levels)
-        coef, u_op, (saturate, u_lo, u_hi), clip, h_max = self._kernel_inputs(scenario)
+        P, u_op = self._scenario_table(scenario), self._kernel_inputs(scenario)[1]
         n = scenario.n_steps
         rows = n + 1 if record else 0
         y, u = np.empty((rows, 2)), np.empty((rows, 2))
         h = np.empty((n + 1 if record_levels else 0, 4))
         metrics = np.empty(_kernels.N_METRICS)
         dc = ctrl.discretise(scenario.dt) if discrete is None else discrete
-        out_dist, in_dist, noise = self._scenario_arrays(scenario)
+        noise = self._scenario_arrays(scenario)[2]
         pressure = self.plant_model == "qtp_bond_graph"
         x_op = self._state_op()  # initial plant state
         # substeps only when needed: the call without them is the kernel specialised to one step
         extra = (scenario.plant_substeps,) if scenario.plant_substeps > 1 else ()
         status, _ = _kernels.simulate_loop(
-            coef, self._level_per_state, x_op, self.op.h, u_op, dc.ad, dc.bd, dc.state_input,
-            dc.Ad, dc.Bd, dc.Cc, dc.Dc, dc.state_channel, dc.segments,
-            scenario.dt, n, scenario.disturbance_index, out_dist,
-            scenario.input_disturbance_index, in_dist,
-            noise, saturate, u_lo, u_hi, clip, h_max, float(settling_band), metrics, y, u, h, *extra,
+            P, self._level_per_state, x_op, self.op.h, dc.ad, dc.bd, dc.state_input, dc.Ad, dc.Bd, dc.Cc, dc.Dc,
+            dc.state_channel, dc.segments, scenario.dt, n, noise, float(settling_band), metrics, y, u, h, *extra,
         )
         t = np.arange(n + 1) * scenario.dt if record or record_levels else None
         P = None
@@ -587,6 +584,13 @@ class ClosedLoop:
         coef, u_op, (saturate, u_lo, u_hi), clip, h_max = self._kernel_inputs(scenario)
         return (coef, u_op, float(scenario.disturbance_time), float(scenario.horizon), bool(saturate),
                 float(u_lo), float(u_hi), bool(clip), np.asarray(h_max, dtype=np.float64))
+
+    def _scenario_table(self, scenario: Scenario) -> np.ndarray:
+        """The scenario's parameter table of the sampled-loop kernels (:func:`scenario_table`)."""
+        coef, u_op, (saturate, u_lo, u_hi), clip, h_max = self._kernel_inputs(scenario)
+        out_dist, in_dist, _ = self._scenario_arrays(scenario)
+        return _kernels.scenario_table(coef, u_op, saturate, u_lo, u_hi, clip, h_max, out_dist,
+                                       scenario.disturbance_index, in_dist, scenario.input_disturbance_index)
 
     def _state_op(self) -> np.ndarray:
         """The operating point in the kernels' state: levels, or pressures for the bond graph."""
@@ -632,21 +636,13 @@ class ClosedLoop:
                     out[i] = (sim.diverged, sim.metrics)
                 continue
             group = [scenarios[i] for i in members]
-            inputs = [self._kernel_inputs(sc) for sc in group]
-            arrays = [self._scenario_arrays(sc) for sc in group]
             metrics = np.empty((len(group), _kernels.N_METRICS))
             status = np.empty(len(group), dtype=np.int64)
-            x_op = self._state_op()
             _kernels.simulate_scenarios(
-                np.array([i[0] for i in inputs]), self._level_per_state, x_op, self.op.h,
-                np.array([i[1] for i in inputs]), dc.ad, dc.bd, dc.state_input, dc.Ad, dc.Bd, dc.Cc, dc.Dc,
-                dc.state_channel, dc.segments, dt, n_steps,
-                np.array([sc.disturbance_index for sc in group], dtype=np.int64), np.array([a[0] for a in arrays]),
-                np.array([sc.input_disturbance_index for sc in group], dtype=np.int64),
-                np.array([a[1] for a in arrays]), np.ascontiguousarray(np.stack([a[2] for a in arrays])),
-                np.array([i[2][0] for i in inputs]), np.array([i[2][1] for i in inputs], dtype=np.float64),
-                np.array([i[2][2] for i in inputs], dtype=np.float64), np.array([i[3] for i in inputs]),
-                np.array([i[4] for i in inputs], dtype=np.float64), float(settling_band), metrics, status)
+                np.stack([self._scenario_table(sc) for sc in group], axis=1), self._level_per_state, self._state_op(),
+                self.op.h, dc.ad, dc.bd, dc.state_input, dc.Ad, dc.Bd, dc.Cc, dc.Dc, dc.state_channel, dc.segments,
+                dt, n_steps, np.ascontiguousarray(np.stack([self._scenario_arrays(sc)[2] for sc in group])),
+                float(settling_band), metrics, status)
             for k, i in enumerate(members):
                 out[i] = (bool(status[k] != _kernels.STATUS_OK), metrics[k])
         return out
@@ -752,17 +748,12 @@ class ClosedLoop:
         them on ``device``."""
         L = len(pairs)
         first = pairs[0][1]
-        inputs = {s: self._kernel_inputs(sc) for s, sc in by_scenario.items()}
-        arrays = {s: self._scenario_arrays(sc) for s, sc in by_scenario.items()}
-        noisy = [s for s in by_scenario if arrays[s][2].shape[0] > 0]
-        noise = np.stack([arrays[s][2] for s in noisy]) if noisy else np.zeros((0, n_steps + 1, 4))
+        tables = {s: self._scenario_table(sc) for s, sc in by_scenario.items()}
+        noises = {s: self._scenario_arrays(sc)[2] for s, sc in by_scenario.items()}
+        noisy = [s for s in by_scenario if noises[s].shape[0] > 0]
+        noise = np.stack([noises[s] for s in noisy]) if noisy else np.zeros((0, n_steps + 1, 4))
         noise_index = {s: k for k, s in enumerate(noisy)}
-        P = np.empty((_batch_kernels.NP, L))
-        for lane, (_, _, s) in enumerate(pairs):
-            coef, u_op, (saturate, u_lo, u_hi), clip, h_max = inputs[s]
-            sc = by_scenario[s]
-            P[:, lane] = np.concatenate([coef, u_op, [u_lo, u_hi, float(saturate), float(clip)], arrays[s][0],
-                                         arrays[s][1], [sc.disturbance_index, sc.input_disturbance_index], h_max])
+        P = np.stack([tables[s] for _, _, s in pairs], axis=1)
 
         def lanes(name):  # a discrete controller's array, the lanes on a last axis
             return np.ascontiguousarray(np.stack([getattr(dc, name) for _, dc, _ in pairs], axis=-1))
