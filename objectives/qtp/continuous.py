@@ -11,6 +11,7 @@ and the rest are equal steps of at most ``h``.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import numpy as np
@@ -259,6 +260,18 @@ class StepPlan:
         """Steps the plan takes (graded ones counted one by one)."""
         return int(self.steps.sum() + 4 * self.graded.sum())
 
+    @functools.cached_property
+    def table(self) -> np.ndarray:
+        """The segment table ``seg`` (S, N_SEG) of the continuous kernels, columns ``SEG_*`` of
+        :mod:`~heurtune.objectives.qtp.continuous_kernels` (flags as 1.0 or 0.0)."""
+        from heurtune.objectives.qtp import continuous_kernels as ck
+
+        seg = np.empty((self.t0.size, ck.N_SEG))
+        seg[:, ck.SEG_T0], seg[:, ck.SEG_H], seg[:, ck.SEG_STEPS] = self.t0, self.h, self.steps
+        seg[:, ck.SEG_GRADED], seg[:, ck.SEG_POST] = self.graded, self.post
+        seg[:, ck.SEG_DIST:ck.SEG_DIST + 2], seg[:, ck.SEG_UIN:ck.SEG_UIN + 2] = self.dist, self.uin
+        return seg
+
 
 def plan_steps(horizon: float, step: float, output_disturbance, disturbance_time: float,
                input_disturbance, input_disturbance_time: float) -> StepPlan:
@@ -303,7 +316,7 @@ def plan_steps(horizon: float, step: float, output_disturbance, disturbance_time
                     np.array(dist), np.array(uin), np.array(post, dtype=np.bool_))
 
 
-def pack_lanes(controllers, plans, scenarios) -> dict:
+def pack_lanes(controllers, plans, tables) -> dict:
     """The inputs of :func:`~heurtune.objectives.qtp.continuous_kernels.simulate_continuous_lanes`
     for lanes ``k`` of controller ``controllers[k]`` under step plan ``plans[k]``.
 
@@ -312,43 +325,29 @@ def pack_lanes(controllers, plans, scenarios) -> dict:
     controllers : sequence of ContinuousController
         All with the same numbers of modal and dense states.
     plans : sequence of StepPlan
-        Padded here to the longest (``n_seg`` says how many segments a lane uses).
-    scenarios : sequence of tuple
-        Per lane ``(coef, u_op, t_dist, horizon, saturate, u_min, u_max, clip, h_max)``: the
-        plant coefficients (10,), the operating voltages (2,), the output disturbance time, the
-        horizon, the pump limits and the tank heights as ``simulate_continuous`` takes them.
+        Their segment tables are padded here to the longest (``n_seg`` says how many segments
+        a lane uses).
+    tables : sequence of ndarray
+        Per lane the scenario's parameter table (``kernels.scenario_table``, (NP,)).
 
     Returns
     -------
     dict
         Arrays by the names of ``continuous_kernels.LANE_FIELDS``, lanes on the first axis.
     """
-    from heurtune.objectives.qtp.continuous_kernels import LANE_FIELDS
+    from heurtune.objectives.qtp.continuous_kernels import LANE_FIELDS, N_SEG
 
     L = len(controllers)
-    S = max(p.t0.size for p in plans)
-
-    def padded(name, dtype):
-        rows = [getattr(p, name) for p in plans]
-        out = np.zeros((L, S) + rows[0].shape[1:], dtype=dtype)
-        for k, r in enumerate(rows):
-            out[k, :r.shape[0]] = r
-        return out
+    seg = np.zeros((L, max(p.t0.size for p in plans), N_SEG))
+    for k, p in enumerate(plans):
+        seg[k, :p.t0.size] = p.table
 
     def stacked(name, dtype=np.float64):
         return np.ascontiguousarray(np.stack([np.asarray(getattr(c, name), dtype=dtype) for c in controllers]))
 
-    cols = list(zip(*scenarios))
     out = dict(
-        c=np.array(cols[0], dtype=np.float64), u_op=np.array(cols[1], dtype=np.float64),
+        P=np.ascontiguousarray(np.stack(tables)),
         lam=stacked("lam"), bm=stacked("b"), mi=stacked("col", np.int64), Cm=stacked("Cm"), Aq=stacked("Aq"),
         Bq=stacked("Bq"), Cq=stacked("Cq"), Dc=stacked("D"), channel=stacked("channel", np.int64),
-        seg_t0=padded("t0", np.float64), seg_h=padded("h", np.float64), seg_steps=padded("steps", np.int64),
-        seg_graded=padded("graded", np.bool_), seg_dist=padded("dist", np.float64),
-        seg_uin=padded("uin", np.float64), seg_post=padded("post", np.bool_),
-        n_seg=np.array([p.t0.size for p in plans], dtype=np.int64),
-        t_dist=np.array(cols[2], dtype=np.float64), horizon=np.array(cols[3], dtype=np.float64),
-        saturate=np.array(cols[4], dtype=np.bool_), u_min=np.array(cols[5], dtype=np.float64),
-        u_max=np.array(cols[6], dtype=np.float64), clip=np.array(cols[7], dtype=np.bool_),
-        h_max=np.array(cols[8], dtype=np.float64))
+        seg=seg, n_seg=np.array([p.t0.size for p in plans], dtype=np.int64))
     return {name: out[name] for name in LANE_FIELDS}

@@ -27,7 +27,21 @@ import math
 import numpy as np
 from numba import njit
 
-from heurtune.objectives.qtp.kernels import LEVEL_LIMIT, N_METRICS, STATUS_DIVERGED, STATUS_OK
+from heurtune.objectives.qtp.kernels import (
+    LEVEL_LIMIT,
+    N_METRICS,
+    P_CLIP,
+    P_COEF,
+    P_HMAX,
+    P_HORIZON,
+    P_SAT,
+    P_T_DIST,
+    P_UMAX,
+    P_UMIN,
+    P_UOP,
+    STATUS_DIVERGED,
+    STATUS_OK,
+)
 
 # phi_0 .. phi_4 are needed: the plant rows of phi_3(h L) read phi_4 of the controller.
 N_PHI = 5
@@ -770,12 +784,17 @@ def _event_values(x, du, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_
                 g[2 + i] = _tank_slope(i, x, u1, u2, c)
 
 
+# Columns of the segment table ``seg`` (S, N_SEG) of a step plan (continuous.StepPlan.table), one
+# row per segment: start time, step, number of steps, whether the first step is graded (1.0 or
+# 0.0), the output and input disturbances in force (2 each), and whether the segment lies after
+# the output disturbance time (1.0 or 0.0).
+SEG_T0, SEG_H, SEG_STEPS, SEG_GRADED, SEG_DIST, SEG_UIN, SEG_POST = 0, 1, 2, 3, 4, 6, 8
+N_SEG = 9
+
+
 @njit(cache=True, fastmath=_FAST)
-def continuous_lane(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel,
-                    seg_t0, seg_h, seg_steps, seg_graded, seg_dist, seg_uin, seg_post, n_seg,
-                    t_dist, horizon, saturate, u_min, u_max, clip, h_max, band_pct, metrics, out_dt,
-                    y_rec, u_rec, h_rec, n_rec,
-                    rows, coup, prop_m, prop_q, prop_qb, wz, wm, wq, wqb, w4, w2, w10, wi, wb, phw, sqw, rw, bw, vq):
+def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel, seg, n_seg,
+                    band_pct, metrics, out_dt, y_rec, u_rec, h_rec, n_rec, work):
     """The continuous-time closed loop of one lane (one controller under one scenario), by
     ETDRK4 on a planned grid, with its metrics: the step that every driver runs.
 
@@ -788,21 +807,26 @@ def continuous_lane(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm, Aq,
 
     Parameters
     ----------
-    As :func:`simulate_continuous`, and ``n_seg`` (segments used of the ``seg_*`` arrays),
-    ``n_rec`` (rows of the records to write); then the working arrays in the order of
-    :func:`workspace_shapes`.
+    As :func:`simulate_continuous`, and ``n_seg`` (rows used of ``seg``),
+    ``n_rec`` (rows of the records to write) and ``work``, the tuple of working arrays in the
+    order of :func:`workspace_shapes`.
 
     Returns
     -------
     status : int, STATUS_OK or STATUS_DIVERGED (metrics NaN, records NaN from there)
     n_steps : int, steps taken
     """
+    c, u_op, h_max = P[P_COEF:P_COEF + 10], P[P_UOP:P_UOP + 2], P[P_HMAX:P_HMAX + 4]
+    u_min, u_max = P[P_UMIN], P[P_UMAX]
+    saturate, clip = P[P_SAT] > 0.0, P[P_CLIP] > 0.0
+    t_dist, horizon = P[P_T_DIST], P[P_HORIZON]
     nd = lam.size
     nq = Aq.shape[0]
     nz = nd + nq
     s = level_per_state
     state_limit = LEVEL_LIMIT / s
     # the working arrays by name (rows of w4, w2, w10; see workspace_shapes)
+    rows, coup, prop_m, prop_q, prop_qb, wz, wm, wq, wqb, w4, w2, w10, wi, wb, phw, sqw, rw, bw, vq = work
     x, x_new, x_mid, w, xr = w4[0], w4[1], w4[2], w4[3], w4[4]
     scr, wst, Dn = w4[5:15], w4[15:18], w4[18:20]
     u_mid, u_end, du0, acc, dur, v, pm = w2[0], w2[1], w2[2], w2[3], w2[4], w2[5], w2[6]
@@ -873,15 +897,16 @@ def continuous_lane(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm, Aq,
     diverged = False
     first_node = True
     for sg in range(n_seg):
-        d1 = seg_dist[sg, 0]
-        d2 = seg_dist[sg, 1]
-        post = seg_post[sg]
-        t = seg_t0[sg]
-        t_end = seg_t0[sg] + seg_h[sg] * seg_steps[sg]
+        d1 = seg[sg, SEG_DIST]
+        d2 = seg[sg, SEG_DIST + 1]
+        post = seg[sg, SEG_POST] > 0.0
+        uin = seg[sg, SEG_UIN:SEG_UIN + 2]
+        t = seg[sg, SEG_T0]
+        t_end = seg[sg, SEG_T0] + seg[sg, SEG_H] * int(seg[sg, SEG_STEPS])
         if sg == n_seg - 1:
             t_end = horizon
-        h_target = seg_h[sg]
-        graded = seg_graded[sg]
+        h_target = seg[sg, SEG_H]
+        graded = seg[sg, SEG_GRADED] > 0.0
         # the mode at the segment start: a jump of the measurement may push a pump across a limit
         _pump_voltages(x, z, Cm, Cq, s, d1, d2, h_op, Dc, w, du0)
         if saturate:
@@ -890,7 +915,7 @@ def continuous_lane(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm, Aq,
                 sat[j] = 1 if uc > u_max else (-1 if uc < u_min else 0)
                 sliding[j] = False  # a discontinuity ends a slide
                 pin[j] = 0
-        _mode_arrays(sat, pin, asat, held, lam, bm, Aq, Bq, channel, c, Dc, u_op, seg_uin[sg], u_min, u_max,
+        _mode_arrays(sat, pin, asat, held, lam, bm, Aq, Bq, channel, c, Dc, u_op, uin, u_min, u_max,
                      lam_e, bm_e, Aq_e, Bq_e, c_e, Dn, v, pm)
         _applied(du0, u_op, asat, saturate, u_min, u_max, ua)
         _signals(w, x, s, u_op, ua, f0)
@@ -1066,7 +1091,7 @@ def continuous_lane(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm, Aq,
                     changed = True
                 excess[k] = ex
             if changed:
-                _mode_arrays(sat, pin, asat, held, lam, bm, Aq, Bq, channel, c, Dc, u_op, seg_uin[sg], u_min, u_max,
+                _mode_arrays(sat, pin, asat, held, lam, bm, Aq, Bq, channel, c, Dc, u_op, uin, u_min, u_max,
                              lam_e, bm_e, Aq_e, Bq_e, c_e, Dn, v, pm)
                 n_win = 0
                 graded = True
@@ -1085,8 +1110,8 @@ def continuous_lane(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm, Aq,
         return STATUS_DIVERGED, n_taken
     # the end point T
     while k_rec < rec:
-        y_rec[k_rec, 0] = s * x[0] + seg_dist[n_seg - 1, 0]
-        y_rec[k_rec, 1] = s * x[1] + seg_dist[n_seg - 1, 1]
+        y_rec[k_rec, 0] = s * x[0] + seg[n_seg - 1, SEG_DIST]
+        y_rec[k_rec, 1] = s * x[1] + seg[n_seg - 1, SEG_DIST + 1]
         u_rec[k_rec, 0] = f1[6]
         u_rec[k_rec, 1] = f1[7]
         for i in range(4):
@@ -1188,32 +1213,29 @@ def _workspace(nd, nq, lanes=None):
     return tuple(np.empty(lead + shape, dtype=dt) for shape, dt in workspace_shapes(nd, nq))
 
 
-def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel,
-                        seg_t0, seg_h, seg_steps, seg_graded, seg_dist, seg_uin, seg_post,
-                        t_dist, horizon, saturate, u_min, u_max, clip, h_max, band_pct, metrics, out_dt,
-                        y_rec, u_rec, h_rec):
+def simulate_continuous(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel, seg, band_pct,
+                        metrics, out_dt, y_rec, u_rec, h_rec):
     """Continuous-time closed loop by ETDRK4 on a planned grid, with its metrics.
 
     Parameters
     ----------
-    c : (10,) plant coefficients (``kernels.plant_coefficients`` or the bond-graph ones)
+    P : (NP,) the scenario's parameter table (``kernels.scenario_table``): of its rows the
+        loop reads the plant coefficients ``c`` (``kernels.plant_coefficients`` or the
+        bond-graph ones), the operating voltages ``u_op``, the pump limits ``u_min``, ``u_max``
+        and ``saturate`` (conditional-integration anti-windup: the states of a pump's channel
+        are held while its controller output lies outside them), ``clip`` with the tank heights
+        ``h_max`` in state units (each level stays in [0, h_max_i]), the output disturbance
+        time ``t_dist`` and the horizon T; the disturbances themselves come from ``seg``
     level_per_state : float, level per unit of plant state (1 for the level model)
-    x_init : (4,) initial plant state; h_op : (4,) operating levels; u_op : (2,) voltages
+    x_init : (4,) initial plant state; h_op : (4,) operating levels
     lam, bm : (nd,) modal eigenvalues and input gains; mi : (nd,) int64 input of each mode;
     Cm : (2, nd) their output weights
     Aq : (nq, nq), Bq : (nq, 4), Cq : (2, nq): the dense controller blocks
     Dc : (2, 4) static feedback; channel : (nd + nq,) int64, the pump of each controller state
-    seg_t0, seg_h : (S,) start and step of each segment (segments start at 0 and at every
-        discontinuity)
-    seg_steps : (S,) int64, steps of ``seg_h`` in it
-    seg_graded : (S,) bool, whether the first of those steps is taken as h/16, h/16, h/8, h/4, h/2
-    seg_dist, seg_uin : (S, 2) output and input disturbance in force
-    seg_post : (S,) bool, whether the segment lies after the output disturbance time ``t_dist``
-    t_dist : float, the output disturbance time
-    horizon : float, end time T
-    saturate : bool; u_min, u_max : pump limits with conditional-integration anti-windup (the
-        states of a pump's channel are held while its controller output lies outside them)
-    clip : bool; h_max : (4,) tank heights in state units: each level stays in [0, h_max_i]
+    seg : (S, N_SEG) the segment table (``StepPlan.table``; segments start at 0 and at every
+        discontinuity), columns ``SEG_*`` of this module: start time and step, number of
+        steps, whether the first step is graded (h/16, h/16, h/8, h/4, h/2), the output and
+        input disturbances in force (2 each), and whether the segment lies after ``t_dist``
     band_pct : float, settling band in percent
     metrics : (N_METRICS,) output in the order of ``kernels.METRIC_NAMES``
     out_dt : float; y_rec, u_rec : (M + 1, 2), h_rec : (M + 1, 4) the dense output at
@@ -1232,33 +1254,23 @@ def simulate_continuous(c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm,
     """
     work = _workspace(lam.size, Aq.shape[0])
     status, n_taken = continuous_lane(
-        c, level_per_state, x_init, h_op, u_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel,
-        seg_t0, seg_h, seg_steps, seg_graded, seg_dist, seg_uin, seg_post, seg_t0.size,
-        t_dist, horizon, saturate, u_min, u_max, clip, h_max, band_pct, metrics, out_dt,
-        y_rec, u_rec, h_rec, y_rec.shape[0], *work)
+        P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel, seg, seg.shape[0], band_pct,
+        metrics, out_dt, y_rec, u_rec, h_rec, y_rec.shape[0], work)
     return int(status), int(n_taken)
 
 
 # The per-lane inputs of continuous_lane, in its order, as simulate_continuous_lanes takes them.
-LANE_FIELDS = ("c", "u_op", "lam", "bm", "mi", "Cm", "Aq", "Bq", "Cq", "Dc", "channel", "seg_t0", "seg_h",
-               "seg_steps", "seg_graded", "seg_dist", "seg_uin", "seg_post", "n_seg", "t_dist", "horizon",
-               "saturate", "u_min", "u_max", "clip", "h_max")
+LANE_FIELDS = ("P", "lam", "bm", "mi", "Cm", "Aq", "Bq", "Cq", "Dc", "channel", "seg", "n_seg")
 
 
 @njit(cache=True, fastmath=_FAST)
-def _lanes_loop(level_per_state, x_init, h_op, band_pct,
-                c, u_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel, seg_t0, seg_h, seg_steps, seg_graded, seg_dist,
-                seg_uin, seg_post, n_seg, t_dist, horizon, saturate, u_min, u_max, clip, h_max,
-                metrics, status, n_taken, rec2, rec4,
-                rows, coup, prop_m, prop_q, prop_qb, wz, wm, wq, wqb, w4, w2, w10, wi, wb, phw, sqw, rw, bw, vq):
+def _lanes_loop(level_per_state, x_init, h_op, band_pct, P, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel, seg, n_seg,
+                metrics, status, n_taken, rec2, rec4, work):
     """The lanes one after another through :func:`continuous_lane`, on one set of working arrays."""
-    for k in range(c.shape[0]):
+    for k in range(P.shape[0]):
         st, n = continuous_lane(
-            c[k], level_per_state, x_init, h_op, u_op[k], lam[k], bm[k], mi[k], Cm[k], Aq[k], Bq[k], Cq[k], Dc[k],
-            channel[k], seg_t0[k], seg_h[k], seg_steps[k], seg_graded[k], seg_dist[k], seg_uin[k], seg_post[k],
-            n_seg[k], t_dist[k], horizon[k], saturate[k], u_min[k], u_max[k], clip[k], h_max[k], band_pct,
-            metrics[k], 1.0, rec2, rec2, rec4, 0,
-            rows, coup, prop_m, prop_q, prop_qb, wz, wm, wq, wqb, w4, w2, w10, wi, wb, phw, sqw, rw, bw, vq)
+            P[k], level_per_state, x_init, h_op, lam[k], bm[k], mi[k], Cm[k], Aq[k], Bq[k], Cq[k], Dc[k],
+            channel[k], seg[k], n_seg[k], band_pct, metrics[k], 1.0, rec2, rec2, rec4, 0, work)
         status[k] = st
         n_taken[k] = n
 
@@ -1278,13 +1290,13 @@ def simulate_continuous_lanes(lanes, level_per_state, x_init, h_op, band_pct):
     -------
     status : (L,) int64; metrics : (L, N_METRICS); n_taken : (L,) int64
     """
-    L = lanes["c"].shape[0]
+    L = lanes["P"].shape[0]
     metrics = np.empty((L, N_METRICS))
     status = np.empty(L, dtype=np.int64)
     n_taken = np.empty(L, dtype=np.int64)
     work = _workspace(lanes["lam"].shape[1], lanes["Aq"].shape[1])
     _lanes_loop(float(level_per_state), x_init, h_op, float(band_pct), *[lanes[k] for k in LANE_FIELDS],
-                metrics, status, n_taken, np.empty((1, 2)), np.empty((1, 4)), *work)
+                metrics, status, n_taken, np.empty((1, 2)), np.empty((1, 4)), work)
     return status, metrics, n_taken
 
 

@@ -314,20 +314,16 @@ def _make_continuous_kernel():
     lane = _device_functions(_with_callees({_ck: ("continuous_lane",)}))["continuous_lane"]
 
     @cuda.jit
-    def kernel(level_per_state, x_init, h_op, band_pct,
-               c, u_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel, seg_t0, seg_h, seg_steps, seg_graded, seg_dist,
-               seg_uin, seg_post, n_seg, t_dist, horizon, saturate, u_min, u_max, clip, h_max,
+    def kernel(level_per_state, x_init, h_op, band_pct, P, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel, seg, n_seg,
                metrics, status, n_taken, rec2, rec4,
                rows, coup, prop_m, prop_q, prop_qb, wz, wm, wq, wqb, w4, w2, w10, wi, wb, phw, sqw, rw, bw, vq):
         k = cuda.grid(1)
-        if k >= c.shape[0]:
+        if k >= P.shape[0]:
             return
-        st, n = lane(c[k], level_per_state, x_init, h_op, u_op[k], lam[k], bm[k], mi[k], Cm[k], Aq[k], Bq[k], Cq[k],
-                     Dc[k], channel[k], seg_t0[k], seg_h[k], seg_steps[k], seg_graded[k], seg_dist[k], seg_uin[k],
-                     seg_post[k], n_seg[k], t_dist[k], horizon[k], saturate[k], u_min[k], u_max[k], clip[k],
-                     h_max[k], band_pct, metrics[k], 1.0, rec2, rec2, rec4, 0,
-                     rows[k], coup[k], prop_m[k], prop_q[k], prop_qb[k], wz[k], wm[k], wq[k], wqb[k], w4[k], w2[k],
-                     w10[k], wi[k], wb[k], phw[k], sqw[k], rw[k], bw[k], vq[k])
+        work = (rows[k], coup[k], prop_m[k], prop_q[k], prop_qb[k], wz[k], wm[k], wq[k], wqb[k], w4[k], w2[k], w10[k],
+                wi[k], wb[k], phw[k], sqw[k], rw[k], bw[k], vq[k])
+        st, n = lane(P[k], level_per_state, x_init, h_op, lam[k], bm[k], mi[k], Cm[k], Aq[k], Bq[k], Cq[k], Dc[k],
+                     channel[k], seg[k], n_seg[k], band_pct, metrics[k], 1.0, rec2, rec2, rec4, 0, work)
         status[k] = st
         n_taken[k] = n
 
@@ -359,7 +355,7 @@ def simulate_continuous_lanes(lanes, level_per_state, x_init, h_op, band_pct):
     require()
     if _CONTINUOUS_KERNEL is None:
         _CONTINUOUS_KERNEL = _make_continuous_kernel()
-    L = lanes["c"].shape[0]
+    L = lanes["P"].shape[0]
     metrics = cuda.device_array((L, _kernels.N_METRICS), dtype=np.float64)
     status = cuda.device_array(L, dtype=np.int64)
     n_taken = cuda.device_array(L, dtype=np.int64)

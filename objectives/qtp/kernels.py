@@ -35,14 +35,18 @@ _FAST = {"reassoc", "contract", "nsz", "arcp"}
 # simulate_scenarios and by the batched and GPU kernels, whose tables hold one per lane): plant
 # coefficients, operating voltages, pump limits, flags (1.0 or 0.0), the measured-level and
 # pump-voltage disturbances and their first samples (as floats: exact for any horizon that
-# fits in memory) and the tank heights. Built by scenario_table.
+# fits in memory), the tank heights, and (read by the continuous-time kernels, which take the
+# disturbances from their step plan) the output disturbance time and the horizon. Built by
+# scenario_table.
 P_COEF, P_UOP, P_UMIN, P_UMAX, P_SAT, P_CLIP = 0, 10, 12, 13, 14, 15
 P_OUT, P_IN, P_I_OUT, P_I_IN, P_HMAX = 16, 18, 20, 21, 22
-NP = 26
+P_T_DIST, P_HORIZON = 26, 27
+NP = 28
 
 
-def scenario_table(c, u_op, saturate, u_min, u_max, clip_levels, h_max, out_dist, i_out_dist, in_dist, i_in_dist):
-    """A scenario's parameter table ``P`` as the sampled-loop kernels take it.
+def scenario_table(c, u_op, saturate, u_min, u_max, clip_levels, h_max, out_dist, i_out_dist, in_dist, i_in_dist,
+                   t_dist, horizon):
+    """A scenario's parameter table ``P`` as the QTP loop kernels take it.
 
     Parameters
     ----------
@@ -64,6 +68,11 @@ def scenario_table(c, u_op, saturate, u_min, u_max, clip_levels, h_max, out_dist
     in_dist : (2,) array_like
         Pump-voltage disturbance, in force from sample ``i_in_dist`` on.
     i_in_dist : int
+        The sample indices are read by the sampled loop only (-1 for a continuous scenario).
+    t_dist : float
+        Output disturbance time, s.
+    horizon : float
+        End time of the simulation, s.
 
     Returns
     -------
@@ -79,6 +88,7 @@ def scenario_table(c, u_op, saturate, u_min, u_max, clip_levels, h_max, out_dist
     P[P_IN:P_IN + 2] = in_dist
     P[P_I_OUT], P[P_I_IN] = i_out_dist, i_in_dist
     P[P_HMAX:P_HMAX + 4] = h_max
+    P[P_T_DIST], P[P_HORIZON] = t_dist, horizon
     return P
 
 

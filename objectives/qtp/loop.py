@@ -554,7 +554,7 @@ class ClosedLoop:
     def _run_continuous(self, ctrl, scenario: Scenario, settling_band: float, record: bool,
                         record_levels: bool) -> SimulationResult:
         """:meth:`run` of a continuous-time scenario (kernel ``simulate_continuous``)."""
-        coef, u_op, t_dist, horizon, saturate, u_lo, u_hi, clip, h_max = self._continuous_inputs(scenario)
+        u_op = self._kernel_inputs(scenario)[1]
         cc = _continuous.ContinuousController.from_linear(ctrl)
         plan = self.step_plan(ctrl, scenario, cc)
         n_out = int(round(scenario.horizon / scenario.output_dt))
@@ -567,9 +567,8 @@ class ClosedLoop:
         metrics = np.empty(_kernels.N_METRICS)
         pressure = self.plant_model == "qtp_bond_graph"
         status, _ = _continuous_kernels.simulate_continuous(
-            coef, self._level_per_state, self._state_op(), self.op.h, u_op, cc.lam, cc.b, cc.col, cc.Cm, cc.Aq,
-            cc.Bq, cc.Cq, cc.D, cc.channel, plan.t0, plan.h, plan.steps, plan.graded, plan.dist, plan.uin, plan.post,
-            t_dist, horizon, saturate, u_lo, u_hi, clip, h_max, float(settling_band), metrics,
+            self._scenario_table(scenario), self._level_per_state, self._state_op(), self.op.h, cc.lam, cc.b, cc.col,
+            cc.Cm, cc.Aq, cc.Bq, cc.Cq, cc.D, cc.channel, plan.table, float(settling_band), metrics,
             float(scenario.output_dt), y, u, h)
         P = None
         if record_levels and pressure:
@@ -577,20 +576,17 @@ class ClosedLoop:
         return SimulationResult(t, y if record else None, u if record else None, h if record_levels else None,
                                 status != _kernels.STATUS_OK, self.op.h.copy(), u_op.copy(), metrics, P)
 
-    def _continuous_inputs(self, scenario: Scenario) -> tuple:
-        """The scenario's inputs of the continuous kernels, in their order and types (one lane's
-        of :func:`continuous.pack_lanes`): plant coefficients, operating voltages, disturbance
-        time, horizon, saturation (on, low, high), level clipping and the heights it clips at."""
-        coef, u_op, (saturate, u_lo, u_hi), clip, h_max = self._kernel_inputs(scenario)
-        return (coef, u_op, float(scenario.disturbance_time), float(scenario.horizon), bool(saturate),
-                float(u_lo), float(u_hi), bool(clip), np.asarray(h_max, dtype=np.float64))
-
     def _scenario_table(self, scenario: Scenario) -> np.ndarray:
-        """The scenario's parameter table of the sampled-loop kernels (:func:`scenario_table`)."""
+        """The scenario's parameter table of the loop kernels (:func:`scenario_table`): plant
+        coefficients, operating voltages, pump limits, level clipping and the heights it clips
+        at, disturbances, their sample indices (-1 for a continuous scenario), the output
+        disturbance time and the horizon."""
         coef, u_op, (saturate, u_lo, u_hi), clip, h_max = self._kernel_inputs(scenario)
         out_dist, in_dist, _ = self._scenario_arrays(scenario)
-        return _kernels.scenario_table(coef, u_op, saturate, u_lo, u_hi, clip, h_max, out_dist,
-                                       scenario.disturbance_index, in_dist, scenario.input_disturbance_index)
+        sampled = not scenario.continuous
+        return _kernels.scenario_table(
+            coef, u_op, saturate, u_lo, u_hi, clip, h_max, out_dist, scenario.disturbance_index if sampled else -1,
+            in_dist, scenario.input_disturbance_index if sampled else -1, scenario.disturbance_time, scenario.horizon)
 
     def _state_op(self) -> np.ndarray:
         """The operating point in the kernels' state: levels, or pressures for the bond graph."""
@@ -722,7 +718,7 @@ class ClosedLoop:
         else:
             shared = {s: scenarios[s].step_plan(self.kind) for s in members}
             plans = {(i, s): shared[s] for i in range(len(ctrls)) for s in members}
-        inputs = {s: self._continuous_inputs(scenarios[s]) for s in members}
+        tables = {s: self._scenario_table(scenarios[s]) for s in members}
         groups = {}
         for i, cc in enumerate(forms):
             groups.setdefault((cc.lam.size, cc.Aq.shape[0]), []).append(i)
@@ -730,7 +726,7 @@ class ClosedLoop:
         for members_i in groups.values():
             pairs = [(i, s) for i in members_i for s in members]
             lanes = _continuous.pack_lanes([forms[i] for i, _ in pairs], [plans[p] for p in pairs],
-                                           [inputs[s] for _, s in pairs])
+                                           [tables[s] for _, s in pairs])
             if device == "gpu":
                 from heurtune.objectives.qtp import gpu
 

@@ -21,11 +21,8 @@ class _Hopper:
 dispatcher.get_current_device = lambda: _Hopper()
 
 # the rank and dtype of each lane array (a leading lane axis included)
-RANKS = {"c": 2, "u_op": 2, "lam": 2, "bm": 2, "mi": (2, nt.int64), "Cm": 3, "Aq": 3, "Bq": 3, "Cq": 3, "Dc": 3,
-         "channel": (2, nt.int64), "seg_t0": 2, "seg_h": 2, "seg_steps": (2, nt.int64),
-         "seg_graded": (2, nt.boolean), "seg_dist": 3, "seg_uin": 3, "seg_post": (2, nt.boolean),
-         "n_seg": (1, nt.int64), "t_dist": 1, "horizon": 1, "saturate": (1, nt.boolean), "u_min": 1, "u_max": 1,
-         "clip": (1, nt.boolean), "h_max": 2}
+RANKS = {"P": 2, "lam": 2, "bm": 2, "mi": (2, nt.int64), "Cm": 3, "Aq": 3, "Bq": 3, "Cq": 3, "Dc": 3,
+         "channel": (2, nt.int64), "seg": 3, "n_seg": (1, nt.int64)}
 DTYPES = {np.float64: nt.float64, np.int64: nt.int64, np.bool_: nt.boolean}
 
 
