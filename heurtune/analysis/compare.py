@@ -93,7 +93,7 @@ from heurtune.analysis.stats import (  # noqa: F401  (re-exported)
     summary_table,
     vargha_delaney_a12,
 )
-from heurtune.core.cli import OneLineParser, UsageError, exit_codes
+from heurtune.core.cli import OneLineParser, UsageError, exit_codes, parse_labels  # parse_labels re-exported
 from heurtune.core.errors import ConfigError
 from heurtune.core.io import atomic_path, check_output_file
 
@@ -123,36 +123,6 @@ def _parser() -> argparse.ArgumentParser:
                     help="name the variant in DIR (one of the folders) NAME instead of the folder name; "
                          "repeatable")
     return ap
-
-
-def parse_labels(items) -> dict:
-    """The ``--label`` options as a mapping.
-
-    Parameters
-    ----------
-    items : iterable of str
-        ``"NAME=DIR"`` each.
-
-    Returns
-    -------
-    dict
-        ``{NAME: DIR}``.
-
-    Raises
-    ------
-    ConfigError
-        A missing ``=``, or a NAME given twice.
-    """
-    out = {}
-    for item in items:
-        name, sep, d = item.partition("=")
-        name = name.strip()
-        if not sep or not name or not d:
-            raise ConfigError(f"--label '{item}' must have the form NAME=DIR")
-        if name in out:
-            raise ConfigError(f"--label name '{name}' is given twice ({out[name]} and {d})")
-        out[name] = d
-    return out
 
 
 def run(argv=None) -> int:

@@ -27,7 +27,7 @@ from heurtune.analysis.stats import (
 from heurtune.core.errors import ConfigError
 
 __all__ = [
-    "FORMATS", "LATEX_MAX_COLUMNS", "LATEX_PACKAGES", "report",
+    "FORMATS", "LATEX_MAX_COLUMNS", "LATEX_PACKAGES", "report", "report_blocks",
 ]
 
 
@@ -152,9 +152,30 @@ def _methods_note(alpha: float) -> str:
             f"seed {BOOTSTRAP_SEED}. Across cases: Friedman test on the per-case medians with Nemenyi's post-hoc test.")
 
 
-def _blocks(runs: pd.DataFrame, metric: str, alpha: float, margins: pd.DataFrame | None = None,
-            cd_path=None):
-    """The report as a list of ('heading', level, text) / ('note', text) / ('table', title, df, formats)."""
+def report_blocks(runs: pd.DataFrame, metric: str, alpha: float, margins: pd.DataFrame | None = None,
+                  cd_path=None) -> list:
+    """The statistical comparison as format-free blocks, which :func:`report` writes as text,
+    markdown or LaTeX and the HTML report (:mod:`heurtune.analysis.report`) as HTML.
+
+    Parameters
+    ----------
+    runs : pandas.DataFrame
+        Runs as :func:`heurtune.analysis.runs.load_runs` returns them.
+    metric : str
+        The column compared (lower is better).
+    alpha : float
+        Significance level of the tests.
+    margins : pandas.DataFrame, optional
+        Stability margins of the best runs, for their table.
+    cd_path : path-like, optional
+        Where the critical-difference diagram is drawn, when one is.
+
+    Returns
+    -------
+    list of tuple
+        ``("heading", level, text)``, ``("note", text)`` and ``("table", title, df, formats)``
+        in reading order.
+    """
     marg = margins_table(margins) if margins is not None and len(margins) else pd.DataFrame()
     summary = summary_table(runs, metric)
     pairs = pairwise_tests(runs, metric, alpha)
@@ -307,7 +328,7 @@ def report(runs: pd.DataFrame, metric: str = "best_f", alpha: float = 0.05, fmt:
         raise ConfigError(f"alpha must lie in (0, 1), got {alpha:g}")
     check_metric(runs, metric)
     parts = []
-    for block in _blocks(runs, metric, alpha, margins, cd_path):
+    for block in report_blocks(runs, metric, alpha, margins, cd_path):
         kind = block[0]
         if fmt == "md":
             if kind == "heading":

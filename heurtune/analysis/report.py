@@ -40,7 +40,6 @@ import pandas as pd
 
 from heurtune import _startup
 from heurtune.analysis import anytime, figures, render
-from heurtune.analysis.compare import parse_labels
 from heurtune.analysis.runs import (
     best_run_index,
     check_metric,
@@ -49,7 +48,7 @@ from heurtune.analysis.runs import (
     load_margins,
     load_runs,
 )
-from heurtune.core.cli import OneLineParser, UsageError, exit_codes
+from heurtune.core.cli import OneLineParser, UsageError, exit_codes, parse_labels
 from heurtune.core.errors import ConfigError
 from heurtune.core.families import make_experiment
 from heurtune.core.io import atomic_path
@@ -277,7 +276,7 @@ def render_html(runs: pd.DataFrame, *, dirs=(), history: pd.DataFrame | None = N
     with tempfile.TemporaryDirectory(prefix="heurtune_report_") as name:
         tmp = Path(name)
         cd_path = tmp / "cd_diagram.png"
-        blocks = render._blocks(runs, metric, alpha, margins, cd_path=cd_path)
+        blocks = render.report_blocks(runs, metric, alpha, margins, cd_path=cd_path)
         ecdf_table = _ecdf_table(history)
         cache: dict = {}
         current = None  # index of the case whose blocks are being written

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-__all__ = ["EXIT_CODES", "exit_codes", "UsageError", "OneLineParser"]
+from heurtune.core.errors import ConfigError
+
+__all__ = ["EXIT_CODES", "exit_codes", "UsageError", "OneLineParser", "parse_labels"]
 
 EXIT_CODES = {
     0: "done",
@@ -40,3 +42,33 @@ class OneLineParser(argparse.ArgumentParser):
 
     def error(self, message):  # one line instead of usage + message
         raise UsageError(message)
+
+
+def parse_labels(items) -> dict:
+    """The ``--label`` options as a mapping.
+
+    Parameters
+    ----------
+    items : iterable of str
+        ``"NAME=DIR"`` each.
+
+    Returns
+    -------
+    dict
+        ``{NAME: DIR}``.
+
+    Raises
+    ------
+    ConfigError
+        A missing ``=``, or a NAME given twice.
+    """
+    out = {}
+    for item in items:
+        name, sep, d = item.partition("=")
+        name = name.strip()
+        if not sep or not name or not d:
+            raise ConfigError(f"--label '{item}' must have the form NAME=DIR")
+        if name in out:
+            raise ConfigError(f"--label name '{name}' is given twice ({out[name]} and {d})")
+        out[name] = d
+    return out
