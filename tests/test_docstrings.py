@@ -20,6 +20,7 @@ MODULES = [
     "heurtune.analysis.runs",
     "heurtune.analysis.stats",
     "heurtune.analysis.render",
+    "heurtune.analysis.side_by_side",
     "heurtune.analysis.compare",
     "heurtune.analysis.results",
     "heurtune.analysis.export",

@@ -49,7 +49,6 @@ Examples
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import warnings
 from pathlib import Path
@@ -58,8 +57,20 @@ import numpy as np
 import pandas as pd
 
 from heurtune.analysis.runs import best_run_index, successful_runs
+from heurtune.analysis.side_by_side import (
+    Part,
+    SideBySideTable,
+    add_quantity,
+    decimals_of,
+    fmt,
+    make_part,
+    md_cell,
+    number,
+    render_latex,
+    render_markdown,
+    write_text,
+)
 from heurtune.core.errors import ConfigError
-from heurtune.core.io import atomic_path
 from heurtune.objectives.qtp.margins import loop_margins
 from heurtune.objectives.qtp.structures import controller_label
 from heurtune.objectives.qtp.thesis.figures import chapter_figures
@@ -86,45 +97,10 @@ _NO_RELATIVE = {"Mp", "ts", "ess", "convergence_epoch", "Mp1", "Mp2", "ts1", "ts
 _METRIC_ALG = {"5.5": "cs", "5.6": "apso", "5.7": "firefly", "5.8": "cs", "5.9": "apso", "5.10": "firefly"}
 
 
-@dataclasses.dataclass
-class Part:
-    """One sub-table: a subtitle, the display cells (strings) and their numbers.
-
-    Attributes
-    ----------
-    subtitle : str
-    display : pandas.DataFrame
-        Strings as written to the .md and .tex files (printed digits kept; "" for empty).
-    values : pandas.DataFrame
-        Same shape and columns: the numbers (NaN for empty) or the key strings.
-    """
-
-    subtitle: str
-    display: pd.DataFrame
-    values: pd.DataFrame
-
-
-@dataclasses.dataclass
-class ThesisTable:
-    """A thesis table with heurtune's numbers beside the printed ones.
-
-    Attributes
-    ----------
-    name : str
-        ``"4.3"`` ... or ``"starts"``.
-    title : str
-    meaning : str
-        One line: what the heurtune columns hold.
-    parts : list of Part
-    notes : list of str
-        Why cells are empty, and other caveats.
-    """
-
-    name: str
-    title: str
-    meaning: str
-    parts: list
-    notes: list = dataclasses.field(default_factory=list)
+class ThesisTable(SideBySideTable):
+    """A thesis table with heurtune's numbers beside the printed ones
+    (:class:`heurtune.analysis.side_by_side.SideBySideTable`; ``name`` is ``"4.3"`` ... or
+    ``"starts"``)."""
 
     @property
     def stem(self) -> str:
@@ -294,58 +270,14 @@ def _split(case: str):
 # Formatting
 # ----------------------------------------------------------------------------------------------
 
-def _decimals(text: str, value: float, quantity: str) -> int:
-    if quantity == "convergence_epoch":
-        return 1
-    if text and "." in text:
-        return max(len(text.split(".")[1].rstrip("%")), 1)
-    if value is not None and np.isfinite(value) and abs(value) >= 100:
-        return 1
-    return 4
-
-
-def _num(v) -> float:
-    try:
-        f = float(v)
-    except (TypeError, ValueError):
-        return math.nan
-    return f
-
-
-def _fmt(v: float, decimals: int) -> str:
-    if v is None or not np.isfinite(v):
-        return "" if v is None or np.isnan(v) else ("inf" if v > 0 else "-inf")
-    return f"{v:.{decimals}f}"
-
-
 def _triple(rows_out, q: str, label: str, printed_text: str, heur: float, *, relative: bool | None = None,
             diff: bool = True):
-    """Append the cells of one quantity (printed, heurtune, diff[, diff %]) to the row dicts."""
-    disp, vals = rows_out
-    p = _num(printed_text) if printed_text not in (None, "") else math.nan
-    h = _num(heur)
-    d = _decimals(printed_text or "", h, q)
-    disp[f"{label} printed"] = printed_text or ""
-    vals[f"{label} printed"] = p
-    disp[f"{label} heurtune"] = _fmt(h, d)
-    vals[f"{label} heurtune"] = h
-    if not diff:
-        return
-    dv = h - p if np.isfinite(h) and np.isfinite(p) else math.nan
-    disp[f"{label} diff"] = _fmt(dv, d)
-    vals[f"{label} diff"] = dv
-    if relative is None:
-        relative = q not in _NO_RELATIVE
-    if relative:
-        rv = 100.0 * dv / abs(p) if np.isfinite(dv) and p != 0 else math.nan
-        disp[f"{label} diff %"] = _fmt(rv, 1)
-        vals[f"{label} diff %"] = rv
-
-
-def _part(subtitle, rows) -> Part:
-    disp = pd.DataFrame([r[0] for r in rows])
-    vals = pd.DataFrame([r[1] for r in rows])
-    return Part(subtitle, disp.fillna(""), vals)
+    """Append the cells of one quantity (printed, heurtune, diff[, diff %]) to the row dicts:
+    :func:`~heurtune.analysis.side_by_side.add_quantity` with the thesis' decimals (one for
+    convergence epochs) and relative differences (none for ``_NO_RELATIVE``)."""
+    decimals = 1 if q == "convergence_epoch" else decimals_of(printed_text or "", number(heur))
+    add_quantity(rows_out, label, printed_text, heur, decimals=decimals,
+                 relative=q not in _NO_RELATIVE if relative is None else relative, diff=diff)
 
 
 def _keys(**kw):
@@ -436,7 +368,7 @@ def _start_table(inp: _Inputs, table: str, converged: bool) -> ThesisTable:
     meaning = (f"heurtune: the {what} of its feasible SQP starts on {case}, ranked by objective f; "
                f"the k-th best beside the printed row whose J ranks k-th"
                + ("" if converged else " (random guesses on both sides: no differences)"))
-    return ThesisTable(table, _title(table), meaning, [_part("Printed vs heurtune", rows)], notes)
+    return ThesisTable(table, _title(table), meaning, [make_part("Printed vs heurtune", rows)], notes)
 
 
 def _starts_distribution(inp: _Inputs) -> ThesisTable:
@@ -467,18 +399,18 @@ def _starts_distribution(inp: _Inputs) -> ThesisTable:
                 disp["feasible starts"] = f"{v.size}/{len(g)}"
                 vals["feasible starts"] = float(v.size)
                 for lab, x in zip(("min", "q25", "median", "q75", "max"), q):
-                    disp[lab] = _fmt(x, 1 if n == "f" else 4)
+                    disp[lab] = fmt(x, 1 if n == "f" else 4)
                     vals[lab] = x
-                disp["printed min"] = _fmt(pv.min(), 4) if pv.size else ""
+                disp["printed min"] = fmt(pv.min(), 4) if pv.size else ""
                 vals["printed min"] = pv.min() if pv.size else math.nan
-                disp["printed max"] = _fmt(pv.max(), 4) if pv.size else ""
+                disp["printed max"] = fmt(pv.max(), 4) if pv.size else ""
                 vals["printed max"] = pv.max() if pv.size else math.nan
                 rows.append((disp, vals))
     meaning = ("heurtune: spread of the converged values over all feasible SQP starts per case "
                "(f is the objective, J); printed min/max over the thesis' five converged rows (4.3, 4.5) "
                "or its one IOLQI row (4.6)")
-    part = _part("Distribution of converged solutions", rows) if rows else Part("Distribution of converged solutions",
-                                                                                 pd.DataFrame(), pd.DataFrame())
+    subtitle = "Distribution of converged solutions"
+    part = make_part(subtitle, rows) if rows else Part(subtitle, pd.DataFrame(), pd.DataFrame())
     return ThesisTable("starts", "Converged SQP solutions over all starts (Tables 4.3 and 4.5 extended)",
                        meaning, [part], notes)
 
@@ -531,8 +463,8 @@ def _gain_table(inp: _Inputs, chapter: int, table: str) -> ThesisTable:
     if table == "4.7":
         meaning = ("heurtune: part A the parameters of its best LADR run (the table_4_7 baseline evaluates the "
                    "printed ones); part B the printed parameters simulated by heurtune, J beside Table 4.8's")
-    parts = [_part("A: printed vs heurtune's best tuned run", rows_a),
-             _part("B: effort of the printed gains, simulated by heurtune", rows_b)]
+    parts = [make_part("A: printed vs heurtune's best tuned run", rows_a),
+             make_part("B: effort of the printed gains, simulated by heurtune", rows_b)]
     return ThesisTable(table, _title(table), meaning, parts, notes)
 
 
@@ -588,8 +520,8 @@ def _metric_table(inp: _Inputs, chapter: int, table: str) -> ThesisTable:
     meaning = ("heurtune: part A the printed gains simulated by heurtune (model differences); part B heurtune's "
                "best tuned run of the same case" + (" and algorithm" if chapter != 4 else "")
                + "; efforts absolute (J = integral of u^2)")
-    parts = [_part("A: printed gains simulated by heurtune", rows_a),
-             _part("B: heurtune's best tuned run", rows_b)]
+    parts = [make_part("A: printed gains simulated by heurtune", rows_a),
+             make_part("B: heurtune's best tuned run", rows_b)]
     return ThesisTable(table, _title(table), meaning, parts, [])
 
 
@@ -618,8 +550,8 @@ def _effort_table(inp: _Inputs) -> ThesisTable:
     meaning = ("heurtune: part A the printed gains (Tables 6.3, 6.4) simulated by heurtune; part B heurtune's best "
                "tuned run of the same case and algorithm; absolute effort J = integral of u^2 (the printed values "
                "are read as J x 10^3: they match Tables 5.5-5.7)")
-    return ThesisTable("6.5", _title("6.5"), meaning, [_part("A: printed gains simulated by heurtune", rows_a),
-                                                       _part("B: heurtune's best tuned run", rows_b)], [])
+    return ThesisTable("6.5", _title("6.5"), meaning, [make_part("A: printed gains simulated by heurtune", rows_a),
+                                                       make_part("B: heurtune's best tuned run", rows_b)], [])
 
 
 def _margin_table(inp: _Inputs, chapter: int, table: str) -> ThesisTable:
@@ -658,7 +590,8 @@ def _margin_table(inp: _Inputs, chapter: int, table: str) -> ThesisTable:
         "(margins.parquet); rows matched by their place in the thesis' loop order; empty heurtune crossover and "
         "'inf' PM: no gain crossover"
     )
-    parts = [_part("A: margins of the printed gains", rows_a), _part("B: margins of heurtune's best run", rows_b)]
+    parts = [make_part("A: margins of the printed gains", rows_a),
+             make_part("B: margins of heurtune's best run", rows_b)]
     return ThesisTable(table, _title(table), meaning, parts, [])
 
 
@@ -692,7 +625,7 @@ def _convergence_table(inp: _Inputs) -> ThesisTable:
         rows.append((disp, vals))
     meaning = ("heurtune: mean convergence epoch, mean and SD (ddof=1) of the final objective over its successful "
                "runs (not failed, feasible; absolute J; the printed unit is not stated); 'runs' counts all runs")
-    return ThesisTable("5.3", _title("5.3"), meaning, [_part("Printed vs heurtune", rows)], notes)
+    return ThesisTable("5.3", _title("5.3"), meaning, [make_part("Printed vs heurtune", rows)], notes)
 
 
 def chapter_tables(chapter: int, exp, *, runs=None, history=None, margins=None, starts=None) -> list[ThesisTable]:
@@ -748,84 +681,6 @@ def chapter_tables(chapter: int, exp, *, runs=None, history=None, margins=None, 
 # Rendering
 # ----------------------------------------------------------------------------------------------
 
-def _md_cell(s) -> str:
-    return str(s).replace("|", r"\|")
-
-
-def render_markdown(table: ThesisTable) -> str:
-    """The .md text of a table: title, a 'heurtune:' header line, notes, one pipe table per part.
-
-    Parameters
-    ----------
-    table : ThesisTable
-
-    Returns
-    -------
-    str
-    """
-    lines = [f"# {table.title}", "", table.meaning, ""]
-    for note in table.notes:
-        lines.append(f"- note: {note}")
-    if table.notes:
-        lines.append("")
-    for part in table.parts:
-        lines += [f"## {part.subtitle}", ""]
-        d = part.display
-        if d.empty:
-            lines += ["(no rows)", ""]
-            continue
-        num = [not all(isinstance(v, str) for v in part.values[c]) for c in d.columns]
-        lines.append("| " + " | ".join(_md_cell(c) for c in d.columns) + " |")
-        lines.append("|" + "|".join("---:" if n else ":---" for n in num) + "|")
-        for _, r in d.iterrows():
-            lines.append("| " + " | ".join(_md_cell(v) for v in r) + " |")
-        lines.append("")
-    return "\n".join(lines)
-
-
-_TEX = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
-        "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}"}
-
-
-def _tex(s) -> str:
-    return "".join(_TEX.get(ch, ch) for ch in str(s))
-
-
-def render_latex(table: ThesisTable) -> str:
-    """The .tex text of a table: one booktabs ``table`` environment per part (needs booktabs).
-
-    Parameters
-    ----------
-    table : ThesisTable
-
-    Returns
-    -------
-    str
-    """
-    out = [f"% {_tex(table.title)}", f"% {_tex(table.meaning)}"]
-    for note in table.notes:
-        out.append(f"% note: {_tex(note)}")
-    for part in table.parts:
-        d = part.display
-        if d.empty:
-            continue
-        num = [not all(isinstance(v, str) for v in part.values[c]) for c in d.columns]
-        colfmt = "".join("r" if n else "l" for n in num)
-        out += [r"\begin{table}[htbp]", r"\centering", r"\scriptsize",
-                f"\\caption{{{_tex(table.title)}. {_tex(part.subtitle)}}}",
-                f"\\begin{{tabular}}{{{colfmt}}}", r"\toprule",
-                " & ".join(_tex(c) for c in d.columns) + r" \\", r"\midrule"]
-        out += [" & ".join(_tex(v) for v in r) + r" \\" for r in d.itertuples(index=False, name=None)]
-        out += [r"\bottomrule", r"\end{tabular}", r"\end{table}", ""]
-    return "\n".join(out)
-
-
-def _write_text(path: Path, text: str) -> Path:
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text(text, encoding="utf-8")
-    return path
-
-
 def write_chapter(chapter: int, exp, out_dir, *, runs=None, history=None, margins=None, starts=None,
                   figures: bool = True) -> list[Path]:
     """Write a chapter's tables (and figures) beside an experiment's results.
@@ -877,11 +732,11 @@ def write_chapter(chapter: int, exp, out_dir, *, runs=None, history=None, margin
         "|---|---|---|",
     ]
     for t in tables:
-        md = _write_text(tdir / f"{t.stem}.md", render_markdown(t))
-        tex = _write_text(tdir / f"{t.stem}.tex", render_latex(t))
+        md = write_text(tdir / f"{t.stem}.md", render_markdown(t))
+        tex = write_text(tdir / f"{t.stem}.tex", render_latex(t))
         written += [md, tex]
         label = "distribution of SQP solutions" if t.name == "starts" else f"Table {t.name}"
-        index.append(f"| {label} | [{md.name}]({md.name}), [{tex.name}]({tex.name}) | {_md_cell(t.meaning)} |")
+        index.append(f"| {label} | [{md.name}]({md.name}), [{tex.name}]({tex.name}) | {md_cell(t.meaning)} |")
     pngs = []
     if figures:
         try:
@@ -892,5 +747,5 @@ def write_chapter(chapter: int, exp, out_dir, *, runs=None, history=None, margin
         index += ["", "## Figures", ""]
         index += [f"- [{p.name}]({p.name})" for p in pngs]
         written += pngs
-    written.append(_write_text(tdir / "README.md", "\n".join(index) + "\n"))
+    written.append(write_text(tdir / "README.md", "\n".join(index) + "\n"))
     return written

@@ -1,0 +1,288 @@
+"""Printed tables beside recomputed ones: the cells, the parts and their markdown and LaTeX.
+
+A source's table (the thesis', a paper's) is set beside what heurtune computes for the same
+rows. Each quantity takes the columns ``<label> printed`` (the printed digits as printed),
+``<label> heurtune``, ``<label> diff`` (heurtune minus printed) and, where a ratio means
+something, ``<label> diff %`` (relative to the printed value). A table has one or more parts
+(sub-tables with a subtitle), a one-line meaning of its heurtune columns and notes that say why
+cells are empty. :mod:`heurtune.objectives.qtp.thesis.tables` (the thesis, chapters 4-6) and
+:mod:`heurtune.objectives.tito.papers.tables` (papers 000-002) build their tables from these
+pieces, so both write the same layout.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from heurtune.core.io import atomic_path
+
+__all__ = ["Part", "SideBySideTable", "add_quantity", "decimals_of", "fmt", "make_part", "md_cell", "number",
+           "render_latex", "render_markdown", "write_text"]
+
+
+@dataclasses.dataclass
+class Part:
+    """One sub-table: a subtitle, the display cells (strings) and their numbers.
+
+    Attributes
+    ----------
+    subtitle : str
+    display : pandas.DataFrame
+        Strings as written to the .md and .tex files (printed digits kept; "" for empty).
+    values : pandas.DataFrame
+        Same shape and columns: the numbers (NaN for empty) or the key strings.
+    """
+
+    subtitle: str
+    display: pd.DataFrame
+    values: pd.DataFrame
+
+
+@dataclasses.dataclass
+class SideBySideTable:
+    """A printed table with heurtune's numbers beside the printed ones.
+
+    Attributes
+    ----------
+    name : str
+        The table's name in its source (``"4.3"``, ``"1"``, ``"II"``).
+    title : str
+    meaning : str
+        One line: what the heurtune columns hold.
+    parts : list of Part
+    notes : list of str
+        Why cells are empty, and other caveats.
+    """
+
+    name: str
+    title: str
+    meaning: str
+    parts: list
+    notes: list = dataclasses.field(default_factory=list)
+
+    @property
+    def stem(self) -> str:
+        """File name without extension: ``table_<name>`` with dots as underscores."""
+        return f"table_{self.name.replace('.', '_')}"
+
+
+def number(v) -> float:
+    """``float(v)``, or NaN for what is not a number (an empty cell, a label).
+
+    Parameters
+    ----------
+    v : object
+
+    Returns
+    -------
+    float
+    """
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def decimals_of(text: str, value: float) -> int:
+    """Decimals to show a recomputed value with: those of the printed text, else 1 for values of
+    100 or more and 4 below.
+
+    Parameters
+    ----------
+    text : str
+        The printed digits ("" when nothing is printed).
+    value : float
+        The recomputed value.
+
+    Returns
+    -------
+    int
+    """
+    if text and "e" in text.lower():
+        return -1  # printed in powers of ten: show significant digits
+    if text and "." in text:
+        return max(len(text.split(".")[1].rstrip("%")), 1)
+    if value is not None and np.isfinite(value) and abs(value) >= 100:
+        return 1
+    return 4
+
+
+def fmt(v: float, decimals: int) -> str:
+    """A cell's text: ``decimals`` fixed decimals (-1: four significant digits), "" for NaN.
+
+    Parameters
+    ----------
+    v : float
+    decimals : int
+
+    Returns
+    -------
+    str
+    """
+    if v is None or not np.isfinite(v):
+        return "" if v is None or np.isnan(v) else ("inf" if v > 0 else "-inf")
+    if decimals < 0:
+        return f"{v:.4g}"
+    return f"{v:.{decimals}f}"
+
+
+def add_quantity(cells: tuple, label: str, printed_text: str, value: float, *, decimals: int | None = None,
+                 relative: bool = True, diff: bool = True) -> None:
+    """Append the cells of one quantity (printed, heurtune, diff[, diff %]) to a row.
+
+    Parameters
+    ----------
+    cells : tuple of (dict, dict)
+        The row's display strings and numbers, filled in place.
+    label : str
+        The quantity's column label.
+    printed_text : str
+        The printed digits ("" or None when the source prints nothing).
+    value : float
+        heurtune's value (NaN when it has none).
+    decimals : int, optional
+        Decimals of the heurtune and diff cells (default :func:`decimals_of` the printed text).
+    relative : bool
+        Add ``diff %`` (relative to the printed value).
+    diff : bool
+        Add ``diff`` (and ``diff %``); False for values that are not meant to agree.
+    """
+    disp, vals = cells
+    p = number(printed_text) if printed_text not in (None, "") else math.nan
+    h = number(value)
+    d = decimals_of(printed_text or "", h) if decimals is None else decimals
+    disp[f"{label} printed"] = printed_text or ""
+    vals[f"{label} printed"] = p
+    disp[f"{label} heurtune"] = fmt(h, d)
+    vals[f"{label} heurtune"] = h
+    if not diff:
+        return
+    dv = h - p if np.isfinite(h) and np.isfinite(p) else math.nan
+    disp[f"{label} diff"] = fmt(dv, d)
+    vals[f"{label} diff"] = dv
+    if relative:
+        rv = 100.0 * dv / abs(p) if np.isfinite(dv) and p != 0 else math.nan
+        disp[f"{label} diff %"] = fmt(rv, 1)
+        vals[f"{label} diff %"] = rv
+
+
+def make_part(subtitle: str, rows: list) -> Part:
+    """A part from rows of ``(display, values)`` dicts (as :func:`add_quantity` fills them).
+
+    Parameters
+    ----------
+    subtitle : str
+    rows : list of tuple of (dict, dict)
+
+    Returns
+    -------
+    Part
+    """
+    disp = pd.DataFrame([r[0] for r in rows])
+    vals = pd.DataFrame([r[1] for r in rows])
+    return Part(subtitle, disp.fillna(""), vals)
+
+
+def md_cell(s) -> str:
+    """A markdown table cell's text: ``s`` with its pipes escaped.
+
+    Parameters
+    ----------
+    s : object
+
+    Returns
+    -------
+    str
+    """
+    return str(s).replace("|", r"\|")
+
+
+def render_markdown(table: SideBySideTable) -> str:
+    """The .md text of a table: title, a 'heurtune:' header line, notes, one pipe table per part.
+
+    Parameters
+    ----------
+    table : SideBySideTable
+
+    Returns
+    -------
+    str
+    """
+    lines = [f"# {table.title}", "", table.meaning, ""]
+    for note in table.notes:
+        lines.append(f"- note: {note}")
+    if table.notes:
+        lines.append("")
+    for part in table.parts:
+        lines += [f"## {part.subtitle}", ""]
+        d = part.display
+        if d.empty:
+            lines += ["(no rows)", ""]
+            continue
+        num = [not all(isinstance(v, str) for v in part.values[c]) for c in d.columns]
+        lines.append("| " + " | ".join(md_cell(c) for c in d.columns) + " |")
+        lines.append("|" + "|".join("---:" if n else ":---" for n in num) + "|")
+        for _, r in d.iterrows():
+            lines.append("| " + " | ".join(md_cell(v) for v in r) + " |")
+        lines.append("")
+    return "\n".join(lines)
+
+
+_TEX = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
+        "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}"}
+
+
+def _tex(s) -> str:
+    return "".join(_TEX.get(ch, ch) for ch in str(s))
+
+
+def render_latex(table: SideBySideTable) -> str:
+    """The .tex text of a table: one booktabs ``table`` environment per part (needs booktabs).
+
+    Parameters
+    ----------
+    table : SideBySideTable
+
+    Returns
+    -------
+    str
+    """
+    out = [f"% {_tex(table.title)}", f"% {_tex(table.meaning)}"]
+    for note in table.notes:
+        out.append(f"% note: {_tex(note)}")
+    for part in table.parts:
+        d = part.display
+        if d.empty:
+            continue
+        num = [not all(isinstance(v, str) for v in part.values[c]) for c in d.columns]
+        colfmt = "".join("r" if n else "l" for n in num)
+        out += [r"\begin{table}[htbp]", r"\centering", r"\scriptsize",
+                f"\\caption{{{_tex(table.title)}. {_tex(part.subtitle)}}}",
+                f"\\begin{{tabular}}{{{colfmt}}}", r"\toprule",
+                " & ".join(_tex(c) for c in d.columns) + r" \\", r"\midrule"]
+        out += [" & ".join(_tex(v) for v in r) + r" \\" for r in d.itertuples(index=False, name=None)]
+        out += [r"\bottomrule", r"\end{tabular}", r"\end{table}", ""]
+    return "\n".join(out)
+
+
+def write_text(path, text: str) -> Path:
+    """Write ``text`` to ``path`` atomically (UTF-8).
+
+    Parameters
+    ----------
+    path : str or Path
+    text : str
+
+    Returns
+    -------
+    Path
+    """
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(text, encoding="utf-8")
+    return path
