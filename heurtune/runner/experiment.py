@@ -1021,8 +1021,10 @@ def _gather_starts(exp, specs, parts, out_dir):
 
 def _figures(exp, runs, history, best, out_dir):
     for case in exp.cases:
-        prob = exp.problem(case)
         h = history[history["case"] == case]
+        if h.empty:  # no run of this case (e.g. its only baseline has no design for it)
+            continue
+        prob = exp.problem(case)
         failed = runs[(runs["case"] == case) & (runs.get("status") == "failed")] if "status" in runs else runs[:0]
         figures.convergence_figure(h, out_dir / f"convergence_{_slug(case)}.png", case=case,
                                    failures={case: list(failed.get("failure", []))},

@@ -58,6 +58,8 @@ SCHEMA = dict(COMMON_SCHEMA, **{
         "input_disturbance": {"time": NUMBER, "size": PAIR},
         "output_disturbance": {"time": NUMBER, "size": PAIR},
         "noise_power": NUMBER, "noise_seed": int,
+        # Noise on the plant inputs (after the decoupler), per loop: a number or [P1, P2].
+        "input_noise_power": ("oneof", (NUMBER, PAIR)), "input_noise_seed": int,
         "variation": ("map", NUMBER),
         "vary": ("list", ("K", "lags", "leads", "L")),
     },
@@ -72,6 +74,8 @@ SCHEMA = dict(COMMON_SCHEMA, **{
         "bounds": ("map", PAIR),
     },
     "robustness": {"uncertainty": NUMBER, "variation": NUMBER, "pade_order": int, "w": PAIR},
+    # paper = "000", "001" or "002": write that paper's tables next to the printed values.
+    "report": {"paper": ("000", "001", "002")},
 })
 
 
@@ -147,17 +151,24 @@ class TITOExperiment(ExperimentBase):
             self._chain(case)  # validate plants and decouplers early
 
     def baseline_names(self, case: str) -> tuple:
-        """Names of the analytic designs (``controller.baselines``) run for ``case``: all of them."""
-        return self.baselines
+        """Names of the analytic designs (``controller.baselines``) run for ``case``: all of them,
+        except the GPM design of a case with a loop that no FOPDT model fits (it has none; the
+        case's ``design.parquet`` says why)."""
+        chain, _ = self._chain(self._variant(case)[0])
+        return tuple(b for b in self.baselines if b != "gpm" or all(c is not None for c in chain.gpm))
 
     def __repr__(self):
         return f"TITOExperiment({self.name!r}, cases={self.cases}, controllers={self.controllers})"
 
     def _scenarios(self, sc: dict) -> dict:
         kw = {}
-        for key in ("horizon", "dt", "noise_power", "noise_seed"):
+        for key in ("horizon", "dt", "noise_power", "noise_seed", "input_noise_power", "input_noise_seed"):
             if key in sc:
-                kw[key] = sc[key]
+                kw[key] = tuple(sc[key]) if isinstance(sc[key], list) else sc[key]
+        power = kw.get("input_noise_power", 0.0)
+        if self.model == "two_tank_nonlinear" and any(p != 0 for p in np.atleast_1d(power)):
+            raise ConfigError(f"{self.name}: scenario.input_noise_power: the nonlinear two-tank simulator has no "
+                              f"input noise; allowed with plant.model = 'tito' only (0 or leave it out here)")
         if "setpoints" in sc:
             if len(sc["setpoints"]) != 2:
                 raise ConfigError(f"{self.name}: scenario.setpoints must hold two lists (one per loop)")
@@ -255,5 +266,12 @@ class TITOExperiment(ExperimentBase):
 
     def write_outputs(self, out_dir, *, runs, history, best, figures: bool = True) -> None:
         """``design.parquet``, ``robustness.parquet``, ``performance.{parquet,md}`` and the
-        spectral-radius figures of the best designs (:func:`heurtune.objectives.tito.report.write_outputs`)."""
+        spectral-radius figures of the best designs (:func:`heurtune.objectives.tito.report.write_outputs`);
+        with ``[report] paper``, that paper's tables and figures in ``out_dir/tables/``
+        (:func:`heurtune.objectives.tito.papers.tables.write_paper`)."""
         report.write_outputs(self, runs, best, out_dir, figures=figures)
+        paper = self.config.get("report", {}).get("paper")
+        if paper is not None:  # the paper's tables next to the printed values
+            from heurtune.objectives.tito.papers.tables import write_paper
+
+            write_paper(paper, self, out_dir, runs=runs, figures=figures)

@@ -99,6 +99,8 @@ def simulate_tito(A, B, C, D, ns, nd, r, d_in, d_out, noise, x, buf, xt,
     A : (N_BLOCKS, m, m) discrete state matrices (zero padded), B, C : (N_BLOCKS, m), D : (N_BLOCKS,)
     ns : (N_BLOCKS,) int64 state counts; nd : (N_BLOCKS,) int64 input delays in samples
     r, d_in, d_out, noise : (n + 1, 2) set-points, input and output disturbances, measurement noise
+        (``d_in`` is all that is added to the plant inputs: the caller folds the scenario's input
+        noise into it, so a scenario without input noise runs exactly as before it existed)
     x : (N_BLOCKS, m) initial states (zeros: the loop starts at rest); updated in place
     buf : (N_BLOCKS, max(nd) + 1) delay lines, zero on entry (all inputs are zero for t < 0)
     xt : (m,) scratch

@@ -494,6 +494,33 @@ class TITOProblem(TuningProblem):
         df.attrs["status"] = status
         return df
 
+    def simulated_metrics(self, x, scenario="nominal") -> tuple[str, dict]:
+        """The time-domain metrics of one candidate from its simulation alone, without the
+        stability check that :meth:`evaluate` runs first (a frequency-domain verdict, which can
+        reject a loop that the simulation finds bounded: docs/papers.md).
+
+        Parameters
+        ----------
+        x : array_like or dict
+            Gains (see ``names``); bounds are not checked.
+        scenario : str or TITOScenario
+
+        Returns
+        -------
+        status : str
+            ``"ok"``, or the simulator's reason (e.g. ``"diverged"``); the metrics are NaN then.
+        metrics : dict
+            ``IAE1``, ``ISE1``, ``ITAE1``, ``ts1``, ``max_u1``, ``rms_e1``, ``tv_u1``, the same
+            for loop 2, and per window ``IAE_<window><loop>``...
+        """
+        row = np.full(len(self.metric_names), np.nan)
+        status, t, r, y, u = self._run(self.controllers(np.array([self.values(x)[n] for n in self.names])),
+                                       self.scenario(scenario))
+        if status == "ok":
+            self._time_metrics(t, r, y, u, row)
+        names = [n for n in self.metric_names if n[:-1].rstrip("_") not in _FREQ_METRICS]
+        return status, {n: float(row[self._midx[n]]) for n in names}
+
     def report(self, x, scenarios=None) -> pd.DataFrame:
         """Metrics of one candidate per scenario (rows) with its objective and feasibility."""
         x = np.array([self.values(x)[n] for n in self.names])
@@ -529,7 +556,7 @@ class TITOProblem(TuningProblem):
             decoupler=None if self.chain.decoupler is None else dict(
                 case=self.chain.decoupler.case, delays=list(self.chain.decoupler.column_delays)),
             controller=self.kind, N=self.N, objective=self.objective, constraints=self.constraints,
-            scenario=dataclasses.asdict(self.scenario(self.tuning_scenario)), windows=self.windows,
+            scenario=self.scenario(self.tuning_scenario).identity(), windows=self.windows,
             bounds=dict(zip(self.names, zip(self.lower.tolist(), self.upper.tolist()))),
         )
         payload.update(self.tuning_identity())

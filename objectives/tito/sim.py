@@ -2,9 +2,9 @@
 
 Loop (all signals are deviations from the operating point; the loop starts at rest)::
 
-    r_i --(+)--> e_i --> c_i --> v_i --> D(s) --> u --(+ d_in)--> G(s) --(+ d_out)--> y --(+ noise)--> y_m
-          (-) y_m                                                                            |
-           ^---------------------------------------------------------------------------------+
+    r_i --(+)--> e_i --> c_i --> v_i --> D(s) --> u --(+ d_in + n_in)--> G(s) --(+ d_out)--> y --(+ noise)--> y_m
+          (-) y_m                                                                                   |
+           ^----------------------------------------------------------------------------------------+
 
 Discretisation (step ``dt``, default 0.1 s, small against the lags of every preset):
 
@@ -28,6 +28,15 @@ Noise follows the Simulink band-limited white noise convention: with ``noise_pow
 measurement noise of each loop is a zero-mean Gaussian sequence of variance ``P / dt`` held over
 each step (so its spectral density is ``P`` for ``dt`` small), drawn with
 ``numpy.random.default_rng(noise_seed)``.
+
+Input noise ``n_in`` (``input_noise_power``, off by default) follows the same convention and is
+added to the plant inputs where the input disturbance enters (after the decoupler; the recorded
+``u`` is the decoupler output, before both). It has a generator of its own (:func:`input_noise`):
+``numpy.random.default_rng(input_noise_seed)``, or, without ``input_noise_seed``, one derived
+from ``noise_seed`` as ``numpy.random.SeedSequence(noise_seed, spawn_key=(1,))``, a stream
+independent of the measurement noise's. Either way the measurement-noise draws do not change
+when input noise is added, and with ``input_noise_power = 0`` the simulation is bit for bit the
+one without the key.
 """
 
 from __future__ import annotations
@@ -45,10 +54,14 @@ from heurtune.core.errors import ConfigError
 from . import kernels as _k
 from .model import Decoupler, ParallelPID, PIController, PIDController, TFElement, TITOPlant
 
-__all__ = ["TITOScenario", "TITOSimulator", "discretise_rational", "loop_metrics", "simulate_tito", "vary_plant"]
+__all__ = ["TITOScenario", "TITOSimulator", "discretise_rational", "input_noise", "loop_metrics", "simulate_tito",
+           "vary_plant"]
 
 DELAY_TOL = 1e-9
 _VARY_KEYS = ("K", "lags", "leads", "L")
+# Fields of TITOScenario that enter its identity only when input noise is on (so that the
+# problem_id of every scenario without input noise stays what it was before they existed).
+_INPUT_NOISE_FIELDS = ("input_noise_power", "input_noise_seed")
 
 
 def _check_steps(name: str, steps) -> tuple:
@@ -77,6 +90,15 @@ def _check_pair(name: str, val) -> tuple:
     return out
 
 
+def _check_seed(name: str, val, optional: bool = False):
+    if optional and val is None:
+        return None
+    if isinstance(val, bool) or not isinstance(val, (int, np.integer)) or val < 0:
+        allowed = "an integer >= 0" + (" or None" if optional else "")
+        raise ConfigError(f"scenario: {name} must be {allowed}, got {val!r}")
+    return int(val)
+
+
 @dataclasses.dataclass(frozen=True)
 class TITOScenario:
     """Test scenario of :func:`simulate_tito`.
@@ -95,12 +117,20 @@ class TITOScenario:
     output_disturbance : (time, (d1, d2))
         Step added to both outputs from ``time`` on (paper 000: 800 s). Default magnitude 0.
     noise_power : float or pair
-        Band-limited white-noise power per loop (variance ``P / dt`` per sample); 0 for none.
+        Band-limited white-noise power of the measurement, per loop (variance ``P / dt`` per
+        sample); 0 for none.
     noise_seed : int
+        Seed of the measurement noise (>= 0).
     variation : float
         Relative plant-parameter change ``delta`` in (-1, 1) (e.g. +-0.1, 0.2, 0.3).
     vary : tuple of str
         Which parameters ``variation`` scales: any of ``K``, ``lags``, ``leads``, ``L``.
+    input_noise_power : float or pair
+        Band-limited white-noise power added to each plant input (after the decoupler, where
+        ``input_disturbance`` enters; variance ``P / dt`` per sample); 0 (default) for none.
+    input_noise_seed : int or None
+        Seed of the input noise; None (default) derives it from ``noise_seed`` (see the module
+        docstring and :func:`input_noise`).
 
     A step time ``t`` acts from the first sample ``k`` with ``k dt >= t - 1e-9``.
     """
@@ -114,6 +144,8 @@ class TITOScenario:
     noise_seed: int = 0
     variation: float = 0.0
     vary: tuple = ("K", "lags", "L")
+    input_noise_power: object = 0.0
+    input_noise_seed: int | None = None
 
     def __post_init__(self):
         try:
@@ -146,6 +178,14 @@ class TITOScenario:
             raise ConfigError(f"scenario: noise_power must be >= 0, got {self.noise_power!r}")
         if isinstance(self.noise_seed, bool) or not isinstance(self.noise_seed, (int, np.integer)):
             raise ConfigError(f"scenario: noise_seed must be an integer, got {self.noise_seed!r}")
+        try:
+            in_power = _check_pair("input_noise_power", self.input_noise_power)
+        except ConfigError:
+            in_power = (-1.0, -1.0)
+        if min(in_power) < 0:
+            raise ConfigError(f"scenario: input_noise_power must be a number >= 0 or a pair [P1, P2] of numbers "
+                              f">= 0, got {self.input_noise_power!r}")
+        in_seed = _check_seed("input_noise_seed", self.input_noise_seed, optional=True)
         vary = (self.vary,) if isinstance(self.vary, str) else tuple(self.vary)
         bad = [v for v in vary if v not in _VARY_KEYS]
         if bad:
@@ -154,8 +194,32 @@ class TITOScenario:
             )
         for key, val in (("horizon", horizon), ("dt", dt), ("variation", variation), ("setpoints", setpoints),
                          ("input_disturbance", dists[0]), ("output_disturbance", dists[1]),
-                         ("noise_power", power), ("noise_seed", int(self.noise_seed)), ("vary", vary)):
+                         ("noise_power", power), ("noise_seed", int(self.noise_seed)), ("vary", vary),
+                         ("input_noise_power", in_power), ("input_noise_seed", in_seed)):
             object.__setattr__(self, key, val)
+
+    @property
+    def has_input_noise(self) -> bool:
+        """Whether any plant input gets noise (``input_noise_power`` above 0 on a loop)."""
+        return max(self.input_noise_power) > 0.0
+
+    def identity(self) -> dict:
+        """The fields that define the scenario, as a plain dict (hashed into a problem_id).
+
+        ``input_noise_power`` and ``input_noise_seed`` are included only when input noise is on,
+        so that every scenario without it keeps the identity (and problem_id) it had before
+        those fields existed.
+
+        Returns
+        -------
+        dict
+            ``dataclasses.asdict`` of the scenario, less the input-noise fields when they are off.
+        """
+        out = dataclasses.asdict(self)
+        if not self.has_input_noise:
+            for key in _INPUT_NOISE_FIELDS:
+                out.pop(key)
+        return out
 
     @property
     def n_steps(self) -> int:
@@ -168,6 +232,37 @@ class TITOScenario:
 # --------------------------------------------------------------------------------------------
 # Realisation
 # --------------------------------------------------------------------------------------------
+
+
+def input_noise(scenario: TITOScenario) -> np.ndarray:
+    """The noise added to the plant inputs under ``scenario``, one column per input.
+
+    Zero-mean Gaussian, variance ``P_i / dt`` per sample (Simulink band-limited white noise of
+    power ``P_i = input_noise_power[i]``), drawn as ``rng.standard_normal((n + 1, 2))`` scaled per
+    column, with ``rng = numpy.random.default_rng(input_noise_seed)``, or, when
+    ``input_noise_seed`` is None, ``default_rng(numpy.random.SeedSequence(noise_seed,
+    spawn_key=(1,)))``: a stream of its own, so that the measurement noise (drawn from
+    ``default_rng(noise_seed)``) is the same with or without input noise.
+
+    Parameters
+    ----------
+    scenario : TITOScenario
+
+    Returns
+    -------
+    numpy.ndarray, shape (n + 1, 2)
+        Zeros when ``input_noise_power`` is 0 on both loops.
+    """
+    if not isinstance(scenario, TITOScenario):
+        raise ConfigError(f"scenario: must be a TITOScenario, got {type(scenario).__name__}")
+    n1 = scenario.n_steps + 1
+    if not scenario.has_input_noise:
+        return np.zeros((n1, 2))
+    seed = scenario.input_noise_seed
+    if seed is None:
+        seed = np.random.SeedSequence(scenario.noise_seed, spawn_key=(1,))
+    rng = np.random.default_rng(seed)
+    return rng.standard_normal((n1, 2)) * np.sqrt(np.array(scenario.input_noise_power) / scenario.dt)
 
 
 def _poly(K: float, tcs) -> np.ndarray:
@@ -313,6 +408,16 @@ class TITOSimulator:
     decoupler : Decoupler or None
         ``None`` means ``D = I`` (plain decentralised control).
     scenario : TITOScenario, default ``TITOScenario()``
+
+    Attributes
+    ----------
+    t, r : numpy.ndarray
+        Sample times and set-points.
+    d_in : numpy.ndarray, shape (n + 1, 2)
+        What is added to the plant inputs: the input disturbance, plus the input noise when
+        the scenario has some.
+    d_out, noise, input_noise : numpy.ndarray, shape (n + 1, 2)
+        Output disturbance, measurement noise, input noise (:func:`input_noise`; zeros when off).
     """
 
     def __init__(self, plant: TITOPlant, decoupler: Decoupler | None = None, scenario: TITOScenario | None = None):
@@ -366,6 +471,11 @@ class TITOSimulator:
         self.d_out = np.column_stack([on_o * mo[0], on_o * mo[1]])
         rng = np.random.default_rng(sc.noise_seed)
         self.noise = np.ascontiguousarray(rng.standard_normal((t.size, 2)) * np.sqrt(np.array(sc.noise_power) / dt))
+        # Input noise enters where the input disturbance does: the kernel gets their sum. Without
+        # it, d_in is left untouched (the simulation is bit for bit the one before the key existed).
+        self.input_noise = input_noise(sc)
+        if sc.has_input_noise:
+            self.d_in = self.d_in + self.input_noise
 
     def _set_block(self, b, Ad, Bd, C, D, nd):
         k = Ad.shape[0]
@@ -436,8 +546,8 @@ def simulate_tito(plant: TITOPlant, controllers, decoupler: Decoupler | None = N
     Returns
     -------
     DataFrame with columns ``t, r1, r2, y1, y2, ym1, ym2, u1, u2, v1, v2`` (``y``: plant output
-    plus output disturbance; ``ym``: ``y`` plus noise; ``u``: decoupler output, before the input
-    disturbance; ``v``: controller outputs). ``attrs``: ``status`` ("ok" / "diverged"),
+    plus output disturbance; ``ym``: ``y`` plus measurement noise; ``u``: decoupler output, before
+    the input disturbance and the input noise; ``v``: controller outputs). ``attrs``: ``status`` ("ok" / "diverged"),
     ``delay_rounding`` (largest ``|round(L/dt) dt - L|`` in s), ``plant`` (the simulated plant).
     """
     if isinstance(controllers, (str, bytes)) or not hasattr(controllers, "__len__") or len(controllers) != 2:
