@@ -75,7 +75,10 @@ SCHEMA = dict(COMMON_SCHEMA, **{
     },
     "robustness": {"uncertainty": NUMBER, "variation": NUMBER, "pade_order": int, "w": PAIR},
     # paper = "000", "001" or "002": write that paper's tables next to the printed values.
-    "report": {"paper": ("000", "001", "002")},
+    # sweep = {param, values, max_evals}: the response family of a design parameter
+    # (heurtune.objectives.tito.sweep), written beside the results.
+    "report": {"paper": ("000", "001", "002"),
+               "sweep": {"param": str, "values": ("list", NUMBER), "max_evals": int}},
 })
 
 
@@ -142,6 +145,14 @@ class TITOExperiment(ExperimentBase):
         self.windows = {k: tuple(v) for k, v in prob.get("windows", default_windows).items()}
         self.bounds_config = prob.get("bounds", {})
         self.robustness = dict(config.get("robustness", {}))
+        sweep = config.get("report", {}).get("sweep")
+        if sweep is not None:  # checked now, not after the runs
+            from heurtune.objectives.tito.sweep import check_sweep
+
+            try:
+                check_sweep(sweep.get("param", ""), sweep.get("values", ()))
+            except ConfigError as exc:
+                raise ConfigError(f"{self.name}: report.sweep: {exc}") from None
         self._load_optimisers(config)
         self._check_multi_objective_optimisers()
         if not self.optimisers and not self.baselines:
@@ -270,8 +281,14 @@ class TITOExperiment(ExperimentBase):
         with ``[report] paper``, that paper's tables and figures in ``out_dir/tables/``
         (:func:`heurtune.objectives.tito.papers.tables.write_paper`)."""
         report.write_outputs(self, runs, best, out_dir, figures=figures)
-        paper = self.config.get("report", {}).get("paper")
-        if paper is not None:  # the paper's tables next to the printed values
+        rep = self.config.get("report", {})
+        if "sweep" in rep:  # the response family of a design parameter
+            from heurtune.objectives.tito.sweep import DEFAULT_MAX_EVALS, run_sweep
+
+            sw = rep["sweep"]
+            run_sweep(self, sw.get("param", ""), sw.get("values", ()), out_dir, figures=figures,
+                      max_evals=sw.get("max_evals", DEFAULT_MAX_EVALS))
+        if rep.get("paper") is not None:  # the paper's tables next to the printed values
             from heurtune.objectives.tito.papers.tables import write_paper
 
-            write_paper(paper, self, out_dir, runs=runs, figures=figures)
+            write_paper(rep["paper"], self, out_dir, runs=runs, figures=figures)

@@ -6,11 +6,11 @@ and the figure's title says which. Per paper:
 
 * **000**: Fig. 8, the spectral radius rho(W T(jw)) for multiplicative input and output
   uncertainty (``spectral_radius_<plant>.png``); Fig. 9, the response with white noise at the
-  plant input and on the measurement (powers 25, 35 and 45 for QTS, CCTS and CSTS, as the paper
-  says; ``noise_<plant>.png``); Fig. 10, the responses under the experiment's parameter
-  variations (``variation_<plant>.png``); Fig. 7, the responses for several values of the
-  design parameter (:mod:`heurtune.objectives.tito.sweep`, when the experiment configures a
-  sweep).
+  plant input and, apart, on the measured outputs (powers 25, 35 and 45 for QTS, CCTS and CSTS,
+  as the paper says; ``noise_input_<plant>.png``, ``noise_output_<plant>.png``); Fig. 10, the
+  responses under the experiment's parameter variations (``variation_<plant>.png``); Fig. 7,
+  the responses for several values of gamma_m* (``[report] sweep``, written beside the results
+  by :mod:`heurtune.objectives.tito.sweep`).
 * **001**: the servo and regulatory responses of the printed PI and PID (``responses_<plant>.png``)
   and their responses with input noise of power 20 (``noise_<plant>.png``).
 * **002**: the responses of the printed proposed PI and of the GPM PI on the nonlinear rig
@@ -66,15 +66,11 @@ def _responses(prob, gains, scenarios: dict, path, title: str) -> Path:
     return Path(path)
 
 
-def _noise_scenario(prob, power: float, *, output: bool):
-    """The nominal scenario with white noise of ``power`` at the plant input (and on the
-    measurement when ``output``)."""
-    nominal = prob.scenario("nominal")
-    fields = {f.name for f in dataclasses.fields(nominal)}
-    changes = {"noise_power": power if output else 0.0}
-    if "input_noise_power" in fields:
-        changes["input_noise_power"] = power
-    return dataclasses.replace(nominal, **changes)
+def _noise_scenario(prob, power: float, *, output: bool, input_noise: bool = True):
+    """The nominal scenario with white noise of ``power`` on the measured outputs (``output``)
+    and at the plant inputs (``input_noise``)."""
+    return dataclasses.replace(prob.scenario("nominal"), noise_power=power if output else 0.0,
+                               input_noise_power=power if input_noise else 0.0)
 
 
 def paper_figures(paper: str, exp, out_dir, *, runs: pd.DataFrame | None = None) -> list:
@@ -122,10 +118,11 @@ def paper_figures(paper: str, exp, out_dir, *, runs: pd.DataFrame | None = None)
             path = out_dir / f"spectral_radius_{plant}.png"
             spectral_radius_figure({label: sr}, path, title=f"Paper 000 Fig. 8: {plant.upper()}, {label}")
             written.append(path)
-            noisy = {"input noise": _noise_scenario(prob, power, output=False),
-                     "input and output noise": _noise_scenario(prob, power, output=True)}
-            written.append(_responses(prob, gains, noisy, out_dir / f"noise_{plant}.png",
-                                      f"Paper 000 Fig. 9: {plant.upper()}, white noise of power {power:g}, {label}"))
+            for side, output in (("input", False), ("output", True)):
+                sc = _noise_scenario(prob, power, output=output, input_noise=not output)
+                written.append(_responses(prob, gains, {f"{side} noise": sc}, out_dir / f"noise_{side}_{plant}.png",
+                                          f"Paper 000 Fig. 9: {plant.upper()}, white noise of power {power:g} at the "
+                                          f"plant {side}, {label}"))
             written.append(_responses(prob, gains, dict(zip(prob.scenarios, prob.scenarios)),
                                       out_dir / f"variation_{plant}.png",
                                       f"Paper 000 Fig. 10: {plant.upper()}, parameter variations, {label}"))

@@ -451,5 +451,9 @@ def write_paper(paper, exp, out_dir, *, runs: pd.DataFrame | None = None, figure
         if pngs:
             index += ["", "## Figures", ""] + [f"- [{p.name}]({p.name})" for p in pngs]
             written += pngs
+    sweeps = sorted(out_dir.glob("sweep_*.png"))
+    if sweeps:  # [report] sweep: the design parameter's response family (paper 000 Fig. 7)
+        index += ["", "## Design-parameter sweep (the experiment folder)", ""]
+        index += [f"- [{p.name}](../{p.name})" for p in sweeps]
     written.append(write_text(tdir / "README.md", "\n".join(index) + "\n"))
     return written

@@ -100,7 +100,7 @@ def test_paper_002_table_I_recomputes_the_gpm_pi_at_the_printed_specification(sm
 
 def test_paper_figures_are_drawn(smoke_runs):
     names = {p.name for p in (smoke_runs["000"] / "tables").glob("*.png")}
-    assert {"spectral_radius_csts.png", "noise_csts.png", "variation_csts.png"} <= names
+    assert {"spectral_radius_csts.png", "noise_input_csts.png", "noise_output_csts.png", "variation_csts.png"} <= names
     assert (smoke_runs["001"] / "tables" / "responses_csts.png").exists()
     assert (smoke_runs["002"] / "tables" / "responses_rig.png").exists()
 
