@@ -117,11 +117,17 @@ def decision_vector(prob, gains) -> np.ndarray:
     return np.array([g for loop in gains for g in loop[:per]], dtype=np.float64)
 
 
+# The Pade order of the closed-loop poles that confirm or overrule the tuning check's verdict.
+PADE_ORDER = 10
+
+
 @dataclasses.dataclass
 class Simulated:
-    """A printed controller simulated by heurtune: ``reason`` is "" when the simulation ran to
-    the horizon (its metrics are then given), else why not; ``check`` is the tuning problem's
-    verdict (``evaluate``'s reason: "" or e.g. "unstable"), which can be conservative."""
+    """A printed controller simulated by heurtune: ``reason`` is "" when the loop is stable and
+    the simulation ran to the horizon (its metrics are then given), else why not (the simulation
+    diverged, or the closed-loop poles are unstable); ``check`` is the tuning problem's verdict
+    (``evaluate``'s reason: "" or e.g. "unstable"), which can be conservative: when it says
+    unstable, the closed-loop poles with Pade(PADE_ORDER) delays decide."""
 
     reason: str
     metrics: dict
@@ -144,7 +150,16 @@ def simulate_printed(prob, gains, scenario: str = "nominal") -> Simulated:
     x = decision_vector(prob, gains)
     check = str(prob.evaluate(x[None, :], scenario, with_time=False).reason[0])
     status, metrics = prob.simulated_metrics(x, scenario)
-    return Simulated("" if status == "ok" else str(status), metrics, check)
+    reason = "" if status == "ok" else f"the simulation {status}"
+    if check and prob.chain.decoupler is not None and prob.nonlinear is None:
+        # a second opinion on the check's verdict: the closed-loop poles with Pade(10) delays
+        from heurtune.objectives.tito.kharitonov import closed_loop_poles
+
+        worst = float(np.max(closed_loop_poles(prob.chain.decoupler, prob.controllers(x), delay="pade",
+                                               pade_order=PADE_ORDER).real))
+        if worst > 0 or not np.isfinite(worst):
+            reason = f"closed-loop poles up to Re = {worst:.3g} (Pade({PADE_ORDER}) delays)"
+    return Simulated(reason, metrics, check)
 
 
 def simulation_notes(label: str, sim: Simulated, where: str) -> list:
@@ -163,9 +178,9 @@ def simulation_notes(label: str, sim: Simulated, where: str) -> list:
     list of str
     """
     if sim.reason:
-        return [f"{label}: the simulation on {where} {sim.reason} (the loop is unstable), so it has no heurtune "
-                "numbers; see docs/papers.md"]
+        return [f"{label}: unstable on {where} ({sim.reason}), so it has no heurtune numbers; see docs/papers.md"]
     if sim.check:
-        return [f"{label}: heurtune's per-loop Nyquist check (the tuning problem's) calls it {sim.check}, but the "
-                f"simulation on {where} stays bounded: its numbers are given (docs/papers.md)"]
+        return [f"{label}: heurtune's per-loop Nyquist check (the tuning problem's) calls it {sim.check}, but its "
+                f"closed-loop poles on {where} are stable and the simulation stays bounded: its numbers are given "
+                "(docs/papers.md)"]
     return []
