@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -126,8 +127,8 @@ def fmt(v: float, decimals: int) -> str:
     """
     if v is None or not np.isfinite(v):
         return "" if v is None or np.isnan(v) else ("inf" if v > 0 else "-inf")
-    if decimals < 0:
-        return f"{v:.4g}"
+    if decimals < 0:  # powers of ten written as the sources print them: 1.92e4, not 1.92e+04
+        return re.sub(r"e([+-])0*(\d)", lambda m: "e" + ("-" if m.group(1) == "-" else "") + m.group(2), f"{v:.4g}")
     return f"{v:.{decimals}f}"
 
 
@@ -242,7 +243,8 @@ def _tex(s) -> str:
 
 
 def render_latex(table: SideBySideTable) -> str:
-    """The .tex text of a table: one booktabs ``table`` environment per part (needs booktabs).
+    """The .tex text of a table: one booktabs ``table`` environment per part (needs booktabs), the
+    notes under the last one.
 
     Parameters
     ----------
@@ -255,6 +257,10 @@ def render_latex(table: SideBySideTable) -> str:
     out = [f"% {_tex(table.title)}", f"% {_tex(table.meaning)}"]
     for note in table.notes:
         out.append(f"% note: {_tex(note)}")
+    shown = [p for p in table.parts if not p.display.empty]
+    last = shown[-1] if shown and table.notes else None
+    notes = (r"\par\smallskip{\footnotesize\raggedright Notes: "
+             + " ".join(f"({k}) {_tex(n)}." for k, n in enumerate(table.notes, start=1)) + r"\par}")
     for part in table.parts:
         d = part.display
         if d.empty:
@@ -266,7 +272,10 @@ def render_latex(table: SideBySideTable) -> str:
                 f"\\begin{{tabular}}{{{colfmt}}}", r"\toprule",
                 " & ".join(_tex(c) for c in d.columns) + r" \\", r"\midrule"]
         out += [" & ".join(_tex(v) for v in r) + r" \\" for r in d.itertuples(index=False, name=None)]
-        out += [r"\bottomrule", r"\end{tabular}", r"\end{table}", ""]
+        out += [r"\bottomrule", r"\end{tabular}"]
+        if part is last:  # the notes under the last table, where a reader of the PDF sees them
+            out += [notes]
+        out += [r"\end{table}", ""]
     return "\n".join(out)
 
 

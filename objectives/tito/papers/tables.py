@@ -28,6 +28,7 @@ docs/papers.md says, table by table, what matches, what does not, and why.
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -71,6 +72,40 @@ _WINDOWED = {"000": ("servo", "regulatory"), "001": ()}
 _METRICS = ("IAE", "ISE", "ITAE")
 
 
+def _decimals(text: str) -> int:
+    """Decimals of a heurtune cell: those of the printed number when it has a decimal point, else
+    four significant digits (-1 for :func:`~heurtune.analysis.side_by_side.fmt`)."""
+    text = text or ""
+    if "." in text and "e" not in text.lower():
+        return len(text.split(".")[1])
+    return -1
+
+
+def _add(cells, label: str, printed_text: str, value: float, **kw) -> None:
+    add_quantity(cells, label, printed_text, value, decimals=_decimals(printed_text), **kw)
+
+
+def _conditions(exp) -> str:
+    """The nominal scenario in one line: what a reader needs to rerun the numbers."""
+    sc = exp.scenarios["nominal"]
+    steps = "; ".join(f"loop {i}: " + ", ".join(f"{v:g} at {t:g} s" for t, v in loop)
+                      for i, loop in enumerate(sc.setpoints, start=1))
+    parts = [f"set-point steps ({steps})"]
+    for name, (t, size) in (("input", sc.input_disturbance), ("output", sc.output_disturbance)):
+        if any(size):
+            parts.append(f"{name} disturbance {size[0]:g}, {size[1]:g} at {t:g} s")
+    if max(np.atleast_1d(sc.noise_power)) > 0:
+        parts.append(f"measurement noise power {sc.noise_power}")
+    parts.append(f"horizon {sc.horizon:g} s, dt {sc.dt:g} s; the papers give no sizes: these are heurtune's "
+                 f"(experiments/{exp.name}.toml)")
+    return "conditions: " + "; ".join(parts)
+
+
+def _filter_note(exp) -> str:
+    return (f"heurtune's PID filters its derivative, Tf = Td / N with N = {exp.N:g} (docs/tito.md); the printed "
+            "PIDs are ideal, Kp + Ki/s + Kd s")
+
+
 def _performance_table(paper: str, table: str, exp, runs: pd.DataFrame | None) -> SideBySideTable:
     plant = TABLE_PLANT[paper][table]
     printed = printed_table(paper, f"table_{table}", raw=True)
@@ -98,16 +133,20 @@ def _performance_table(paper: str, table: str, exp, runs: pd.DataFrame | None) -
             col = f"{metric}_{window}" if window else metric
             key = _metric_key(metric, window, loop)
             h = sim.metrics.get(key, math.nan) if sim is not None and not sim.reason else math.nan
-            add_quantity((disp, vals), col.replace("_regulatory", " reg.").replace("_servo", " servo"),
-                         _printed_text(r[col]), h)
+            _add((disp, vals), col.replace("_regulatory", " reg.").replace("_servo", " servo"),
+                 _printed_text(r[col]), h)
         rows.append((disp, vals))
     parts = [make_part(f"A: the paper's rows ({plant.upper()})", rows)]
     if runs is not None and case is not None and len(runs):
-        parts.append(_designs_part(runs, case, columns))
+        metric_cols = [(f"{m} {w}" if w else m, lambda loop, m=m, w=w: _metric_key(m, w, loop)) for m, w in columns]
+        parts.append(_designs_part(runs, case, metric_cols, exp, notes))
+    notes.insert(0, _conditions(exp))
+    if exp.controller == "pid":
+        notes.append(_filter_note(exp))
     where = ("servo window 0-500 s, regulatory 500 s to the horizon" if windows
-             else "whole response of the nominal scenario")
+             else "whole response")
     meaning = (f"heurtune: the printed controller simulated on heurtune's {plant.upper()} model and decoupler "
-               f"(nominal scenario of {exp.name}; {where}); part B: heurtune's own designs")
+               f"(nominal scenario of {exp.name}, {where}); part B: heurtune's own designs")
     title = f"Paper {paper}, Table {table}: performance indices, {plant.upper()}"
     return SideBySideTable(table, title, meaning, parts, notes)
 
@@ -118,21 +157,32 @@ def _printed_text(v) -> str:
     return str(v)
 
 
-def _designs_part(runs: pd.DataFrame, case: str, columns) -> object:
+def _designs_part(runs: pd.DataFrame, case: str, columns, exp, notes: list, loop_label: str = "h{loop}"):
+    """Part B: the best run of each optimiser and each analytic design of ``case``, with its gains
+    and the metrics ``columns`` (``(label, key_of_loop)``) of its nominal response."""
     rows = []
     mine = runs[runs["case"] == case]
+    per = 3 if exp.controller == "pid" else 2
     for alg, g in mine.groupby("algorithm", sort=False):
         best = g.loc[best_run_index(g)]
         label = alg if best.get("stop_reason") == "analytic design" else f"{alg} (best of {len(g)} runs)"
+        feasible = bool(best.get("feasible", True))
         for loop in (1, 2):
-            disp, vals = {"design": label, "loop": f"h{loop}"}, {"design": label, "loop": f"h{loop}"}
-            for metric, window in columns:
-                key = f"{_metric_key(metric, window, loop)}@nominal"
-                v = number(best.get(key, math.nan))
-                col = f"{metric} {window}" if window else metric
-                disp[col] = fmt(v, -1)
-                vals[col] = v
+            lab = loop_label.format(loop=loop)
+            disp, vals = {"design": label, "loop": lab}, {"design": label, "loop": lab}
+            for gain in ("Kp", "Ki", "Kd")[:per]:
+                v = number(best.get(f"{gain}{loop}", math.nan))
+                disp[gain], vals[gain] = fmt(v, -1), v
+            for col, key_of in columns:
+                v = number(best.get(f"{key_of(loop)}@nominal", math.nan)) if feasible else math.nan
+                disp[col], vals[col] = fmt(v, -1), v
             rows.append((disp, vals))
+        if not feasible:
+            notes.append(f"part B, {label}: no feasible run ({best.get('status', 'infeasible')}), so its metrics "
+                         "are empty; its gains are those of the best run")
+    if "gpm" in getattr(exp, "baselines", ()) and "gpm" not in set(mine["algorithm"]):
+        notes.append("part B has no GPM design: no FOPDT model fits a decoupled loop of this plant "
+                     "(design.parquet)")
     return make_part("B: heurtune's designs of the same plant (no printed counterpart)", rows)
 
 
@@ -158,15 +208,17 @@ def _table_I(exp) -> SideBySideTable:
                 am, pm = m.gain_margin, m.phase_margin_deg
             except ConfigError as exc:
                 notes.append(f"loop {loop}: {exc}")
-        add_quantity((disp, vals), "Kc", _printed_text(r["Kc"]), kc)
-        add_quantity((disp, vals), "tau_i (s)", _printed_text(r["tau_i"]), ti)
-        add_quantity((disp, vals), "tau_D (s)", _printed_text(r["tau_D"]), math.nan)
-        add_quantity((disp, vals), "Am", _printed_text(r["Am"]), am)
-        add_quantity((disp, vals), "phim (deg)", _printed_text(r["phim"]), pm)
+        _add((disp, vals), "Kc", _printed_text(r["Kc"]), kc)
+        _add((disp, vals), "tau_i (s)", _printed_text(r["tau_i"]), ti)
+        _add((disp, vals), "tau_D (s)", _printed_text(r["tau_D"]), math.nan)
+        _add((disp, vals), "Am", _printed_text(r["Am"]), am)
+        _add((disp, vals), "phim (deg)", _printed_text(r["phim"]), pm)
         rows.append((disp, vals))
     notes.append("heurtune designs a PI (no tau_D): the GPM PI (paper 001 eq. 17-27) on the FOPDT fit of the "
                  "decoupled identified model (eq. 28) at the printed Am and phim; its Am and phim columns are the "
-                 "margins that design achieves on the exact decoupled loop")
+                 "margins that design achieves on the exact decoupled loop. The GPM formulas (Ho, Hang and Cao's "
+                 "arctan approximation) are exact only on phim = 90 (1 - 1/Am) deg, 60 deg for Am = 3; at 38 deg "
+                 "they miss, and the FOPDT fit adds its own error (docs/tito.md)")
     meaning = "heurtune: GPM PI recomputed from eq. 28 at the printed specification, and its exact margins"
     return SideBySideTable("I", "Paper 002, Table I: controller parameters", meaning,
                            [make_part("Proposed optimal GPM PI", rows)], notes)
@@ -183,7 +235,7 @@ def _identified_experiment(exp):
     return type(exp)(cfg)
 
 
-def _table_II(exp) -> SideBySideTable:
+def _table_II(exp, runs: pd.DataFrame | None = None) -> SideBySideTable:
     printed = printed_table("002", "table_II", raw=True)
     plants = {"nonlinear rig": exp.problem(exp.cases[0])}
     try:
@@ -191,8 +243,10 @@ def _table_II(exp) -> SideBySideTable:
     except ConfigError:
         pass
     proposed = printed_controllers("002", "two_tank")["Proposed Optimal GPM PI"]
-    notes = []
+    notes = [_conditions(exp)]
     parts = []
+    servo = "servo" in exp.windows
+    ts_key = "ts_servo" if servo else "ts"
     for where, prob in plants.items():
         gpm = prob.baseline("gpm") if all(c is not None for c in prob.chain.gpm) else None
         designs = {"Proposed Optimal GPM PI": proposed}
@@ -208,14 +262,27 @@ def _table_II(exp) -> SideBySideTable:
             ok = sim is not None and not sim.reason
             disp, vals = {"controller": label, "loop": f"u{loop}-y{loop}"}, {"controller": label,
                                                                              "loop": f"u{loop}-y{loop}"}
-            for col, metric in (("ts", "ts"), ("u_inf", "max_u"), ("e_t", "rms_e"), ("IAE", "IAE"),
+            for col, metric in (("ts", ts_key), ("u_inf", "max_u"), ("e_t", "rms_e"), ("IAE", "IAE"),
                                 ("TV", "tv_u")):
-                add_quantity((disp, vals), col, _printed_text(r[col]),
-                             sim.metrics.get(f"{metric}{loop}", math.nan) if ok else math.nan)
+                _add((disp, vals), col, _printed_text(r[col]),
+                     sim.metrics.get(f"{metric}{loop}", math.nan) if ok else math.nan)
             rows.append((disp, vals))
         for label, sim in sims.items():
             notes += simulation_notes(label, sim, f"the {where}")
         parts.append(make_part(f"on the {where}", rows))
+    notes.append(("ts: time to enter the 2 % band of the set-point for good, within the servo window "
+                  f"{exp.windows['servo'][0]:g}-{exp.windows['servo'][1]:g} s" if servo else
+                  "ts: time to enter the 2 % band of the set-point for good, over the whole response")
+                 + "; inf: the response has not settled by the window's end. u_inf, e_t (RMS error), IAE and TV "
+                 "over the whole response. The paper gives neither its set-point sizes nor the units of u: only "
+                 "the ordering of the two controllers is comparable, not the magnitudes (docs/papers.md)")
+    if runs is not None and len(runs):
+        rig = exp.cases[0]
+        parts.append(_designs_part(runs, rig, [("ts", lambda loop: f"{ts_key}{loop}"),
+                                               ("u_inf", lambda loop: f"max_u{loop}"),
+                                               ("e_t", lambda loop: f"rms_e{loop}"),
+                                               ("IAE", lambda loop: f"IAE{loop}"), ("TV", lambda loop: f"tv_u{loop}")],
+                                   exp, notes, loop_label="u{loop}-y{loop}"))
     notes.append("GPM PI [1]: the paper does not print its parameters; heurtune's GPM PI of the experiment's "
                  f"[controller] gpm specification (Am {exp.gpm['Am']:g}, phim {exp.gpm['phim']:g} deg) stands in "
                  "for it")
@@ -397,12 +464,23 @@ def paper_tables(paper, exp, *, runs: pd.DataFrame | None = None) -> list:
     out = []
     for table in PAPER_TABLES[paper]:
         if paper == "002":
-            out.append(_table_I(exp) if table == "I" else _table_II(exp))
+            out.append(_table_I(exp) if table == "I" else _table_II(exp, runs))
         elif paper == "000" and table in ("4", "5", "6"):
             out.append(_kharitonov_table(table, exp))
         else:
             out.append(_performance_table(paper, table, exp, runs))
     return out
+
+
+SMOKE_NOTE = "A --smoke run (tiny budgets, a check): part B's designs are not study results."
+
+
+def _smoke(out_dir: Path) -> bool:
+    """Whether the experiment in ``out_dir`` was last run with ``--smoke`` (its meta.json says)."""
+    try:
+        return bool(json.loads((out_dir / "meta.json").read_text())["plan"].get("smoke"))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return False
 
 
 def write_paper(paper, exp, out_dir, *, runs: pd.DataFrame | None = None, figures: bool = True) -> list:
@@ -435,7 +513,12 @@ def write_paper(paper, exp, out_dir, *, runs: pd.DataFrame | None = None, figure
              f"Experiment: {exp.name}. Each quantity: printed, heurtune, diff (heurtune - printed) and diff % "
              "(relative to printed). docs/papers.md explains every difference.", "",
              "| table | files | heurtune columns hold |", "|---|---|---|"]
+    smoke = _smoke(out_dir)
+    if smoke:
+        index[2] += " " + SMOKE_NOTE
     for t in paper_tables(paper, exp, runs=runs):
+        if smoke:
+            t.notes.insert(0, SMOKE_NOTE)
         md = write_text(tdir / f"{t.stem}.md", render_markdown(t))
         tex = write_text(tdir / f"{t.stem}.tex", "% needs \\usepackage{booktabs}\n" + render_latex(t))
         written += [md, tex]

@@ -36,6 +36,8 @@ def test_a_smoke_run_writes_every_table_beside_the_printed_values(smoke_runs, pa
         assert f"Table {table}" in index
         assert "printed" in md and "heurtune" in md
         assert tex.startswith("% needs \\usepackage{booktabs}") and "\\begin{tabular}" in tex
+        # the notes a reader needs are in the PDF too, and a smoke run says it is one
+        assert "Notes: (1) A --smoke run" in tex and "- note: A --smoke run" in md
     # every printed number of the performance tables is in the written table, digits as printed
     for table in papers.PAPER_TABLES[paper]:
         try:
@@ -49,6 +51,13 @@ def test_a_smoke_run_writes_every_table_beside_the_printed_values(smoke_runs, pa
             for text in printed[col]:
                 if text:
                     assert f"| {text} |" in md, (table, col, text)
+
+
+def test_the_tables_state_their_conditions(smoke_runs):
+    md = (smoke_runs["000"] / "tables" / "table_1.md").read_text()
+    assert ("conditions: set-point steps (loop 1: 1 at 0 s; loop 2: 1 at 0 s); input disturbance 0.1, 0.1 at 500 s; "
+            "output disturbance 0.1, 0.1 at 800 s; horizon 1000 s, dt 0.1 s") in md
+    assert "Tf = Td / N with N = 100" in md
 
 
 def _trapezoid_iae(df, loop, t0, t1):
