@@ -104,30 +104,39 @@ __all__ = [
 DELTA_KINDS = ("K", "T", "L")
 """Parameter kinds of a box: static gains, time constants (lags and leads), dead times."""
 
-PAPER000_EQ66 = np.array([859.2, 589.7, 101.9, 408.5, 485.8, 129.9, 0.3421])
-"""Paper 000 eq. 66 as printed (QTS characteristic polynomial, highest power first)."""
+def _printed(table: str):
+    from heurtune.objectives.tito.papers.printed import printed_table
 
-PAPER000_EQ67_70 = (
-    np.array([1.0, 31.06, 116.18, 119.09, 297.86, 141.035, 205.585]),
-    np.array([1.0, 46.409, 173.56, 119.0, 297.86, 210.779, 307.109]),
-    np.array([1.0, 37.97, 173.56, 145.44, 173.56, 379.7, 307.109]),
-    np.array([1.0, 37.97, 116.18, 97.68, 297.86, 172.376, 205.85]),
-)
-"""Paper 000 eq. 67-70, its K1..K4 as printed (highest power first)."""
+    return printed_table("000", table)
 
-PAPER000_FOPDT = {
-    "qts": ((2.332, 86.35, 0.069), (2.119, 110.65, 0.061)),  # eq. 46-47
-    "ccts": ((1.54, 268.99, 1.54), (1.598, 211.9, 1.85)),  # eq. 51-52
-    "csts": ((0.1056, 160.5, 0.108), (0.118, 203.6, 0.091)),  # eq. 56-57
-}
-"""Paper 000's printed FOPDT models of the decoupled loops, ``(K, T, L)`` per loop."""
 
-PAPER000_PID = {
-    "qts": ((28.0, 0.285, 7.82), (37.5, 0.305, 11.5)),  # eq. 48 (eq. 60 prints Ki1 = 0.2985)
-    "ccts": ((35.0, 1.151, 2.03), (23.0, 1.123, 3.03)),  # eq. 53
-    "csts": ((12.5, 0.8, 1.5), (32.1, 5.5, 2.3)),  # eq. 58
-}
-"""Paper 000's proposed controllers ``Kp + Ki/s + Kd s`` (no filter), ``(Kp, Ki, Kd)`` per loop."""
+def _printed_polynomials() -> dict:
+    t = _printed("polynomials")
+    return {str(r["name"]): np.array([float(r[f"s{k}"]) for k in range(6, -1, -1)]) for _, r in t.iterrows()}
+
+
+_POLYS = _printed_polynomials()
+PAPER000_EQ66 = _POLYS["characteristic"]
+"""Paper 000 eq. 66 as printed (QTS characteristic polynomial, highest power first), from
+``experiments/printed/paper_000/polynomials.csv``."""
+
+PAPER000_EQ67_70 = tuple(_POLYS[f"K{k}"] for k in range(1, 5))
+"""Paper 000 eq. 67-70, its K1..K4 as printed (highest power first), from the same file."""
+
+
+def _first_per_loop(table: str, plant: str, columns) -> tuple:
+    t = _printed(table)
+    t = t[t["plant"] == plant].groupby("loop", sort=True).head(1)
+    return tuple(tuple(float(r[c]) for c in columns) for _, r in t.iterrows())
+
+
+PAPER000_FOPDT = {p: _first_per_loop("fopdt", p, ("K", "T", "L")) for p in ("qts", "ccts", "csts")}
+"""Paper 000's printed FOPDT models of the decoupled loops (eqs. 46-47, 51-52, 56-57), ``(K, T, L)``
+per loop, from ``fopdt.csv``."""
+
+PAPER000_PID = {p: _first_per_loop("controllers", p, ("Kp", "Ki", "Kd")) for p in ("qts", "ccts", "csts")}
+"""Paper 000's proposed controllers ``Kp + Ki/s + Kd s`` (no filter; eqs. 48, 53, 58; eq. 60 prints
+the QTS's Ki1 as 0.2985), ``(Kp, Ki, Kd)`` per loop, from ``controllers.csv``."""
 
 
 # ----------------------------------------------------------------------------------------------
