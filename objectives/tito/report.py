@@ -58,8 +58,14 @@ def _markdown(table: pd.DataFrame, title: str) -> str:
     head = "| case | design | " + " | ".join(f"{c[0]} {c[1]} {c[2]}" for c in cols) + " |"
     sep = "| --- | --- | " + " | ".join("---:" for _ in cols) + " |"
     lines = [f"# {title}", "", head, sep]
+    empty = False
     for (case, design), row in table.iterrows():
-        lines.append(f"| {case} | {design} | " + " | ".join(f"{v:.4g}" for v in row.to_numpy()) + " |")
+        cells = ["" if not np.isfinite(v) else f"{v:.4g}" for v in row.to_numpy()]
+        empty = empty or "" in cells
+        lines.append(f"| {case} | {design} | " + " | ".join(cells) + " |")
+    if empty:
+        lines += ["", "An empty cell: that design has no simulated response (its best run failed or is unstable; "
+                  "see the status column of runs.parquet)."]
     return "\n".join(lines) + "\n"
 
 

@@ -136,3 +136,5 @@ def test_part_b_lists_heurtunes_designs(smoke_runs):
     assert set(runs["case"]) == {"ccts", "csts", "qts"}  # the PSO runs on every plant
     md = (smoke_runs["001"] / "tables" / "table_1.md").read_text()
     assert "## B: heurtune's designs" in md and "| gpm | h1 |" in md
+    perf = (smoke_runs["001"] / "performance.md").read_text()  # the CSTS GPM design fails its check
+    assert "nan" not in perf and "An empty cell: that design has no simulated response" in perf
