@@ -10,18 +10,22 @@ siblings). What heurtune computes, per kind of table:
   paper compares. A row whose controller the paper prints (the proposed PID of paper 000, eqs.
   48, 53, 58; the GPM PI and PID of paper 001) is that controller simulated by heurtune on the
   paper's plant with heurtune's inverted decoupler, under the experiment's nominal scenario; a
-  controller unstable there gets no numbers and a note; the rows of controllers whose parameters
-  the paper does not give (its literature comparisons) are left empty, and a note says so.
-  Part B: heurtune's own designs of the same plant (each optimiser's best run, the analytic
-  baselines), with no printed counterpart.
-* **Kharitonov tables** (paper 000 Tables 4-6): the four Kharitonov polynomials of the MIMO
-  closed loop's characteristic polynomial det(I + C A) over the paper's interval plant, their
-  Hurwitz and row-reduced Hurwitz matrices, beside the printed matrices
-  (:mod:`heurtune.objectives.tito.kharitonov`).
+  controller unstable there (by its closed-loop poles with Pade(10) delays, where the tuning
+  problem's check says unstable: :func:`~heurtune.objectives.tito.papers.simulated.simulate_printed`)
+  gets no numbers and a note; the rows of controllers whose parameters the paper does not give
+  (its literature comparisons) are left empty, and a note says so. Part B: heurtune's own designs
+  of the same plant (each optimiser's best run, the analytic baselines) with their gains, with no
+  printed counterpart. The notes give the conditions of the simulations.
+* **Kharitonov tables** (paper 000 Tables 4-6, :mod:`heurtune.objectives.tito.kharitonov`). Part A:
+  the printed Hurwitz and row-reduced matrices beside those of the printed Kharitonov polynomials
+  (QTS). Part B: the MIMO Kharitonov test of det(I + C A) of the printed PID over the +-variation
+  box of the decoupled loops' FOPDT parameters, B1 on the printed FOPDT models with Taylor delays
+  (the paper's method), B2 on heurtune's FOPDT fits with Pade delays. Part C (QTS): eq. 66 beside
+  the determinant recomputed from the paper's eqs. 64 and 62.
 * **Paper 002 Table I**: the GPM PI recomputed from the FOPDT fit of the decoupled identified
   model (eq. 28) at the printed (Am, phim), and the margins it achieves; Table II: ts, max |u|,
   RMS error, IAE and TV per loop of the printed proposed PI and of heurtune's GPM PI, on the
-  identified model and on the nonlinear rig.
+  identified model and on the nonlinear rig, and heurtune's own designs on the rig.
 
 docs/papers.md says, table by table, what matches, what does not, and why.
 """
