@@ -75,10 +75,10 @@ SCHEMA = dict(COMMON_SCHEMA, **{
     },
     "robustness": {"uncertainty": NUMBER, "variation": NUMBER, "pade_order": int, "w": PAIR},
     # paper = "000", "001" or "002": write that paper's tables next to the printed values.
-    # sweep = {param, values, max_evals}: the response family of a design parameter
+    # sweep = {param, values, max_evals, implied_margins}: the response family of a design parameter
     # (heurtune.objectives.tito.sweep), written beside the results.
     "report": {"paper": ("000", "001", "002"),
-               "sweep": {"param": str, "values": ("list", NUMBER), "max_evals": int}},
+               "sweep": {"param": str, "values": ("list", NUMBER), "max_evals": int, "implied_margins": bool}},
 })
 
 
@@ -287,7 +287,8 @@ class TITOExperiment(ExperimentBase):
 
             sw = rep["sweep"]
             run_sweep(self, sw.get("param", ""), sw.get("values", ()), out_dir, figures=figures,
-                      max_evals=sw.get("max_evals", DEFAULT_MAX_EVALS))
+                      max_evals=sw.get("max_evals", DEFAULT_MAX_EVALS),
+                      implied_margins=sw.get("implied_margins", False))
         if rep.get("paper") is not None:  # the paper's tables next to the printed values
             from heurtune.objectives.tito.papers.tables import write_paper
 

@@ -144,8 +144,10 @@ def _bandwidth_problem(base, constraints: dict):
                        robustness=base.robustness_options, gpm_spec=base.gpm_spec)
 
 
-def _mt_constraints(exp, Mt: float) -> dict:
-    if exp.objective == "bandwidth":
+def _mt_constraints(exp, Mt: float, implied: bool = False) -> dict:
+    """The bandwidth design's constraints at ``Mt``: the experiment's margins when its objective is
+    ``bandwidth`` (and not ``implied``), else those ``Mt`` implies (paper 000 eq. 25-26)."""
+    if exp.objective == "bandwidth" and not implied:
         return {**exp.constraints, "Mt": Mt}
     return {"Am": 1.0 + 1.0 / Mt, "phim": math.degrees(2.0 * math.asin(1.0 / (2.0 * Mt))), "Mt": Mt}
 
@@ -157,7 +159,8 @@ def _rank(ev) -> list:
 
 
 def sweep_designs(exp, param: str, values, *, cases=None, optimiser: str = DEFAULT_OPTIMISER,
-                  max_evals: int = DEFAULT_MAX_EVALS, settings: dict | None = None, seed: int | None = None):
+                  max_evals: int = DEFAULT_MAX_EVALS, settings: dict | None = None, seed: int | None = None,
+                  implied_margins: bool = False):
     """Design, simulate and measure one controller per value of a design parameter.
 
     Parameters
@@ -180,6 +183,10 @@ def sweep_designs(exp, param: str, values, *, cases=None, optimiser: str = DEFAU
     seed : int, optional
         Root seed of the searches (default: the experiment's ``seed``); value ``k`` gets
         ``SeedSequence([seed, k])``.
+    implied_margins : bool
+        ``Mt`` sweeps: hold the margins ``Mt`` implies (paper 000 eq. 25-26: ``Am >= 1 + 1/Mt``,
+        ``phim >= 2 asin(1 / (2 Mt))``) even when the experiment's own objective is ``bandwidth``
+        with margins of its own (which can bind before ``Mt`` does).
 
     Returns
     -------
@@ -215,7 +222,7 @@ def sweep_designs(exp, param: str, values, *, cases=None, optimiser: str = DEFAU
 
             probs, found = [], []
             for k, v in enumerate(vals):
-                prob = _bandwidth_problem(base, _mt_constraints(exp, v))
+                prob = _bandwidth_problem(base, _mt_constraints(exp, v, implied_margins))
                 try:
                     res = heurtune.minimize(prob, prob.lower, prob.upper, optimiser, max_evals=max_evals,
                                             seed=np.random.SeedSequence([root, k]), settings=settings)
@@ -320,7 +327,8 @@ def run_sweep(exp, param: str, values, out_dir, *, cases=None, figures: bool = T
     figures : bool
         Also draw the figures.
     **options
-        ``optimiser``, ``max_evals``, ``settings``, ``seed`` of :func:`sweep_designs`.
+        ``optimiser``, ``max_evals``, ``settings``, ``seed``, ``implied_margins`` of
+        :func:`sweep_designs`.
 
     Returns
     -------
@@ -359,6 +367,8 @@ def _parser() -> argparse.ArgumentParser:
                     help=f"its evaluations per value (default {DEFAULT_MAX_EVALS})")
     ap.add_argument("--seed", type=int, help="root seed of the searches (default: the experiment's)")
     ap.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    ap.add_argument("--implied-margins", action="store_true",
+                    help="Mt sweeps: the margins Mt implies (paper 000 eq. 25-26), not the experiment's")
     return ap
 
 
@@ -385,7 +395,8 @@ def run(argv=None) -> int:
         cases = None if args.cases is None else [c.strip() for c in args.cases.split(",") if c.strip()]
         out = Path(args.out) if args.out else Path("results") / exp.name
         written = run_sweep(exp, args.param, args.values, out, cases=cases, figures=not args.no_figures,
-                            optimiser=args.optimiser, max_evals=args.max_evals, seed=args.seed)
+                            optimiser=args.optimiser, max_evals=args.max_evals, seed=args.seed,
+                            implied_margins=args.implied_margins)
     except (ConfigError, DesignError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

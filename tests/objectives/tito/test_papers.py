@@ -56,7 +56,7 @@ def test_a_smoke_run_writes_every_table_beside_the_printed_values(smoke_runs, pa
 def test_the_tables_state_their_conditions(smoke_runs):
     md = (smoke_runs["000"] / "tables" / "table_1.md").read_text()
     assert ("conditions: set-point steps (loop 1: 1 at 0 s; loop 2: 1 at 0 s); input disturbance 0.1, 0.1 at 500 s; "
-            "output disturbance 0.1, 0.1 at 800 s; horizon 1000 s, dt 0.1 s") in md
+            "output disturbance 0.1, 0.1 at 800 s; horizon 1000 s, dt 0.02 s") in md
     assert "Tf = Td / N with N = 100" in md
 
 

@@ -160,3 +160,16 @@ def test_import_draws_nothing():
             "print('matplotlib' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"
+
+
+def test_implied_margins_replace_a_bandwidth_experiments_own():
+    """paper_000 holds Am >= 2 and phim >= 45 deg, which bind before Mt; with implied_margins the
+    sweep holds only what Mt implies (paper 000 eq. 25-26)."""
+    from heurtune.objectives.tito.sweep import _mt_constraints
+
+    exp = heurtune.load_experiment("paper_000")
+    assert _mt_constraints(exp, 1.6) == {"Am": 2.0, "phim": 45.0, "Mt": 1.6}
+    implied = _mt_constraints(exp, 1.6, implied=True)
+    assert implied["Am"] == pytest.approx(1.0 + 1.0 / 1.6)
+    assert implied["phim"] == pytest.approx(math.degrees(2.0 * math.asin(1.0 / 3.2)))
+    assert implied["Mt"] == 1.6
