@@ -363,6 +363,7 @@ class ClosedLoop:
             self._level_per_state = 1.0
         self._plants = {}
         self._scenarios = {}
+        self._tables = {}
         self._plans = {}
         self._limits = None
 
@@ -527,7 +528,8 @@ class ClosedLoop:
             record_levels = record
         if scenario.continuous:
             return self._run_continuous(ctrl, scenario, settling_band, record, record_levels)
-        P, u_op = self._scenario_table(scenario), self._kernel_inputs(scenario)[1]
+        table = self._scenario_table(scenario)
+        u_op = table[_kernels.P_UOP:_kernels.P_UOP + 2]
         n = scenario.n_steps
         rows = n + 1 if record else 0
         y, u = np.empty((rows, 2)), np.empty((rows, 2))
@@ -540,7 +542,7 @@ class ClosedLoop:
         # substeps only when needed: the call without them is the kernel specialised to one step
         extra = (scenario.plant_substeps,) if scenario.plant_substeps > 1 else ()
         status, _ = _kernels.simulate_loop(
-            P, self._level_per_state, x_op, self.op.h, dc.ad, dc.bd, dc.state_input, dc.Ad, dc.Bd, dc.Cc, dc.Dc,
+            table, self._level_per_state, x_op, self.op.h, dc.ad, dc.bd, dc.state_input, dc.Ad, dc.Bd, dc.Cc, dc.Dc,
             dc.state_channel, dc.segments, scenario.dt, n, noise, float(settling_band), metrics, y, u, h, *extra,
         )
         t = np.arange(n + 1) * scenario.dt if record or record_levels else None
@@ -554,7 +556,8 @@ class ClosedLoop:
     def _run_continuous(self, ctrl, scenario: Scenario, settling_band: float, record: bool,
                         record_levels: bool) -> SimulationResult:
         """:meth:`run` of a continuous-time scenario (kernel ``simulate_continuous``)."""
-        u_op = self._kernel_inputs(scenario)[1]
+        table = self._scenario_table(scenario)
+        u_op = table[_kernels.P_UOP:_kernels.P_UOP + 2]
         cc = _continuous.ContinuousController.from_linear(ctrl)
         plan = self.step_plan(ctrl, scenario, cc)
         n_out = int(round(scenario.horizon / scenario.output_dt))
@@ -567,7 +570,7 @@ class ClosedLoop:
         metrics = np.empty(_kernels.N_METRICS)
         pressure = self.plant_model == "qtp_bond_graph"
         status, _ = _continuous_kernels.simulate_continuous(
-            self._scenario_table(scenario), self._level_per_state, self._state_op(), self.op.h, cc.lam, cc.b, cc.col,
+            table, self._level_per_state, self._state_op(), self.op.h, cc.lam, cc.b, cc.col,
             cc.Cm, cc.Aq, cc.Bq, cc.Cq, cc.D, cc.channel, plan.table, float(settling_band), metrics,
             float(scenario.output_dt), y, u, h)
         P = None
@@ -580,13 +583,17 @@ class ClosedLoop:
         """The scenario's parameter table of the loop kernels (:func:`scenario_table`): plant
         coefficients, operating voltages, pump limits, level clipping and the heights it clips
         at, disturbances, their sample indices (-1 for a continuous scenario), the output
-        disturbance time and the horizon."""
+        disturbance time and the horizon. Built once per scenario; the kernels only read it."""
+        if scenario in self._tables:
+            return self._tables[scenario]
         coef, u_op, (saturate, u_lo, u_hi), clip, h_max = self._kernel_inputs(scenario)
         out_dist, in_dist, _ = self._scenario_arrays(scenario)
         sampled = not scenario.continuous
-        return _kernels.scenario_table(
+        P = _kernels.scenario_table(
             coef, u_op, saturate, u_lo, u_hi, clip, h_max, out_dist, scenario.disturbance_index if sampled else -1,
             in_dist, scenario.input_disturbance_index if sampled else -1, scenario.disturbance_time, scenario.horizon)
+        self._tables[scenario] = P
+        return P
 
     def _state_op(self) -> np.ndarray:
         """The operating point in the kernels' state: levels, or pressures for the bond graph."""

@@ -31,6 +31,7 @@ from heurtune.objectives.tito.papers.simulated import (
     TABLE_PLANT,
     decision_vector,
     printed_controllers,
+    problem_of,
     simulate_printed,
 )
 from heurtune.objectives.tito.report import spectral_radius_figure
@@ -92,7 +93,7 @@ def paper_figures(paper: str, exp, out_dir, *, runs: pd.DataFrame | None = None)
     out_dir = Path(out_dir)
     written = []
     if paper == "002":
-        prob = exp.problem(exp.cases[0])
+        prob = problem_of(exp, exp.cases[0])
         designs = dict(printed_controllers("002", "two_tank"))
         if all(c is not None for c in prob.chain.gpm):
             g = prob.baseline("gpm")
@@ -107,7 +108,7 @@ def paper_figures(paper: str, exp, out_dir, *, runs: pd.DataFrame | None = None)
     for plant in dict.fromkeys(TABLE_PLANT[paper].values()):
         if plant not in exp.cases:
             continue
-        prob = exp.problem(plant)
+        prob = problem_of(exp, plant)
         drawn = _drawn_controller(paper, plant, prob, runs)
         if drawn is None:
             continue

@@ -7,6 +7,7 @@ Shared by :mod:`heurtune.objectives.tito.papers.tables` and
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
@@ -14,7 +15,7 @@ from heurtune.analysis.side_by_side import number
 from heurtune.core.errors import ConfigError
 from heurtune.objectives.tito.papers.printed import printed_table
 
-__all__ = ["PAPER_TABLES", "TABLE_PLANT", "printed_controllers"]
+__all__ = ["PAPER_TABLES", "TABLE_PLANT", "printed_controllers", "problem_of", "simulate_printed"]
 
 # The tables each paper's command writes, in order.
 PAPER_TABLES = {"000": ("1", "2", "3", "4", "5", "6"), "001": ("1", "2", "3"), "002": ("I", "II")}
@@ -134,13 +135,32 @@ class Simulated:
     check: str
 
 
+@functools.lru_cache(maxsize=16)
+def problem_of(exp, case: str):
+    """``exp.problem(case)``, built once for the tables and figures of one paper (a TITO problem
+    computes its frequency grids when built).
+
+    Parameters
+    ----------
+    exp : TITOExperiment
+    case : str
+
+    Returns
+    -------
+    TITOProblem
+    """
+    return exp.problem(case)
+
+
+@functools.lru_cache(maxsize=64)
 def simulate_printed(prob, gains, scenario: str = "nominal") -> Simulated:
     """Simulate a printed controller on a problem's plant, whatever its tuning check says.
 
     Parameters
     ----------
     prob : TITOProblem
-    gains : sequence of (Kp, Ki, Kd)
+    gains : tuple of (Kp, Ki, Kd)
+        One triple per loop (tuples: the result is kept for the next table or figure that asks).
     scenario : str
 
     Returns

@@ -58,6 +58,7 @@ from heurtune.objectives.tito.papers.simulated import (
     TABLE_PLANT,
     check_paper,
     printed_controllers,
+    problem_of,
     simulate_printed,
     simulation_notes,
 )
@@ -117,7 +118,7 @@ def _performance_table(paper: str, table: str, exp, runs: pd.DataFrame | None) -
     columns = [(m, w) for w in windows for m in _METRICS] if windows else [(m, None) for m in _METRICS]
     notes = []
     case = plant if plant in exp.cases else None
-    prob = exp.problem(case) if case is not None else None
+    prob = problem_of(exp, case) if case is not None else None
     sims = {}
     if prob is not None:
         for label, gains in printed_controllers(paper, plant).items():
@@ -241,7 +242,7 @@ def _identified_experiment(exp):
 
 def _table_II(exp, runs: pd.DataFrame | None = None) -> SideBySideTable:
     printed = printed_table("002", "table_II", raw=True)
-    plants = {"nonlinear rig": exp.problem(exp.cases[0])}
+    plants = {"nonlinear rig": problem_of(exp, exp.cases[0])}
     try:
         plants = {"identified model (eq. 28)": _identified_experiment(exp).problem("two_tank"), **plants}
     except ConfigError:
@@ -419,7 +420,7 @@ def _kharitonov_table(table: str, exp) -> SideBySideTable:
     notes = []
     parts = [_printed_matrices_part(table, plant, notes)]
     gains = printed_controllers("000", plant).get("Proposed PID")
-    opts = exp.problem(plant).robustness_options if plant in exp.cases else {}
+    opts = problem_of(exp, plant).robustness_options if plant in exp.cases else {}
     delta = float(opts.get("variation", 0.2))
     order = int(opts.get("pade_order", 2))
     fo = printed_table("000", "fopdt")
@@ -429,7 +430,7 @@ def _kharitonov_table(table: str, exp) -> SideBySideTable:
         parts.append(_mimo_part(printed_plant, gains, delta, "taylor", order,
                                 f"B1: the paper's method done by heurtune: the printed PID on the printed FOPDT loops "
                                 f"(decoupled: 0 off the diagonal), Taylor delays, K, T, L +-{delta:.0%}", notes))
-    heur_plant = _fopdt_plant(exp.problem(plant).chain.fopdt) if plant in exp.cases else None
+    heur_plant = _fopdt_plant(problem_of(exp, plant).chain.fopdt) if plant in exp.cases else None
     if heur_plant is not None and gains is not None:
         parts.append(_mimo_part(heur_plant, gains, delta, "pade", order,
                                 f"B2: the printed PID on heurtune's FOPDT fits of its decoupled {plant.upper()} loops, "
