@@ -98,6 +98,7 @@ __all__ = [
     "paper000_qts_chain",
     "parameter_box",
     "perturbed_plant",
+    "row_reduce",
     "row_reduced_hurwitz",
 ]
 
@@ -716,7 +717,24 @@ def row_reduced_hurwitz(coeffs) -> np.ndarray:
     numpy.ndarray
         Shape ``(n, n)``.
     """
-    U = hurwitz_matrix(coeffs).astype(float)
+    return row_reduce(hurwitz_matrix(coeffs))
+
+
+def row_reduce(M) -> np.ndarray:
+    """``M`` made upper triangular by Gaussian elimination without pivoting (the elimination of
+    :func:`row_reduced_hurwitz`, for a matrix laid out as a source prints it).
+
+    Parameters
+    ----------
+    M : array_like
+        Square.
+
+    Returns
+    -------
+    numpy.ndarray
+        A float copy; below a zero pivot the rows are ``nan``.
+    """
+    U = np.array(M, dtype=float)
     n = U.shape[0]
     for k in range(n):
         piv = U[k, k]

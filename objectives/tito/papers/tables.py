@@ -300,26 +300,12 @@ def _table_II(exp, runs: pd.DataFrame | None = None) -> SideBySideTable:
 # Kharitonov tables
 # ----------------------------------------------------------------------------------------------
 
-def _row_reduced(M: np.ndarray) -> np.ndarray:
-    """Upper-triangular form of ``M`` by Gaussian elimination without pivoting (rows below a zero
-    pivot NaN), as the papers' "row-reduced Hurwitz matrix"."""
-    U = np.array(M, dtype=float)
-    n = U.shape[0]
-    for k in range(n):
-        if U[k, k] == 0.0:
-            U[k + 1:, :] = np.nan
-            break
-        for i in range(k + 1, n):
-            U[i, :] -= (U[i, k] / U[k, k]) * U[k, :]
-            U[i, k] = 0.0
-    return U
-
-
 def _printed_matrices_part(table: str, plant: str, notes: list):
     """Part A: the printed Hurwitz and row-reduced matrices beside those heurtune computes from
     the paper's own Kharitonov polynomials (printed for the QTS only, eqs. 67-70). The paper lays
     the Hurwitz matrix out transposed (its first row is a1, a0): heurtune's cells are ``H^T``."""
     from heurtune.objectives.robustness import hurwitz_matrix
+    from heurtune.objectives.tito.kharitonov import row_reduce
 
     printed = printed_table("000", f"table_{table}", raw=True)
     polys = {}
@@ -332,7 +318,7 @@ def _printed_matrices_part(table: str, plant: str, notes: list):
     mats = {}
     for name, c in polys.items():
         HT = hurwitz_matrix(c).T
-        mats[(name, "HM")], mats[(name, "HMr")] = HT, _row_reduced(HT)
+        mats[(name, "HM")], mats[(name, "HMr")] = HT, row_reduce(HT)
     rows = []
     for _, r in printed.iterrows():
         key = (str(r["polynomial"]), str(r["matrix"]))
@@ -349,15 +335,10 @@ def _printed_matrices_part(table: str, plant: str, notes: list):
 
 def _fopdt_plant(models) -> list | None:
     """The decoupled 2x2 plant ``diag(K_i e^{-L_i s} / (T_i s + 1))`` of per-loop FOPDT models
-    (objects or rows with ``K``, ``T``, ``L``), or None when a loop has none."""
-    from heurtune.objectives.tito.model import TFElement
-
+    (:class:`~heurtune.objectives.tito.model.FOPDT`), or None when a loop has none."""
     if any(m is None for m in models):
         return None
-    els = [TFElement(K=float(m["K"] if isinstance(m, pd.Series) else m.K),
-                     lags=(float(m["T"] if isinstance(m, pd.Series) else m.T),),
-                     L=float(m["L"] if isinstance(m, pd.Series) else m.L)) for m in models]
-    return [[els[0], 0.0], [0.0, els[1]]]
+    return [[models[0], 0.0], [0.0, models[1]]]
 
 
 def _mimo_part(A, gains, delta: float, delay: str, pade_order: int, subtitle: str, notes: list):
@@ -416,6 +397,8 @@ def _chain_part(notes: list):
 
 
 def _kharitonov_table(table: str, exp) -> SideBySideTable:
+    from heurtune.objectives.tito.model import FOPDT
+
     plant = TABLE_PLANT["000"][table]
     notes = []
     parts = [_printed_matrices_part(table, plant, notes)]
@@ -425,7 +408,8 @@ def _kharitonov_table(table: str, exp) -> SideBySideTable:
     order = int(opts.get("pade_order", 2))
     fo = printed_table("000", "fopdt")
     fo = fo[fo["plant"] == plant].groupby("loop", sort=True).head(1)
-    printed_plant = _fopdt_plant([r for _, r in fo.iterrows()]) if len(fo) == 2 else None
+    printed_plant = (_fopdt_plant([FOPDT(float(r["K"]), float(r["T"]), float(r["L"])) for _, r in fo.iterrows()])
+                     if len(fo) == 2 else None)
     if printed_plant is not None and gains is not None:
         parts.append(_mimo_part(printed_plant, gains, delta, "taylor", order,
                                 f"B1: the paper's method done by heurtune: the printed PID on the printed FOPDT loops "
