@@ -32,6 +32,7 @@ docs/papers.md says, table by table, what matches, what does not, and why.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from pathlib import Path
@@ -229,6 +230,7 @@ def _table_I(exp) -> SideBySideTable:
                            [make_part("Proposed optimal GPM PI", rows)], notes)
 
 
+@functools.lru_cache(maxsize=4)
 def _identified_experiment(exp):
     """The experiment's config on the identified linear model (``[plant] model = "tito"``,
     case ``two_tank``), for the rows of Table II on the model."""
