@@ -26,6 +26,7 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import dataclasses  # noqa: E402
+import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -45,11 +46,32 @@ def draw(rng, lower, upper):
     return lower + (upper - lower) * u
 
 
+# metrics compared: IAE and J of both outputs (relative), ts of both (absolute, s)
+_IAE, _J, _TS = (6, 7), (12, 13), (2, 3)
+
+
 def level_error(loop, ctrl, scenario, ref):
     sim = loop.run(ctrl, scenario)
     if sim.diverged or not np.all(np.isfinite(sim.h)):
         return np.inf
     return float(np.max(np.abs(sim.h - ref.h)))
+
+
+def metric_errors(loop, ctrl, scenario, ref):
+    """Largest level error (cm), largest relative IAE and J error, largest ts error (s), and
+    the median time of three runs without records (ms)."""
+    sim = loop.run(ctrl, scenario)
+    if sim.diverged or not np.all(np.isfinite(sim.h)):
+        return np.inf, np.inf, np.inf, np.inf, np.nan
+    m, r = sim.metrics, ref.metrics
+    rel = [abs(m[i] / r[i] - 1.0) if r[i] != 0 else abs(m[i]) for i in _IAE + _J]
+    times = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        loop.run(ctrl, scenario, record=False)
+        times.append(time.perf_counter() - t0)
+    return (float(np.max(np.abs(sim.h - ref.h))), max(rel[:2]), max(rel[2:]),
+            max(abs(m[i] - r[i]) for i in _TS), 1e3 * float(np.median(times)))
 
 
 def study_case(prob, samples, rng, tolerance):
@@ -71,7 +93,9 @@ def study_case(prob, samples, rng, tolerance):
         errs = [level_error(loop, ctrl, sc, ref)]
         for h in (h_fixed, 2 * h_fixed):
             errs.append(level_error(loop, ctrl, dataclasses.replace(sc, tolerance=None, step=h), ref))
-        rows.append((h_rule, rho, *errs))
+        adaptive = metric_errors(loop, ctrl, sc, ref)
+        plain = metric_errors(loop, ctrl, dataclasses.replace(sc, tolerance=None, step=h_rule), ref)
+        rows.append((h_rule, rho, *errs, *adaptive, *plain))
     return h_fixed, np.array(rows)
 
 
@@ -91,12 +115,22 @@ def main(argv=None):
         if rows.size == 0:
             print(f"{case}: no stable candidate among {args.samples}")
             continue
-        h_rule, rho, e_rule, e_fixed, e_double = rows.T
+        h_rule, rho, e_rule, e_fixed, e_double = rows.T[:5]
+        adaptive, plain = rows[:, 5:10], rows[:, 10:15]
         print(f"{case}: {rows.shape[0]} stable candidates of {args.samples}; the rule shortened "
               f"{int(np.sum(h_rule < h_fixed))} (steps {sorted(set(np.round(h_rule, 6).tolist()))} s)")
         for label, e in (("rule", e_rule), (f"fixed {h_fixed:g} s", e_fixed), (f"fixed {2 * h_fixed:g} s", e_double)):
             print(f"  {label:>14}: largest {np.max(e):.2e}, median {np.median(e):.2e}, "
                   f"over the tolerance {int(np.sum(e > tol))}")
+        for label, m in (("rule", adaptive), ("rule's step", plain)):
+            print(f"  {label:>14}: largest level {np.max(m[:, 0]):.2e} cm, IAE {np.max(m[:, 1]):.2e}, J "
+                  f"{np.max(m[:, 2]):.2e} (relative), ts {np.max(m[:, 3]):.2e} s; over: level "
+                  f"{int(np.sum(m[:, 0] > tol))}, IAE {int(np.sum(m[:, 1] > 5e-4))}, J {int(np.sum(m[:, 2] > 5e-4))}, "
+                  f"ts {int(np.sum(m[:, 3] > 5e-3))}; median {np.nanmedian(m[:, 4]):.3f} ms, mean "
+                  f"{np.nanmean(m[:, 4]):.3f} ms")
+        ratio = plain[:, 4] / adaptive[:, 4]
+        print(f"  time at the rule's step / with adaptive pairs: median {np.nanmedian(ratio):.2f}, "
+              f"smallest {np.nanmin(ratio):.2f}, largest {np.nanmax(ratio):.2f}")
         worst = np.argsort(-e_fixed)[:3]
         print("  worst at the fixed step: " + "; ".join(
             f"rho {rho[k]:.2f} 1/s, fixed {e_fixed[k]:.1e}, rule {e_rule[k]:.1e} at {h_rule[k]:g} s" for k in worst))

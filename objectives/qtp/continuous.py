@@ -50,6 +50,18 @@ EXPLICIT_STEP_RADIUS = 0.5
 # 0.125 s); every other candidate keeps its step, bit for bit.
 FEEDBACK_STEP_RADIUS = 0.75
 MAX_STEP = 1.0
+# Adaptive steps above the rule's step (FOLQI, IOLQI, LQI, the structures that declare
+# ``feedback_step``, under ``tolerance``): pairs of steps up to 2^(top - 1) times the rule's step
+# (at most 8 times, ADAPTIVE_TOP in the kernels), each checked by step doubling against a local
+# tolerance of ADAPTIVE_LOCAL_FRACTION times the tolerance, or ADAPTIVE_RELATIVE times the
+# largest measured deviation where that is smaller, per ADAPTIVE_PERIOD seconds of step. A step
+# h is only tried where h rho(A + B D_h) <= ADAPTIVE_STABILITY_RADIUS (the explicit part stays
+# stable). Validated in benchmarks/step_rule.py and tests/objectives/qtp/test_continuous.py
+# (docs/model.md, "Adaptive steps").
+ADAPTIVE_LOCAL_FRACTION = 0.1
+ADAPTIVE_RELATIVE = 3e-4
+ADAPTIVE_PERIOD = 30.0
+ADAPTIVE_STABILITY_RADIUS = 1.5
 MIN_STEP = 1e-4
 # A scenario whose step rule needs more steps than this over its horizon is refused.
 MAX_STEPS = 10_000_000
@@ -243,6 +255,37 @@ def feedback_step(A: np.ndarray, B: np.ndarray, cc: ContinuousController, h_max:
     return MIN_STEP
 
 
+def adaptive_top(A: np.ndarray, B: np.ndarray, cc: ContinuousController, h: float) -> int:
+    """How far above the rule's step ``h`` the adaptive pairs may go: ``top`` such that the
+    largest step tried is ``h 2^(top - 1)``, the largest ``h 2^j`` (j = 1..3) with
+    ``h 2^j rho(A + B D_(h 2^j)) <= ADAPTIVE_STABILITY_RADIUS``; 0 (no pairs) if none.
+
+    Parameters
+    ----------
+    A : (4, 4) ndarray
+        The linearised plant of the scenario.
+    B : (4, 2) ndarray
+        Its input matrix (divided by the scenario's uncertainty factor).
+    cc : ContinuousController
+    h : float
+        The rule's step (:func:`feedback_step`).
+
+    Returns
+    -------
+    int
+        0, or 2 .. ADAPTIVE_TOP of the kernels.
+    """
+    from heurtune.objectives.qtp.continuous_kernels import ADAPTIVE_TOP, feedback_radius
+
+    A, B = np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(B, dtype=np.float64)
+    for j in range(ADAPTIVE_TOP - 1, 0, -1):
+        hj = h * 2.0 ** j
+        rho = float(feedback_radius(A, B, cc.D, cc.lam, cc.b, cc.col, cc.Cm, hj))
+        if math.isfinite(rho) and hj * rho <= ADAPTIVE_STABILITY_RADIUS:
+            return j + 1
+    return 0
+
+
 @dataclasses.dataclass(frozen=True)
 class StepPlan:
     """The segments of a continuous simulation (arrays as ``simulate_continuous`` takes them)."""
@@ -254,6 +297,10 @@ class StepPlan:
     dist: np.ndarray
     uin: np.ndarray
     post: np.ndarray
+    local_tol: float = 0.0
+    top: int = 0
+    local_rel: float = 0.0
+    local_per: float = 0.0
 
     @property
     def n_steps(self) -> int:
@@ -270,11 +317,14 @@ class StepPlan:
         seg[:, ck.SEG_T0], seg[:, ck.SEG_H], seg[:, ck.SEG_STEPS] = self.t0, self.h, self.steps
         seg[:, ck.SEG_GRADED], seg[:, ck.SEG_POST] = self.graded, self.post
         seg[:, ck.SEG_DIST:ck.SEG_DIST + 2], seg[:, ck.SEG_UIN:ck.SEG_UIN + 2] = self.dist, self.uin
+        seg[:, ck.SEG_LOCAL_TOL], seg[:, ck.SEG_TOP], seg[:, ck.SEG_LOCAL_REL] = self.local_tol, self.top, self.local_rel
+        seg[:, ck.SEG_LOCAL_PER] = self.local_per
         return seg
 
 
 def plan_steps(horizon: float, step: float, output_disturbance, disturbance_time: float,
-               input_disturbance, input_disturbance_time: float) -> StepPlan:
+               input_disturbance, input_disturbance_time: float, local_tol: float = 0.0, top: int = 0,
+               local_rel: float = 0.0, local_per: float = 0.0) -> StepPlan:
     """Segments between the discontinuities of a scenario, each in equal steps of at most ``step``.
 
     A breakpoint is a disturbance time inside (0, horizon) whose step is not zero. Each
@@ -289,6 +339,9 @@ def plan_steps(horizon: float, step: float, output_disturbance, disturbance_time
     disturbance_time : float
     input_disturbance : array_like (2,)
     input_disturbance_time : float
+    local_tol, top, local_rel, local_per : optional
+        Adaptive pairs above ``step`` (:data:`ADAPTIVE_LOCAL_FRACTION` and the constants
+        beside it; ``local_tol`` 0, the default, keeps every step at ``step``).
 
     Returns
     -------
@@ -313,7 +366,8 @@ def plan_steps(horizon: float, step: float, output_disturbance, disturbance_time
         uin.append(d_in if a >= input_disturbance_time else np.zeros(2))
         post.append(a >= disturbance_time)
     return StepPlan(np.array(t0), np.array(h), np.array(steps, dtype=np.int64), np.array(graded, dtype=np.bool_),
-                    np.array(dist), np.array(uin), np.array(post, dtype=np.bool_))
+                    np.array(dist), np.array(uin), np.array(post, dtype=np.bool_), float(local_tol), int(top),
+                    float(local_rel), float(local_per))
 
 
 def pack_lanes(controllers, plans, tables) -> dict:

@@ -236,13 +236,28 @@ _G_C1, _G_C2, _G_C3, _G_C4, _G_C11, _G_H1, _G_H2, _G_H3, _G_H4 = range(9)
 N_COUPLINGS = 9
 # Step levels: a step of level l is h 2^-l, l = 0..4 (its half step is level l + 1).
 N_STEP_LEVELS = N_LEVELS - 1
+# Adaptive steps (a plan with a local tolerance, SEG_LOCAL_TOL > 0): the ladder's top is the
+# rule's step times 2^SEG_TOP (at most ADAPTIVE_TOP levels up), and it reaches ADAPTIVE_BELOW
+# levels below the graded steps' finest (h / 16).
+ADAPTIVE_TOP = 4
+MAX_STEP_LEVELS = ADAPTIVE_TOP + N_STEP_LEVELS
+# Plain steps at the rule's step after a pair above it failed, doubling per failure to the most.
+ADAPTIVE_WAIT = 16
+ADAPTIVE_MAX_WAIT = 16
+# A pair of steps whose estimated error is below the local tolerance / ADAPTIVE_GROWTH takes
+# twice the step next (a fourth-order step's local error grows 32-fold when doubled).
+ADAPTIVE_GROWTH = 40.0
+LOCAL_FLOOR = 1e-6
 
 
 @njit(cache=True, fastmath=_FAST)
-def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, rows, coup, prop_m, prop_q, prop_qb, pmc, pmh, phw, sqw, rw, bw):
+def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, n_levels, lv_only, rows, coup, prop_m, prop_q, prop_qb, pmc, pmh,
+                phw, sqw, rw, bw):
     """Everything an ETDRK4 step of the segment needs from the controller, per step level.
 
-    For each step level ``lv`` (step ``H = h 2^-lv``, half step ``c = H / 2``; Lambda the modal
+    Levels ``0 .. n_levels - 1``, or only ``lv_only`` when it is not negative (modal
+    controllers only: the dense blocks' levels come from one sequence and are always written
+    together). For each step level ``lv`` (step ``H = h 2^-lv``, half step ``c = H / 2``; Lambda the modal
     eigenvalues (+) the dense blocks, B the input matrix, C the output matrix) writes
 
     - ``rows[lv]`` (N_ROWS, nd + nq): ``C phi_1(c)``, ``C phi_1(c) phi_0(c)``, ``C phi_0(c)``,
@@ -260,7 +275,8 @@ def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, rows, coup, prop_m, prop_q, prop
     """
     nd = lam.size
     nq = Aq.shape[0]
-    for lv in range(N_STEP_LEVELS):
+    lv_lo, lv_hi = (0, n_levels) if lv_only < 0 else (lv_only, lv_only + 1)
+    for lv in range(lv_lo, lv_hi):
         H = h / 2.0 ** lv
         c = 0.5 * H
         for r in range(N_ROWS):
@@ -291,11 +307,11 @@ def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, rows, coup, prop_m, prop_q, prop
                 prop_m[lv, k, i] = pmh[k] * bm[i]
     if nq == 0:
         return
-    m = _phi_scaled(Aq, h, N_STEP_LEVELS, phw[0], sqw[0], sqw[1])
+    m = _phi_scaled(Aq, h, n_levels, phw[0], sqw[0], sqw[1])
     cur = 0
     while True:
         ph = phw[cur]  # phi_k(h 2^-m Aq)
-        if 1 <= m <= N_STEP_LEVELS:  # the half step of step level m - 1
+        if 1 <= m <= n_levels:  # the half step of step level m - 1
             lv = m - 1
             _matmul(Cq, ph[1], rw[0])  # C phi_1(c)
             _matmul(rw[0], ph[0], rw[1])  # C phi_1(c) phi_0(c)
@@ -308,7 +324,7 @@ def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, rows, coup, prop_m, prop_q, prop
             for k in range(1, 5):
                 _add_c_m_b(Cq, ph[k], Bq, bw, coup[lv, _G_C1 + k - 1])
             _add_c_m_b(rw[0], ph[1], Bq, bw, coup[lv, _G_C11])
-        if m <= N_STEP_LEVELS - 1:  # the full step of step level m
+        if m <= n_levels - 1:  # the full step of step level m
             lv = m
             _matmul(Cq, ph[1], rw[0])
             _matmul(Cq, ph[0], rw[2])
@@ -497,6 +513,14 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     _gw(coup[_G_C3], p3w, 0.25 * half, du_mid)
     _measure(x_mid, s, d1, d2, h_op, w)
     _gw(Dc, w, 1.0, du_mid)
+
+
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _copy_rows(src, dst):
+    """``dst[:] = src`` for (n, 4) working rows."""
+    for r in range(src.shape[0]):
+        for i in range(src.shape[1]):
+            dst[r, i] = src[r, i]
 
 
 @njit(cache=True, fastmath=_FAST)
@@ -789,7 +813,8 @@ def _event_values(x, du, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_
 # 0.0), the output and input disturbances in force (2 each), and whether the segment lies after
 # the output disturbance time (1.0 or 0.0).
 SEG_T0, SEG_H, SEG_STEPS, SEG_GRADED, SEG_DIST, SEG_UIN, SEG_POST = 0, 1, 2, 3, 4, 6, 8
-N_SEG = 9
+SEG_LOCAL_TOL, SEG_TOP, SEG_LOCAL_REL, SEG_LOCAL_PER = 9, 10, 11, 12
+N_SEG = 13
 
 
 @njit(cache=True, fastmath=_FAST)
@@ -829,18 +854,22 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
     rows, coup, prop_m, prop_q, prop_qb, wz, wm, wq, wqb, w4, w2, w10, wi, wb, phw, sqw, rw, bw, vq = work
     x, x_new, x_mid, w, xr = w4[0], w4[1], w4[2], w4[3], w4[4]
     scr, wst, Dn = w4[5:15], w4[15:18], w4[18:20]
+    # adaptive pairs: the second step's results, the double step's, and the stages of both steps
+    x2, xm2, xb, xmb = w4[20], w4[21], w4[22], w4[23]
+    scr1, wst1, scr2, wst2 = w4[24:34], w4[34:37], w4[37:47], w4[47:50]
     u_mid, u_end, du0, acc, dur, v, pm = w2[0], w2[1], w2[2], w2[3], w2[4], w2[5], w2[6]
     ue, ua, u_prev, t_release, band = w2[7], w2[8], w2[9], w2[10], w2[11]
     iae, ise, itae, jj, jdev, tv, mp = w2[12], w2[13], w2[14], w2[15], w2[16], w2[17], w2[18]
     ex_prev, ex_out, ex_in = w2[19:21], w2[21:23], w2[23:25]
     excess = w2[25]  # a sliding pump's output beyond its limit at the last step end
+    um2, ue2, umb, ueb = w2[26], w2[27], w2[28], w2[29]
     f0, fm, f1, lo, hi, win_v = w10[0], w10[1], w10[2], w10[3], w10[4], w10[5:8]
     c_e, rbuf, gm, g1, ga = w10[8], w10[9], w10[10], w10[11], w10[12]
     win_t, pmc, pmh = w10[13], w10[14], w10[15]
-    z, z_new = wz[0], wz[1]
+    z, z_new, z2, zb = wz[0], wz[1], wz[2], wz[3]
     lam_e, bm_e = wm[0], wm[1]
     Aq_e, Bq_e = wq, wqb
-    sat, held, pin, asat = wi[0:2], wi[2:6], wi[6:8], wi[8:10]
+    sat, held, pin, asat, ready = wi[0:2], wi[2:6], wi[6:8], wi[8:10], wi[10:]
     sliding, ex_has_prev, pending = wb[0], wb[1], wb[2]
     for i in range(4):
         x[i] = x_init[i]
@@ -922,40 +951,159 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
         n_win = _visit(t, f0, post, band, 0, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
                        ex_has_prev, pending, tv, u_prev, first_node)
         first_node = False
-        # Positions within a span count in units of h/16: the graded steps (1, 1, 2, 4, 8 units),
-        # a sliding pump's steps (1 unit) and the plain steps (16 units, or the largest step that
-        # keeps the position aligned) all land on the span's grid and end on its end exactly.
+        # Positions within a span count in units of its finest step (h/16 for fixed steps): the
+        # graded steps (h/16, h/16, h/8, h/4, h/2 of the rule's step), a sliding pump's steps
+        # (h/16), the plain steps (the rule's step, or the largest that keeps the position
+        # aligned) and adaptive pairs all land on the span's grid and end on its end exactly.
+        local_tol = seg[sg, SEG_LOCAL_TOL]
+        local_rel = seg[sg, SEG_LOCAL_REL]
+        local_per = seg[sg, SEG_LOCAL_PER]
+        adaptive = local_tol > 0.0
+        top = int(seg[sg, SEG_TOP]) if adaptive else 0
+        n_levels = top + N_STEP_LEVELS
+        fine = n_levels - 1
+        lazy = adaptive and nq == 0  # modal tables are written level by level, when first used
         pos = 0
         units = 0
         gi = 0
         h = h_target
+        lv_want = top - 1
+        lv_pair = top
+        wait = 0
+        backoff = ADAPTIVE_WAIT
+        h_second = h_target
+        stashed = False  # the second step of an accepted pair waits in x2, z2, ...
         replan = True
         while t < t_end - 1e-12 * max(1.0, t_end):
             if replan:
-                n_span = max(1, int(math.ceil((t_end - t) / h_target - 1e-9)))
+                n_span = max(1, int(math.ceil((t_end - t) / (h_target * 2.0 ** top) - 1e-9)))
                 h = (t_end - t) / n_span
-                units = 16 * n_span
+                units = (1 << fine) * n_span
                 pos = 0
                 gi = 0
-                step_tables(lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, h, rows, coup, prop_m, prop_q, prop_qb, pmc,
-                            pmh, phw, sqw, rw, bw)
+                lv_want = top - 1
+                wait = 0
+                backoff = ADAPTIVE_WAIT
+                stashed = False
+                if lazy:
+                    for lv in range(n_levels):
+                        ready[lv] = 0
+                else:
+                    step_tables(lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, h, n_levels, -1, rows, coup, prop_m, prop_q,
+                                prop_qb, pmc, pmh, phw, sqw, rw, bw)
                 replan = False
-            if graded and gi < 5:
-                level = GRADED_LEVELS[gi]
-                gi += 1
-            elif sliding[0] or sliding[1]:
-                level = 4
+            if stashed:
+                # the second step of the pair accepted before
+                level = lv_pair
+                pos += 1 << (fine - level)
+                hs = t_end - t if pos >= units else h_second
+                for i in range(4):
+                    x_new[i] = x2[i]
+                    x_mid[i] = xm2[i]
+                for i in range(nz):
+                    z_new[i] = z2[i]
+                for i in range(2):
+                    u_mid[i] = um2[i]
+                    u_end[i] = ue2[i]
+                _copy_rows(scr2, scr)
+                _copy_rows(wst2, wst)
+                stashed = False
             else:
-                level = 0
-                while pos % (16 >> level) != 0:
-                    level += 1
-            hs = h / 2.0 ** level
-            pos += 16 >> level
-            if pos >= units:
-                hs = t_end - t  # the last step ends on the segment's end exactly
-            _etdrk4_step(x, z, hs, rows[level], coup[level], prop_m[level], prop_q[level], prop_qb[level], mi, c_e,
-                         s, d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x_new, z_new,
-                         x_mid, u_mid, u_end)
+                paired = False
+                if adaptive and not (graded and gi < 5) and not (sliding[0] or sliding[1]) and wait <= 0:
+                    # Above the rule's step, a pair of steps at level lv < top is taken against
+                    # one step of twice the length (step doubling): their difference over 15
+                    # estimates the pair's local level error (fourth order). The pair is kept
+                    # if that is within the pair's tolerance, else tried at half the step; at
+                    # the rule's step the validated plain steps take over for a while.
+                    lv = max(lv_want, 1)
+                    while lv < top and (pos % (2 << (fine - lv)) != 0 or pos + (2 << (fine - lv)) > units):
+                        lv += 1
+                    lv0 = lv
+                    # the tolerance: local_tol, or local_rel times the largest measured deviation
+                    # where that is smaller (an error then settles with the loop), not below
+                    # LOCAL_FLOOR local_tol; per unit step (over local_per seconds)
+                    _measure(x, s, d1, d2, h_op, w)
+                    amp = max(max(abs(w[0]), abs(w[1])), max(abs(w[2]), abs(w[3])))
+                    eps = max(min(local_tol, local_rel * amp), LOCAL_FLOOR * local_tol)
+                    while lv < top:
+                        if lazy:
+                            for lv_t in range(lv - 1, lv + 1):
+                                if ready[lv_t] == 0:
+                                    step_tables(lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, h, n_levels, lv_t, rows, coup,
+                                                prop_m, prop_q, prop_qb, pmc, pmh, phw, sqw, rw, bw)
+                                    ready[lv_t] = 1
+                        h1 = h / 2.0 ** lv
+                        if pos + (2 << (fine - lv)) >= units:
+                            h2 = t_end - t
+                            h1b = h2 - h1
+                        else:
+                            h2 = 2.0 * h1
+                            h1b = h1
+                        _etdrk4_step(x, z, h1, rows[lv], coup[lv], prop_m[lv], prop_q[lv], prop_qb[lv], mi, c_e, s,
+                                     d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x_new,
+                                     z_new, x_mid, u_mid, u_end)
+                        _copy_rows(scr, scr1)
+                        _copy_rows(wst, wst1)
+                        _etdrk4_step(x_new, z_new, h1b, rows[lv], coup[lv], prop_m[lv], prop_q[lv], prop_qb[lv], mi,
+                                     c_e, s, d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x2,
+                                     z2, xm2, um2, ue2)
+                        _copy_rows(scr, scr2)
+                        _copy_rows(wst, wst2)
+                        lb = lv - 1
+                        _etdrk4_step(x, z, h2, rows[lb], coup[lb], prop_m[lb], prop_q[lb], prop_qb[lb], mi, c_e, s,
+                                     d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, xb, zb,
+                                     xmb, umb, ueb)
+                        est = 0.0
+                        for i in range(4):
+                            est = max(est, abs(x2[i] - xb[i]))
+                        est *= s / 15.0
+                        if local_per > 0.0:
+                            est *= local_per / h2
+                        if est <= eps:
+                            paired = True
+                            break
+                        lv += 1
+                    if lv0 >= top:
+                        pass  # no pair aligned with the position: a plain step first
+                    elif paired:
+                        lv_want = lv - 1 if est * ADAPTIVE_GROWTH <= eps else lv
+                        backoff = ADAPTIVE_WAIT
+                        _copy_rows(scr1, scr)
+                        _copy_rows(wst1, wst)
+                        level = lv
+                        lv_pair = lv
+                        hs = h1
+                        h_second = h1b
+                        pos += 1 << (fine - lv)
+                        stashed = True
+                    else:
+                        # no pair above the rule's step: plain steps for a while, then try again
+                        wait = backoff
+                        backoff = min(2 * backoff, ADAPTIVE_MAX_WAIT)
+                        lv_want = top - 1
+                if not paired:
+                    if graded and gi < 5:
+                        level = GRADED_LEVELS[gi] + top
+                        gi += 1
+                    elif sliding[0] or sliding[1]:
+                        level = top + 4
+                    else:
+                        level = top
+                        while pos % (1 << (fine - level)) != 0:
+                            level += 1
+                        wait -= 1
+                    if lazy and ready[level] == 0:
+                        step_tables(lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, h, n_levels, level, rows, coup, prop_m,
+                                    prop_q, prop_qb, pmc, pmh, phw, sqw, rw, bw)
+                        ready[level] = 1
+                    hs = h / 2.0 ** level
+                    pos += 1 << (fine - level)
+                    if pos >= units:
+                        hs = t_end - t  # the last step ends on the segment's end exactly
+                    _etdrk4_step(x, z, hs, rows[level], coup[level], prop_m[level], prop_q[level], prop_qb[level], mi,
+                                 c_e, s, d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x_new,
+                                 z_new, x_mid, u_mid, u_end)
             n_taken += 1
             if not (abs(x_new[0]) + abs(x_new[1]) + abs(x_new[2]) + abs(x_new[3]) < state_limit):
                 diverged = True
@@ -989,8 +1137,8 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
                 if fired >= 0 and th_lo < 1.0 and n_events < MAX_LOCATED_EVENTS:
                     # cut the step at the switch and take it again
                     hs = th_lo * hs
-                    step_tables(lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, hs, rows, coup, prop_m, prop_q, prop_qb, pmc,
-                                pmh, phw, sqw, rw, bw)
+                    step_tables(lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, hs, n_levels, 0 if lazy else -1, rows, coup,
+                                prop_m, prop_q, prop_qb, pmc, pmh, phw, sqw, rw, bw)
                     _etdrk4_step(x, z, hs, rows[0], coup[0], prop_m[0], prop_q[0], prop_qb[0], mi, c_e, s, d1, d2,
                                  v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x_new, z_new, x_mid,
                                  u_mid, u_end)
@@ -1180,8 +1328,8 @@ def feedback_radius(A, B, D, lam, bm, mi, Cm, h):
 
 
 # Rows of the working arrays of continuous_lane (float64 unless stated): see its first lines.
-_W4_ROWS = 20
-_W2_ROWS = 26
+_W4_ROWS = 50
+_W2_ROWS = 30
 _W10_ROWS = 16
 
 
@@ -1200,10 +1348,10 @@ def workspace_shapes(nd: int, nq: int) -> list:
     """
     nz, d, q = nd + nq, nd, nq
     f, i8, b1 = np.float64, np.int64, np.bool_
-    return [((N_STEP_LEVELS, N_ROWS, nz), f), ((N_STEP_LEVELS, N_COUPLINGS, 2, 4), f),
-            ((N_STEP_LEVELS, 4, d), f), ((N_STEP_LEVELS, q, q), f), ((N_STEP_LEVELS, 3, q, 4), f),
-            ((2, nz), f), ((2, d), f), ((q, q), f), ((q, 4), f),
-            ((_W4_ROWS, 4), f), ((_W2_ROWS, 2), f), ((_W10_ROWS, 10), f), ((10,), i8), ((3, 2), b1),
+    L = MAX_STEP_LEVELS
+    return [((L, N_ROWS, nz), f), ((L, N_COUPLINGS, 2, 4), f), ((L, 4, d), f), ((L, q, q), f), ((L, 3, q, 4), f),
+            ((4, nz), f), ((2, d), f), ((q, q), f), ((q, 4), f),
+            ((_W4_ROWS, 4), f), ((_W2_ROWS, 2), f), ((_W10_ROWS, 10), f), ((10 + L,), i8), ((3, 2), b1),
             ((2, N_PHI, q, q), f), ((2, q, q), f), ((3, 2, q), f), ((q, 4), f), ((3, q), f)]
 
 

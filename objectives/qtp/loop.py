@@ -240,12 +240,19 @@ class Scenario:
         """:meth:`continuous_step_for` the controller type with the smallest step."""
         return self.continuous_step_for(None)
 
-    def step_plan(self, kind: str | None = None, step: float | None = None):
+    def step_plan(self, kind: str | None = None, step: float | None = None, top: int = 0):
         """The segments and steps of the continuous loop (:func:`continuous.plan_steps`), with
-        steps of at most ``step`` when given, else :meth:`continuous_step_for` ``kind``."""
+        steps of at most ``step`` when given, else :meth:`continuous_step_for` ``kind``.
+
+        ``top`` > 1 (a ``tolerance`` scenario only) lets adaptive pairs of steps go up to
+        ``2^(top - 1)`` times that step (:func:`continuous.adaptive_top`)."""
         h = self.continuous_step_for(kind) if step is None else float(step)
-        return _continuous.plan_steps(self.horizon, h, self.output_disturbance,
-                                      self.disturbance_time, self.input_disturbance, self.input_disturbance_time)
+        adaptive = {}
+        if top > 1 and self.step is None:
+            adaptive = dict(local_tol=_continuous.ADAPTIVE_LOCAL_FRACTION * float(self.tolerance), top=int(top),
+                            local_rel=_continuous.ADAPTIVE_RELATIVE, local_per=_continuous.ADAPTIVE_PERIOD)
+        return _continuous.plan_steps(self.horizon, h, self.output_disturbance, self.disturbance_time,
+                                      self.input_disturbance, self.input_disturbance_time, **adaptive)
 
     @property
     def kernel_step(self) -> float:
@@ -419,20 +426,24 @@ class ClosedLoop:
                     _continuous.explicit_step(self.A, self.B, ctrl.D, float(scenario.tolerance)))
             return scenario.step_plan(self.kind, step=h)
         h = None  # the scenario's step for this type
+        top = 0
         if scenario.step is None and extras.get("feedback_step"):
             h_max = scenario.continuous_step_for(self.kind)
             if cc is None:
                 cc = _continuous.ContinuousController.from_linear(ctrl)
-            h = _continuous.feedback_step(self.A, self.B / scenario.uncertainty, cc, h_max, float(scenario.tolerance))
+            B = self.B / scenario.uncertainty
+            h = _continuous.feedback_step(self.A, B, cc, h_max, float(scenario.tolerance))
+            top = _continuous.adaptive_top(self.A, B, cc, h)
             if h >= h_max:
                 h = None
-        # Plans are read-only for the kernels; a scenario has one per step of the ladder h_max 2^-k.
-        key = (scenario, h)
+        # Plans are read-only for the kernels; a scenario has one per step of the ladder h_max 2^-k
+        # and adaptive range.
+        key = (scenario, h, top)
         plan = self._plans.get(key)
         if plan is None:
             if len(self._plans) >= _PLAN_CACHE_SIZE:
                 self._plans.clear()
-            plan = self._plans[key] = scenario.step_plan(self.kind, step=h)
+            plan = self._plans[key] = scenario.step_plan(self.kind, step=h, top=top)
         return plan
 
     def stability_margin(self, ctrl: LinearController) -> float:
