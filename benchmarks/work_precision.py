@@ -144,6 +144,11 @@ def run_case(label, case, gains, repeats, quick):
         evaluation(sc)
         rows.append(dict(case=label, method="continuous", setting=f"tolerance {tol:g}",
                          ms=best_ms(lambda: evaluation(sc), repeats), **errors(sim, reference)))  # noqa: B023 - called within this iteration
+    # the rule's step for every step, without the adaptive pairs above it
+    sc = Scenario(step=loop.step_plan(ctrl, Scenario(tolerance=0.005)).h.max(), output_dt=GRID)
+    sim = loop.run(ctrl, sc)
+    rows.append(dict(case=label, method="continuous, no pairs", setting=f"step {sc.step:g}",
+                     ms=best_ms(lambda: evaluation(sc), repeats), **errors(sim, reference)))
     for dt in SAMPLE_STEPS if not quick else SAMPLE_STEPS[1:4]:
         sc = Scenario(dt=dt)
         sim = loop.run(ctrl, sc)
@@ -171,7 +176,7 @@ def figure(rows, path):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    colors = {"continuous": "C0", "sampled": "C3", "lsoda": "C2", "radau": "C7"}
+    colors = {"continuous": "C0", "continuous, no pairs": "C1", "sampled": "C3", "lsoda": "C2", "radau": "C7"}
     markers = dict(zip(CASES, "osD^"))
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     for ax, key, label in [(axes[0], "level_cm", "largest level error (cm)"),

@@ -59,8 +59,8 @@ MAX_STEP = 1.0
 # stable). Validated in benchmarks/step_rule.py and tests/objectives/qtp/test_continuous.py
 # (docs/model.md, "Adaptive steps").
 ADAPTIVE_LOCAL_FRACTION = 0.1
-ADAPTIVE_RELATIVE = 3e-4
-ADAPTIVE_PERIOD = 30.0
+ADAPTIVE_RELATIVE = 1e-3
+ADAPTIVE_PERIOD = 10.0
 ADAPTIVE_STABILITY_RADIUS = 1.5
 MIN_STEP = 1e-4
 # A scenario whose step rule needs more steps than this over its horizon is refused.
@@ -240,19 +240,7 @@ def feedback_step(A: np.ndarray, B: np.ndarray, cc: ContinuousController, h_max:
         REFERENCE_TOLERANCE)^(1/4)`` (``D_h``: :func:`folded_feedback`), else ``h_max`` halved
         until it holds; at least :data:`MIN_STEP`.
     """
-    from heurtune.objectives.qtp.continuous_kernels import feedback_radius
-
-    radius = FEEDBACK_STEP_RADIUS * (tolerance / REFERENCE_TOLERANCE) ** 0.25
-    h = float(h_max)
-    A, B = np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(B, dtype=np.float64)
-    while h > MIN_STEP:
-        rho = float(feedback_radius(A, B, cc.D, cc.lam, cc.b, cc.col, cc.Cm, h))
-        if not math.isfinite(rho):
-            return MIN_STEP
-        if h * rho <= radius:
-            return h
-        h *= 0.5
-    return MIN_STEP
+    return feedback_step_and_top(A, B, cc, h_max, tolerance)[0]
 
 
 def adaptive_top(A: np.ndarray, B: np.ndarray, cc: ContinuousController, h: float) -> int:
@@ -275,15 +263,34 @@ def adaptive_top(A: np.ndarray, B: np.ndarray, cc: ContinuousController, h: floa
     int
         0, or 2 .. ADAPTIVE_TOP of the kernels.
     """
-    from heurtune.objectives.qtp.continuous_kernels import ADAPTIVE_TOP, feedback_radius
+    from heurtune.objectives.qtp import continuous_kernels as ck
 
     A, B = np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(B, dtype=np.float64)
-    for j in range(ADAPTIVE_TOP - 1, 0, -1):
-        hj = h * 2.0 ** j
-        rho = float(feedback_radius(A, B, cc.D, cc.lam, cc.b, cc.col, cc.Cm, hj))
-        if math.isfinite(rho) and hj * rho <= ADAPTIVE_STABILITY_RADIUS:
-            return j + 1
-    return 0
+    # the rule at radius inf keeps h; the range above it is what is left
+    return int(ck.step_rule(A, B, cc.D, cc.lam, cc.b, cc.col, cc.Cm, float(h), math.inf, 0.0,
+                            ADAPTIVE_STABILITY_RADIUS, ck.ADAPTIVE_TOP)[1])
+
+
+def feedback_step_and_top(A: np.ndarray, B: np.ndarray, cc: ContinuousController, h_max: float,
+                          tolerance: float) -> tuple:
+    """:func:`feedback_step` and :func:`adaptive_top` at its step, in one compiled call.
+
+    Parameters
+    ----------
+    A, B, cc, h_max, tolerance :
+        As :func:`feedback_step`.
+
+    Returns
+    -------
+    (float, int)
+    """
+    from heurtune.objectives.qtp import continuous_kernels as ck
+
+    radius = FEEDBACK_STEP_RADIUS * (tolerance / REFERENCE_TOLERANCE) ** 0.25
+    A, B = np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(B, dtype=np.float64)
+    h, top = ck.step_rule(A, B, cc.D, cc.lam, cc.b, cc.col, cc.Cm, float(h_max), radius, MIN_STEP,
+                          ADAPTIVE_STABILITY_RADIUS, ck.ADAPTIVE_TOP)
+    return float(h), int(top)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -23,6 +23,7 @@ Arrays and scalars in, preallocated arrays out; shapes and dtypes float64 unless
 """
 
 import math
+import threading
 
 import numpy as np
 from numba import njit
@@ -248,6 +249,9 @@ ADAPTIVE_MAX_WAIT = 16
 # twice the step next (a fourth-order step's local error grows 32-fold when doubled).
 ADAPTIVE_GROWTH = 40.0
 LOCAL_FLOOR = 1e-6
+# No pairs once a level (cm) would come below this: the outflow's square root is not smooth
+# near an empty tank, and step doubling misjudges a step across it.
+ADAPTIVE_LOW_LEVEL = 1.0
 
 
 @njit(cache=True, fastmath=_FAST)
@@ -406,7 +410,7 @@ def _half_stage(x, nx_in, w_in, e0, e1, G, half, hh, c, pm0, pm1, s, d1, d2, h_o
 
 @njit(cache=True, fastmath=_FAST)
 def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2, v1, v2, h_op, Dc, Dn, pm0, pm1,
-                 scr, wst, r, acc, x_new, z_new, x_mid, du_mid, du_end):
+                 scr, wst, r, acc, x_new, z_new, x_mid, du_mid, du_end, full):
     """One ETDRK4 (Cox-Matthews) step of length ``h`` from plant state ``x`` and controller
     state ``z`` (modal states first, then dense), tables of the step's level from
     :func:`step_tables`.
@@ -422,7 +426,8 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     ``du_mid``) and the controller output at the end ``du_end``. Scratch: ``scr`` (10, 4) and
     ``wst`` (3, 4), ``r`` (N_ROWS,) and ``acc`` (2,); after the step ``scr[0]``, ``scr[8]``,
     ``scr[9]`` hold N_x at the start, P2x and P3x, and ``wst`` the measured signals w_n, P2w,
-    P3w, which :func:`_dense_at` reads.
+    P3w, which :func:`_dense_at` reads. With ``full`` False only ``x_new`` and ``z_new`` are
+    written (the double step of a step-doubling estimate).
     """
     nd = prop_m.shape[1]
     nz = z.size
@@ -490,6 +495,8 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
         for j in range(4):
             acc_i += h * (prop_qb[0, i, j] * w_n[j] + prop_qb[1, i, j] * p2w[j] + prop_qb[2, i, j] * p3w[j])
         z_new[nd + i] = acc_i
+    if not full:
+        return  # the state at the end is all a step-doubling estimate reads
     du_end[0] = r[_R_H0]
     du_end[1] = r[_R_H0 + 1]
     _gw(coup[_G_H1], w_n, h, du_end)
@@ -513,6 +520,28 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     _gw(coup[_G_C3], p3w, 0.25 * half, du_mid)
     _measure(x_mid, s, d1, d2, h_op, w)
     _gw(Dc, w, 1.0, du_mid)
+
+
+@njit(cache=True, fastmath=_FAST)
+def _pair_switches(x1, u1, xm1, um1, x2, u2, xm2, um2, xb, ub, u_op, sat, asat, held, saturate, clip, u_min, u_max,
+                   h_max, c, g, ua):
+    """Whether a switching function has changed sign at a node of an adaptive pair: the mid
+    and end points of its two steps and the end of the double step."""
+    for k in range(5):
+        if k == 0:
+            _event_values(x1, u1, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua)
+        elif k == 1:
+            _event_values(xm1, um1, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua)
+        elif k == 2:
+            _event_values(x2, u2, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua)
+        elif k == 3:
+            _event_values(xm2, um2, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua)
+        else:
+            _event_values(xb, ub, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua)
+        for j in range(N_EVENTS):
+            if g[j] > 0.0:
+                return True
+    return False
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")
@@ -958,6 +987,8 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
         local_tol = seg[sg, SEG_LOCAL_TOL]
         local_rel = seg[sg, SEG_LOCAL_REL]
         local_per = seg[sg, SEG_LOCAL_PER]
+        # cm per V s: the largest push of a pump voltage on a level
+        u_gain = s * max(max(c[6], c[7]), max(c[8], c[9]))
         adaptive = local_tol > 0.0
         top = int(seg[sg, SEG_TOP]) if adaptive else 0
         n_levels = top + N_STEP_LEVELS
@@ -974,7 +1005,9 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
         h_second = h_target
         stashed = False  # the second step of an accepted pair waits in x2, z2, ...
         replan = True
-        while t < t_end - 1e-12 * max(1.0, t_end):
+        # a span shorter than this (after a switch just before the segment's end) is not
+        # stepped: its graded steps would fall below the resolution of t
+        while t < t_end - 1e-9 * max(1.0, t_end):
             if replan:
                 n_span = max(1, int(math.ceil((t_end - t) / (h_target * 2.0 ** top) - 1e-9)))
                 h = (t_end - t) / n_span
@@ -1042,24 +1075,43 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
                             h1b = h1
                         _etdrk4_step(x, z, h1, rows[lv], coup[lv], prop_m[lv], prop_q[lv], prop_qb[lv], mi, c_e, s,
                                      d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x_new,
-                                     z_new, x_mid, u_mid, u_end)
+                                     z_new, x_mid, u_mid, u_end, True)
                         _copy_rows(scr, scr1)
                         _copy_rows(wst, wst1)
                         _etdrk4_step(x_new, z_new, h1b, rows[lv], coup[lv], prop_m[lv], prop_q[lv], prop_qb[lv], mi,
                                      c_e, s, d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x2,
-                                     z2, xm2, um2, ue2)
+                                     z2, xm2, um2, ue2, True)
                         _copy_rows(scr, scr2)
                         _copy_rows(wst, wst2)
                         lb = lv - 1
                         _etdrk4_step(x, z, h2, rows[lb], coup[lb], prop_m[lb], prop_q[lb], prop_qb[lb], mi, c_e, s,
                                      d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, xb, zb,
-                                     xmb, umb, ueb)
+                                     xmb, umb, ueb, switching)
+                        if min(min(x2[0], x2[1]), min(x2[2], x2[3])) * s < ADAPTIVE_LOW_LEVEL or min(
+                                min(xb[0], xb[1]), min(xb[2], xb[3])) * s < ADAPTIVE_LOW_LEVEL:
+                            break  # near an empty tank the outflow sqrt(h) is not smooth
+                        if switching and _pair_switches(x_new, u_end, x_mid, u_mid, x2, ue2, xm2, um2, xb, ueb, u_op,
+                                                        sat, asat, held, saturate, clip, u_min, u_max, h_max, c, ga,
+                                                        ue):
+                            break  # a switch inside the pair: the plain steps locate it
+                        # the levels' difference, and the controller states': each state's
+                        # push on a pump acts on the levels for as long as it lasts, 1/|lam|,
+                        # at most local_per seconds (an integrator's error stays until the loop
+                        # corrects it; a fast mode's is gone within its time constant)
                         est = 0.0
                         for i in range(4):
                             est = max(est, abs(x2[i] - xb[i]))
-                        est *= s / 15.0
-                        if local_per > 0.0:
-                            est *= local_per / h2
+                        est *= s
+                        for r_ in range(2):
+                            dv = 0.0
+                            for i in range(nd):
+                                lam_i = abs(lam_e[i])
+                                tau = local_per if lam_i * local_per <= 1.0 else 1.0 / lam_i
+                                dv += Cm[r_, i] * (z2[i] - zb[i]) * tau
+                            for i in range(nq):
+                                dv += Cq[r_, i] * (z2[nd + i] - zb[nd + i]) * local_per
+                            est = max(est, u_gain * abs(dv))
+                        est *= (local_per / h2) / 15.0
                         if est <= eps:
                             paired = True
                             break
@@ -1103,7 +1155,7 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
                         hs = t_end - t  # the last step ends on the segment's end exactly
                     _etdrk4_step(x, z, hs, rows[level], coup[level], prop_m[level], prop_q[level], prop_qb[level], mi,
                                  c_e, s, d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x_new,
-                                 z_new, x_mid, u_mid, u_end)
+                                 z_new, x_mid, u_mid, u_end, True)
             n_taken += 1
             if not (abs(x_new[0]) + abs(x_new[1]) + abs(x_new[2]) + abs(x_new[3]) < state_limit):
                 diverged = True
@@ -1141,7 +1193,7 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
                                 prop_m, prop_q, prop_qb, pmc, pmh, phw, sqw, rw, bw)
                     _etdrk4_step(x, z, hs, rows[0], coup[0], prop_m[0], prop_q[0], prop_qb[0], mi, c_e, s, d1, d2,
                                  v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x_new, z_new, x_mid,
-                                 u_mid, u_end)
+                                 u_mid, u_end, True)
                     n_events += 1
                 elif fired >= 0:
                     n_events += 1
@@ -1327,6 +1379,37 @@ def feedback_radius(A, B, D, lam, bm, mi, Cm, h):
     return np.max(np.abs(np.linalg.eigvals(M)))
 
 
+@njit(cache=True)
+def step_rule(A, B, D, lam, bm, mi, Cm, h_max, radius, min_step, stability_radius, top_max):
+    """The per-candidate step rule in one call: the step ``h`` (``h_max`` halved while
+    ``h rho(A + B D_h) > radius``, at least ``min_step``; ``min_step`` when an entry is not
+    finite) and the adaptive range ``top`` above it (the largest ``j`` in 1 .. top_max - 1 with
+    ``h 2^j rho(A + B D_(h 2^j)) <= stability_radius``, plus one; 0 if none). See
+    ``continuous.feedback_step`` and ``continuous.adaptive_top``.
+
+    Returns
+    -------
+    h : float
+    top : int
+    """
+    h = h_max
+    while h > min_step:
+        rho = feedback_radius(A, B, D, lam, bm, mi, Cm, h)
+        if not math.isfinite(rho):
+            return min_step, 0
+        if h * rho <= radius:
+            break
+        h *= 0.5
+    if h <= min_step:
+        return min_step, 0
+    for j in range(top_max - 1, 0, -1):
+        hj = h * 2.0 ** j
+        rho = feedback_radius(A, B, D, lam, bm, mi, Cm, hj)
+        if math.isfinite(rho) and hj * rho <= stability_radius:
+            return h, j + 1
+    return h, 0
+
+
 # Rows of the working arrays of continuous_lane (float64 unless stated): see its first lines.
 _W4_ROWS = 50
 _W2_ROWS = 30
@@ -1359,6 +1442,23 @@ def _workspace(nd, nq, lanes=None):
     """The working arrays of :func:`continuous_lane` (with a leading lane axis when ``lanes``)."""
     lead = () if lanes is None else (lanes,)
     return tuple(np.empty(lead + shape, dtype=dt) for shape, dt in workspace_shapes(nd, nq))
+
+
+_LOCAL = threading.local()
+
+
+def _thread_workspace(nd, nq):
+    """:func:`_workspace` for one lane, kept per thread and size (the lane initialises what it
+    reads, so a set serves run after run; threads never share one)."""
+    cache = getattr(_LOCAL, "work", None)
+    if cache is None:
+        cache = _LOCAL.work = {}
+    work = cache.get((nd, nq))
+    if work is None:
+        if len(cache) >= 16:
+            cache.clear()
+        work = cache[(nd, nq)] = _workspace(nd, nq)
+    return work
 
 
 def simulate_continuous(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel, seg, band_pct,
@@ -1400,7 +1500,7 @@ def simulate_continuous(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, B
 
     The step is :func:`continuous_lane`'s, with working arrays allocated here.
     """
-    work = _workspace(lam.size, Aq.shape[0])
+    work = _thread_workspace(lam.size, Aq.shape[0])
     status, n_taken = continuous_lane(
         P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel, seg, seg.shape[0], band_pct,
         metrics, out_dt, y_rec, u_rec, h_rec, y_rec.shape[0], work)

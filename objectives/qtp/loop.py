@@ -432,8 +432,7 @@ class ClosedLoop:
             if cc is None:
                 cc = _continuous.ContinuousController.from_linear(ctrl)
             B = self.B / scenario.uncertainty
-            h = _continuous.feedback_step(self.A, B, cc, h_max, float(scenario.tolerance))
-            top = _continuous.adaptive_top(self.A, B, cc, h)
+            h, top = _continuous.feedback_step_and_top(self.A, B, cc, h_max, float(scenario.tolerance))
             if h >= h_max:
                 h = None
         # Plans are read-only for the kernels; a scenario has one per step of the ladder h_max 2^-k

@@ -202,6 +202,64 @@ def test_feedback_step_keeps_the_step_of_ordinary_candidates_and_halves_it_for_a
     assert cont.feedback_step(loop.A, loop.B, cc, 0.125, 16 * TOL) >= h
 
 
+def _steps_taken(loop, ctrl, sc):
+    """Steps the continuous kernel takes (accepted ones) for ``ctrl`` under ``sc``."""
+    cc = cont.ContinuousController.from_linear(ctrl)
+    plan = loop.step_plan(ctrl, sc, cc)
+    empty2, empty4 = np.empty((0, 2)), np.empty((0, 4))
+    _, n = ck.simulate_continuous(loop._scenario_table(sc), loop._level_per_state, loop._state_op(), loop.op.h,
+                                  cc.lam, cc.b, cc.col, cc.Cm, cc.Aq, cc.Bq, cc.Cq, cc.D, cc.channel, plan.table, 3.0,
+                                  np.empty(len(METRIC_NAMES)), 0.01, empty2, empty2, empty4)
+    return plan, n
+
+
+def test_adaptive_pairs_lengthen_the_steps_where_the_loop_is_quiet(folqi_references):
+    """Under ``tolerance`` FOLQI takes pairs of steps above the rule's step where step doubling
+    finds them within the local tolerance: the thesis gains settle after the disturbance and
+    take 494 steps instead of 2,804, with the levels as close to Radau as at the rule's step
+    (measured 4.8e-5 cm both). An explicit ``step`` keeps every step at it."""
+    t, y_ref, _ = folqi_references["min"]
+    loop = ClosedLoop(preset("min"), "folqi")
+    thesis = loop.controller(THESIS_MIN)
+    sc = Scenario(tolerance=TOL, output_dt=0.05)
+    plan, n = _steps_taken(loop, thesis, sc)
+    assert plan.top == ck.ADAPTIVE_TOP and plan.local_tol == pytest.approx(cont.ADAPTIVE_LOCAL_FRACTION * TOL)
+    assert n < plan.n_steps / 4
+    fixed = Scenario(step=float(plan.h.max()), output_dt=0.05)
+    plan_fixed, n_fixed = _steps_taken(loop, thesis, fixed)
+    assert plan_fixed.top == 0 and plan_fixed.local_tol == 0.0 and n_fixed == plan_fixed.n_steps == plan.n_steps
+    err_adaptive = np.abs(loop.run(thesis, sc).y - y_ref).max()
+    err_fixed = np.abs(loop.run(thesis, fixed).y - y_ref).max()
+    assert err_adaptive <= max(2.0 * err_fixed, 1e-4)
+
+
+def test_adaptive_range_keeps_the_explicit_part_stable():
+    """Pairs go up to ``h 2^(top - 1)``, the largest of ``2h, 4h, 8h`` at which the plant under
+    the effective static feedback keeps ``step rho <= ADAPTIVE_STABILITY_RADIUS``: 8h (1 s)
+    for the thesis gains, 2h for the weakly damped candidate (rho 3.6 1/s at 0.5 s) and for the
+    corner whose step the rule halved (2h = 0.125 s); the weakly damped candidate still takes
+    most steps at the rule's step, which its oscillation needs (at least half of the plan)."""
+    loop = ClosedLoop(preset("min"), "folqi")
+    sc = Scenario(tolerance=TOL)
+    corner = dict(Q11=2.5, Q22=2.5, Q33=2.5, Q44=2.5, R11=0.1, R22=0.1, Ki1=10.0, Ki2=10.0, alpha1=0.1, alpha2=0.1)
+    tops = {}
+    for name, gains in (("thesis", THESIS_MIN), ("weak", WEAK), ("corner", corner)):
+        ctrl = loop.controller(gains)
+        cc = cont.ContinuousController.from_linear(ctrl)
+        plan = loop.step_plan(ctrl, sc, cc)
+        h, top = float(plan.h.max()), plan.top
+        tops[name] = top
+        if top:
+            hj = h * 2.0 ** (top - 1)
+            assert hj * ck.feedback_radius(loop.A, loop.B, cc.D, cc.lam, cc.b, cc.col, cc.Cm, hj) <= 1.5
+        if top < ck.ADAPTIVE_TOP:
+            hj = h * 2.0 ** max(top, 1)
+            assert hj * ck.feedback_radius(loop.A, loop.B, cc.D, cc.lam, cc.b, cc.col, cc.Cm, hj) > 1.5
+        if name == "weak":
+            assert _steps_taken(loop, ctrl, sc)[1] > plan.n_steps / 2
+    assert tops == {"thesis": ck.ADAPTIVE_TOP, "weak": 2, "corner": 2}
+
+
 def test_sampled_loop_is_first_order_and_far_less_accurate(folqi_references):
     """Why the continuous loop: the sampled loop's error at the default dt is 5x the
     continuous loop's tolerance, at 30x the steps."""
