@@ -545,6 +545,23 @@ def _pair_switches(x1, u1, xm1, um1, x2, u2, xm2, um2, xb, ub, u_op, sat, asat, 
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")
+def _band_side(x, s, d1, d2, h_op, band, w):
+    """Which errors lie outside their settling band at plant state ``x``: bit i for |e_i| > band_i."""
+    _measure(x, s, d1, d2, h_op, w)
+    return (1 if abs(w[0]) > band[0] else 0) + (2 if abs(w[1]) > band[1] else 0)
+
+
+@njit(cache=True, fastmath=_FAST)
+def _pair_crosses_band(x0, xm1, x1, xm2, x2, xb, s, d1, d2, h_op, band, w):
+    """Whether an error crosses its settling band between the nodes of an adaptive pair (its
+    start, the mid and end points of its two steps, the end of the double step)."""
+    side = _band_side(x0, s, d1, d2, h_op, band, w)
+    return (_band_side(xm1, s, d1, d2, h_op, band, w) != side or _band_side(x1, s, d1, d2, h_op, band, w) != side
+            or _band_side(xm2, s, d1, d2, h_op, band, w) != side or _band_side(x2, s, d1, d2, h_op, band, w) != side
+            or _band_side(xb, s, d1, d2, h_op, band, w) != side)
+
+
+@njit(cache=True, fastmath=_FAST, inline="always")
 def _copy_rows(src, dst):
     """``dst[:] = src`` for (n, 4) working rows."""
     for r in range(src.shape[0]):
@@ -1090,6 +1107,8 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
                         if min(min(x2[0], x2[1]), min(x2[2], x2[3])) * s < ADAPTIVE_LOW_LEVEL or min(
                                 min(xb[0], xb[1]), min(xb[2], xb[3])) * s < ADAPTIVE_LOW_LEVEL:
                             break  # near an empty tank the outflow sqrt(h) is not smooth
+                        if post and _pair_crosses_band(x, x_mid, x_new, xm2, x2, xb, s, d1, d2, h_op, band, w):
+                            break  # an error crossing its settling band: plain steps locate ts there
                         if switching and _pair_switches(x_new, u_end, x_mid, u_mid, x2, ue2, xm2, um2, xb, ueb, u_op,
                                                         sat, asat, held, saturate, clip, u_min, u_max, h_max, c, ga,
                                                         ue):
