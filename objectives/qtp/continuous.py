@@ -92,14 +92,29 @@ class ContinuousController:
 
     @classmethod
     def from_linear(cls, ctrl) -> ContinuousController:
-        """Modal form of a :class:`LinearController` (:meth:`LinearController.modal_blocks`)."""
+        """Modal form of a :class:`LinearController` (:meth:`LinearController.modal_blocks`),
+        built once per controller (kept on it: a controller is immutable, and each scenario
+        it runs under reads the same form)."""
+        cached = ctrl.__dict__.get("_continuous_form")
+        if cached is not None:
+            return cached
+        form = cls._build(ctrl)
+        object.__setattr__(ctrl, "_continuous_form", form)
+        return form
+
+    @classmethod
+    def _build(cls, ctrl) -> ContinuousController:
         lam, b, col, Cm, dense, ch_m, ch_q = [], [], [], [], [], [], []
+
+        def real(x):
+            return x if x.dtype.kind == "f" else np.real(x)
+
         for part in ctrl.modal_blocks():
             if part[0] == "modal":
                 _, l_, b_, C_, c_, ch = part
-                lam.append(np.real(l_))
-                b.append(np.real(b_))
-                Cm.append(np.real(C_))
+                lam.append(real(l_))
+                b.append(real(b_))
+                Cm.append(real(C_))
                 col.append(np.full(len(l_), c_, dtype=np.int64))
                 ch_m.append(np.full(len(l_), ch, dtype=np.int64))
             else:
@@ -295,7 +310,12 @@ def feedback_step_and_top(A: np.ndarray, B: np.ndarray, cc: ContinuousController
 
 @dataclasses.dataclass(frozen=True)
 class StepPlan:
-    """The segments of a continuous simulation (arrays as ``simulate_continuous`` takes them)."""
+    """The segments of a continuous simulation (arrays as ``simulate_continuous`` takes them).
+
+    ``local_tol`` > 0 lets the kernel take adaptive pairs of steps up to ``2^(top - 1)`` times
+    ``h`` (tolerance of a pair: ``local_tol``, or ``local_rel`` times the largest measured
+    deviation where smaller, per ``local_per`` seconds of step); 0 keeps every step at ``h``.
+    ``n_steps`` counts the steps at ``h``, an upper bound of what the pairs take."""
 
     t0: np.ndarray
     h: np.ndarray
@@ -324,8 +344,8 @@ class StepPlan:
         seg[:, ck.SEG_T0], seg[:, ck.SEG_H], seg[:, ck.SEG_STEPS] = self.t0, self.h, self.steps
         seg[:, ck.SEG_GRADED], seg[:, ck.SEG_POST] = self.graded, self.post
         seg[:, ck.SEG_DIST:ck.SEG_DIST + 2], seg[:, ck.SEG_UIN:ck.SEG_UIN + 2] = self.dist, self.uin
-        seg[:, ck.SEG_LOCAL_TOL], seg[:, ck.SEG_TOP], seg[:, ck.SEG_LOCAL_REL] = self.local_tol, self.top, self.local_rel
-        seg[:, ck.SEG_LOCAL_PER] = self.local_per
+        seg[:, ck.SEG_LOCAL_TOL], seg[:, ck.SEG_TOP] = self.local_tol, self.top
+        seg[:, ck.SEG_LOCAL_REL], seg[:, ck.SEG_LOCAL_PER] = self.local_rel, self.local_per
         return seg
 
 

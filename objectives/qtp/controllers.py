@@ -23,6 +23,7 @@ sign.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import typing
 
 import numpy as np
@@ -89,6 +90,10 @@ class LinearController:
     minimal : bool
         False when the realisation may hold uncontrollable or unobservable modes (LADR): the
         stability check then works on a minimal realisation.
+    modal : tuple or None
+        What :meth:`modal_blocks` returns, when the design knows it already (FOLQI builds its
+        fractional integrators in partial fractions): the same arrays, without deriving them
+        from ``A``, ``B``, ``C`` again. None: derived.
     """
 
     A: np.ndarray
@@ -98,6 +103,7 @@ class LinearController:
     blocks: tuple
     block_channel: tuple
     minimal: bool = True
+    modal: tuple | None = dataclasses.field(default=None, compare=False, repr=False)
 
     @property
     def n_states(self) -> int:
@@ -119,6 +125,8 @@ class LinearController:
             ``C`` (2, m) the block's output matrix in modal coordinates, or
             ``("dense", A, B, C, channel)`` with the block's own matrices.
         """
+        if self.modal is not None:
+            return list(self.modal)
         parts = []
         for (start, stop), ch in zip(self.blocks, self.block_channel):
             A = self.A[start:stop, start:stop]
@@ -357,6 +365,18 @@ def _error_of_pump(pairing: str, pump: int) -> int:
     return pump if pairing == "diagonal" else 1 - pump
 
 
+@functools.lru_cache(maxsize=4096)
+def _integrator_modal(alpha: float, order: int, band: tuple, realisation: str):
+    """``fractional_integrator(alpha, order, band, realisation).modal()``, kept for repeated
+    orders (optimisers revisit the bounds of alpha, and a finite-difference gradient moves one
+    variable at a time); the arrays are read-only."""
+    modal = fractional_integrator(alpha, order, band, realisation).modal()
+    if modal is not None:
+        for arr in modal[:2]:
+            arr.flags.writeable = False
+    return modal
+
+
 def folqi_design(values: dict, A, B, alphas, order, band, realisation, pairing="diagonal") -> LinearController:
     """FOLQI (IOLQI with ``alphas = (1, 1)``) of thesis eq. 3.9: ``du = -K dx + diag(Ki_r / s^alpha_r) e``
     with ``K`` from the Riccati equation of the weights and each pump integrating the error
@@ -390,11 +410,12 @@ def folqi_design(values: dict, A, B, alphas, order, band, realisation, pairing="
     K = lqr_gain(A, B, Q, R)
     ki = (values["Ki1"], values["Ki2"])
     parts = []
+    modal_parts = []
     for a in alphas:
-        fi = fractional_integrator(a, order, band, realisation)
-        modal = fi.modal()
+        modal = _integrator_modal(float(a), order, tuple(band), realisation)
+        modal_parts.append(modal)
         if modal is None:
-            parts.append(fi.state_space())
+            parts.append(fractional_integrator(a, order, band, realisation).state_space())
         else:  # diagonal form: the discretisation needs no eigen-decomposition
             poles, residues, d = modal
             parts.append((np.diag(poles), np.ones(poles.size), residues, d))
@@ -414,7 +435,14 @@ def folqi_design(values: dict, A, B, alphas, order, band, realisation, pairing="
         Dc[ch, err] -= ki[ch] * df
         blocks.append((start, stop))
         start = stop
-    return LinearController(Ac, Bc, Cc, Dc, tuple(blocks), (0, 1))
+    # Partial fractions are the modal form already: each block is diagonal and reads one error
+    # (what modal_blocks would derive from the matrices, taken from them as it would).
+    modal = None
+    if all(m is not None for m in modal_parts):
+        modal = tuple(("modal", poles, Bc[start:stop, _error_of_pump(pairing, ch)], Cc[:, start:stop],
+                       _error_of_pump(pairing, ch), ch)
+                      for ch, ((start, stop), (poles, _, _)) in enumerate(zip(blocks, modal_parts)))
+    return LinearController(Ac, Bc, Cc, Dc, tuple(blocks), (0, 1), modal=modal)
 
 
 def ladr_design(values: dict, pairing: str = "diagonal") -> LinearController:

@@ -292,7 +292,8 @@ class SimulationResult:
     ``diverged`` flag, the operating point used and, when recorded, the sampled response ``y``
     (n+1, 2) measured levels, ``u`` (n+1, 2) voltages and ``h`` (n+1, 4) true levels (cm, for
     either plant model). ``P`` (n+1, 4) holds the tank pressures in dyn/cm^2 when the plant
-    model is ``"qtp_bond_graph"`` and the levels were recorded; None otherwise."""
+    model is ``"qtp_bond_graph"`` and the levels were recorded; None otherwise. ``steps`` is
+    the number of steps the kernel kept (continuous loop) or its samples (sampled loop)."""
 
     t: np.ndarray | None
     y: np.ndarray | None
@@ -303,6 +304,7 @@ class SimulationResult:
     u_op: np.ndarray
     metrics: np.ndarray
     P: np.ndarray | None = None
+    steps: int | None = None
 
     def to_frame(self) -> pd.DataFrame:
         """Columns t, h1..h4 (if recorded), P1..P4 (bond-graph model), y1, y2, u1, u2."""
@@ -561,7 +563,7 @@ class ClosedLoop:
             P, h = h, h * self._level_per_state  # the kernel records its state, the pressures
         return SimulationResult(t, y if record else None, u if record else None,
                                 h if record_levels else None, status != _kernels.STATUS_OK,
-                                self.op.h.copy(), u_op.copy(), metrics, P)
+                                self.op.h.copy(), u_op.copy(), metrics, P, n)
 
     def _run_continuous(self, ctrl, scenario: Scenario, settling_band: float, record: bool,
                         record_levels: bool) -> SimulationResult:
@@ -579,7 +581,7 @@ class ClosedLoop:
         y, u, h = np.empty((rows, 2)), np.empty((rows, 2)), np.empty((rows, 4))
         metrics = np.empty(_kernels.N_METRICS)
         pressure = self.plant_model == "qtp_bond_graph"
-        status, _ = _continuous_kernels.simulate_continuous(
+        status, steps = _continuous_kernels.simulate_continuous(
             table, self._level_per_state, self._state_op(), self.op.h, cc.lam, cc.b, cc.col,
             cc.Cm, cc.Aq, cc.Bq, cc.Cq, cc.D, cc.channel, plan.table, float(settling_band), metrics,
             float(scenario.output_dt), y, u, h)
@@ -587,7 +589,7 @@ class ClosedLoop:
         if record_levels and pressure:
             P, h = h, h * self._level_per_state
         return SimulationResult(t, y if record else None, u if record else None, h if record_levels else None,
-                                status != _kernels.STATUS_OK, self.op.h.copy(), u_op.copy(), metrics, P)
+                                status != _kernels.STATUS_OK, self.op.h.copy(), u_op.copy(), metrics, P, steps)
 
     def _scenario_table(self, scenario: Scenario) -> np.ndarray:
         """The scenario's parameter table of the loop kernels (:func:`scenario_table`): plant

@@ -260,6 +260,26 @@ def test_adaptive_range_keeps_the_explicit_part_stable():
     assert tops == {"thesis": ck.ADAPTIVE_TOP, "weak": 2, "corner": 2}
 
 
+def test_adaptive_pairs_keep_ts_within_its_target_where_the_error_leaves_its_band():
+    """No pair is taken across a settling-band crossing, so ts is located between the rule's
+    steps. The worst of 600 random LQI candidates on nmp (``benchmarks/step_rule.py``): ts within
+    5e-3 s of the loop at 0.02 s (measured 4.5e-3 s; the worst of the same 600 was 1.7e-2 s
+    before pairs stopped at a crossing), its levels within the tolerance."""
+    import heurtune
+
+    prob = heurtune.load_experiment("cs_lqi_qtp").problem("nmp")
+    loop, sc = prob.loop, prob.scenario(prob.tuning_scenario)
+    x = np.array([2.5, 2.08249, 1.603759, 2.5, 0.0001, 5.095053, 2.071011, 5.0])
+    ctrl, reason, _ = prob._design(x)
+    assert reason == ""
+    fine = loop.run(ctrl, dataclasses_replace(sc, tolerance=None, step=0.02, output_dt=0.01))
+    sim = loop.run(ctrl, dataclasses_replace(sc, output_dt=0.01))
+    assert sim.steps < loop.step_plan(ctrl, sc).n_steps / 2  # pairs were taken
+    ts = [IDX["ts1"], IDX["ts2"]]
+    assert np.abs(sim.metrics[ts] - fine.metrics[ts]).max() <= 5e-3
+    assert np.abs(sim.h - fine.h).max() <= TOL
+
+
 def test_sampled_loop_is_first_order_and_far_less_accurate(folqi_references):
     """Why the continuous loop: the sampled loop's error at the default dt is 5x the
     continuous loop's tolerance, at 30x the steps."""

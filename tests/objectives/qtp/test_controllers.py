@@ -117,3 +117,33 @@ def test_decision_names_and_bounds():
     b = default_bounds("folqi")
     assert b["Q11"] == (0.01, 2.5) and b["R22"] == (0.1, 5.0) and b["Ki1"] == (0.1, 10.0) and b["alpha2"] == (0.1, 2.0)
     assert default_bounds("ladr")["beta11"] == (0.0, 150.0)
+
+
+@pytest.mark.parametrize("alphas, realisation, pairing", [
+    ((0.9814, 0.8437), "direct", "diagonal"),
+    ((1.5, 0.1), "direct", "anti-diagonal"),  # an exact integrator with the filter; the other pairing
+    ((1.0, 1.0), "direct", "diagonal"),        # exact integrators alone
+    ((1.5, 0.4), "integer_split", "diagonal"),  # a double integrator: no modal form given
+])
+def test_folqi_modal_form_is_what_the_matrices_give(alphas, realisation, pairing):
+    """FOLQI hands its partial fractions to the simulation as the modal form; they are exactly
+    what ``modal_blocks`` derives from (A, B, C), array for array, and the repeated filter of an
+    alpha comes from the cache unchanged."""
+    import dataclasses
+
+    A, B, _ = linearise(preset("min"))
+    values = dict(THESIS_CS_FOLQI_MIN, alpha1=alphas[0], alpha2=alphas[1])
+    ctrl = build_controller("folqi", values, A, B, realisation=realisation, pairing=pairing)
+    derived = dataclasses.replace(ctrl, modal=None).modal_blocks()
+    if realisation == "integer_split":
+        assert ctrl.modal is None
+        return
+    given = ctrl.modal_blocks()
+    assert len(given) == len(derived) == 2
+    for g, d in zip(given, derived):
+        assert g[0] == d[0] == "modal" and g[4:] == d[4:]
+        for a, b in zip(g[1:4], d[1:4]):
+            np.testing.assert_array_equal(a, b)
+    again = build_controller("folqi", values, A, B, realisation=realisation, pairing=pairing)
+    for name in ("A", "B", "C", "D"):
+        np.testing.assert_array_equal(getattr(again, name), getattr(ctrl, name))
