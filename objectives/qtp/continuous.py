@@ -315,7 +315,7 @@ class StepPlan:
     ``local_tol`` > 0 lets the kernel take adaptive pairs of steps up to ``2^(top - 1)`` times
     ``h`` (tolerance of a pair: ``local_tol``, or ``local_rel`` times the largest measured
     deviation where smaller, per ``local_per`` seconds of step); 0 keeps every step at ``h``.
-    ``n_steps`` counts the steps at ``h``, an upper bound of what the pairs take."""
+    ``n_steps`` counts the steps of the plan at ``h``, without pairs (or switches)."""
 
     t0: np.ndarray
     h: np.ndarray

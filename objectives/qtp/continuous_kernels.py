@@ -237,14 +237,13 @@ _G_C1, _G_C2, _G_C3, _G_C4, _G_C11, _G_H1, _G_H2, _G_H3, _G_H4 = range(9)
 N_COUPLINGS = 9
 # Step levels: a step of level l is h 2^-l, l = 0..4 (its half step is level l + 1).
 N_STEP_LEVELS = N_LEVELS - 1
-# Adaptive steps (a plan with a local tolerance, SEG_LOCAL_TOL > 0): the ladder's top is the
-# rule's step times 2^SEG_TOP (at most ADAPTIVE_TOP levels up), and it reaches ADAPTIVE_BELOW
-# levels below the graded steps' finest (h / 16).
+# Adaptive steps (a plan with a local tolerance, SEG_LOCAL_TOL > 0): the span's ladder of steps
+# starts SEG_TOP levels (at most ADAPTIVE_TOP) above the rule's step; pairs use the levels above
+# it, the rule's step and the graded steps (down to h / 16) the levels from it down.
 ADAPTIVE_TOP = 4
 MAX_STEP_LEVELS = ADAPTIVE_TOP + N_STEP_LEVELS
-# Plain steps at the rule's step after a pair above it failed, doubling per failure to the most.
+# Plain steps at the rule's step after no pair above it was kept, before the next try.
 ADAPTIVE_WAIT = 16
-ADAPTIVE_MAX_WAIT = 16
 # A pair of steps whose estimated error is below the local tolerance / ADAPTIVE_GROWTH takes
 # twice the step next (a fourth-order step's local error grows 32-fold when doubled).
 ADAPTIVE_GROWTH = 40.0
@@ -867,7 +866,9 @@ N_SEG = 13
 def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel, seg, n_seg,
                     band_pct, metrics, out_dt, y_rec, u_rec, h_rec, n_rec, work):
     """The continuous-time closed loop of one lane (one controller under one scenario), by
-    ETDRK4 on a planned grid, with its metrics: the step that every driver runs.
+    ETDRK4 on a planned grid, with its metrics: the step that every driver runs. Where the plan
+    has a local tolerance (``SEG_LOCAL_TOL``), pairs of longer steps are taken where step
+    doubling finds them within it (docs/model.md, "Adaptive steps").
 
     :func:`simulate_continuous` (one candidate), :func:`simulate_continuous_lanes` (many, on the
     CPU) and the CUDA kernel of :mod:`heurtune.objectives.qtp.gpu` (one thread a lane, this
@@ -1018,7 +1019,6 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
         lv_want = top - 1
         lv_pair = top
         wait = 0
-        backoff = ADAPTIVE_WAIT
         h_second = h_target
         stashed = False  # the second step of an accepted pair waits in x2, z2, ...
         replan = True
@@ -1033,7 +1033,6 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
                 gi = 0
                 lv_want = top - 1
                 wait = 0
-                backoff = ADAPTIVE_WAIT
                 stashed = False
                 if lazy:
                     for lv in range(n_levels):
@@ -1070,9 +1069,9 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
                     while lv < top and (pos % (2 << (fine - lv)) != 0 or pos + (2 << (fine - lv)) > units):
                         lv += 1
                     lv0 = lv
-                    # the tolerance: local_tol, or local_rel times the largest measured deviation
-                    # where that is smaller (an error then settles with the loop), not below
-                    # LOCAL_FLOOR local_tol; per unit step (over local_per seconds)
+                    # the pair's tolerance: local_tol, or local_rel times the largest measured
+                    # deviation where that is smaller (an error then settles with the loop), not
+                    # below LOCAL_FLOOR local_tol; the estimate counts per local_per seconds of step
                     _measure(x, s, d1, d2, h_op, w)
                     amp = max(max(abs(w[0]), abs(w[1])), max(abs(w[2]), abs(w[3])))
                     eps = max(min(local_tol, local_rel * amp), LOCAL_FLOOR * local_tol)
@@ -1139,7 +1138,6 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
                         pass  # no pair aligned with the position: a plain step first
                     elif paired:
                         lv_want = lv - 1 if est * ADAPTIVE_GROWTH <= eps else lv
-                        backoff = ADAPTIVE_WAIT
                         _copy_rows(scr1, scr)
                         _copy_rows(wst1, wst)
                         level = lv
@@ -1150,8 +1148,7 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
                         stashed = True
                     else:
                         # no pair above the rule's step: plain steps for a while, then try again
-                        wait = backoff
-                        backoff = min(2 * backoff, ADAPTIVE_MAX_WAIT)
+                        wait = ADAPTIVE_WAIT
                         lv_want = top - 1
                 if not paired:
                     if graded and gi < 5:

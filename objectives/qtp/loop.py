@@ -418,7 +418,10 @@ class ClosedLoop:
           (:func:`~heurtune.objectives.qtp.continuous.explicit_step`);
         - one that declares ``feedback_step`` gets its step halved while the plant under its
           effective static feedback is too fast for it
-          (:func:`~heurtune.objectives.qtp.continuous.feedback_step`, on the scenario's plant).
+          (:func:`~heurtune.objectives.qtp.continuous.feedback_step`, on the scenario's plant),
+          and adaptive pairs of longer steps as far as that plant stays stable under them
+          (:func:`~heurtune.objectives.qtp.continuous.adaptive_top`; docs/model.md, "Adaptive
+          steps").
 
         ``cc``: the controller's :class:`~heurtune.objectives.qtp.continuous.ContinuousController`
         when the caller has it."""

@@ -249,6 +249,7 @@ def test_adaptive_range_keeps_the_explicit_part_stable():
         plan = loop.step_plan(ctrl, sc, cc)
         h, top = float(plan.h.max()), plan.top
         tops[name] = top
+        assert cont.adaptive_top(loop.A, loop.B, cc, h) == top
         if top:
             hj = h * 2.0 ** (top - 1)
             assert hj * ck.feedback_radius(loop.A, loop.B, cc.D, cc.lam, cc.b, cc.col, cc.Cm, hj) <= 1.5
