@@ -425,6 +425,9 @@ def folqi_design(values: dict, A, B, alphas, order, band, realisation, pairing="
     Cc = np.zeros((N_INPUTS, nz))
     Dc = -K.copy()
     blocks = []
+    # Partial fractions are the modal form already: each block is diagonal and reads one error
+    # (what modal_blocks would derive from the matrices, taken from them as it would).
+    modal = []
     start = 0
     for ch, (Af, bf, cf, df) in enumerate(parts):
         stop = start + Af.shape[0]
@@ -434,14 +437,10 @@ def folqi_design(values: dict, A, B, alphas, order, band, realisation, pairing="
         Cc[ch, start:stop] = ki[ch] * cf
         Dc[ch, err] -= ki[ch] * df
         blocks.append((start, stop))
+        if modal_parts[ch] is not None:
+            modal.append(("modal", modal_parts[ch][0], Bc[start:stop, err], Cc[:, start:stop], err, ch))
         start = stop
-    # Partial fractions are the modal form already: each block is diagonal and reads one error
-    # (what modal_blocks would derive from the matrices, taken from them as it would).
-    modal = None
-    if all(m is not None for m in modal_parts):
-        modal = tuple(("modal", poles, Bc[start:stop, _error_of_pump(pairing, ch)], Cc[:, start:stop],
-                       _error_of_pump(pairing, ch), ch)
-                      for ch, ((start, stop), (poles, _, _)) in enumerate(zip(blocks, modal_parts)))
+    modal = tuple(modal) if len(modal) == len(parts) else None
     return LinearController(Ac, Bc, Cc, Dc, tuple(blocks), (0, 1), modal=modal)
 
 
