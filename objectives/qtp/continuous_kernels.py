@@ -521,26 +521,26 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     _gw(Dc, w, 1.0, du_mid)
 
 
+@njit(cache=True, fastmath=_FAST, inline="always")
+def _switched(x, du, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua):
+    """Whether a switching function (:func:`_event_values`) says an event has happened at a point."""
+    _event_values(x, du, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua)
+    for j in range(N_EVENTS):
+        if g[j] > 0.0:
+            return True
+    return False
+
+
 @njit(cache=True, fastmath=_FAST)
 def _pair_switches(x1, u1, xm1, um1, x2, u2, xm2, um2, xb, ub, u_op, sat, asat, held, saturate, clip, u_min, u_max,
                    h_max, c, g, ua):
     """Whether a switching function has changed sign at a node of an adaptive pair: the mid
     and end points of its two steps and the end of the double step."""
-    for k in range(5):
-        if k == 0:
-            _event_values(x1, u1, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua)
-        elif k == 1:
-            _event_values(xm1, um1, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua)
-        elif k == 2:
-            _event_values(x2, u2, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua)
-        elif k == 3:
-            _event_values(xm2, um2, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua)
-        else:
-            _event_values(xb, ub, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua)
-        for j in range(N_EVENTS):
-            if g[j] > 0.0:
-                return True
-    return False
+    return (_switched(x1, u1, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua)
+            or _switched(xm1, um1, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua)
+            or _switched(x2, u2, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua)
+            or _switched(xm2, um2, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua)
+            or _switched(xb, ub, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua))
 
 
 @njit(cache=True, fastmath=_FAST, inline="always")
