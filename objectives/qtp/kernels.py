@@ -243,7 +243,7 @@ def _output_state_init(st):
     st[4] = -1.0  # no sample outside the band yet
 
 
-@njit(cache=True, fastmath=_FAST)
+@njit(cache=True, fastmath=_FAST, inline="always")
 def _fold_output(a, k0, cnt, i_dist, band, st):
     """Fold deviations ``a[:cnt]`` of samples ``k0 .. k0 + cnt - 1`` into the state ``st``."""
     s = 0.0
@@ -285,7 +285,7 @@ def _fold_output(a, k0, cnt, i_dist, band, st):
     st[11] = a[cnt - 1]
 
 
-@njit(cache=True, fastmath=_FAST)
+@njit(cache=True, fastmath=_FAST, inline="always")
 def _fold_input(u, k0, cnt, u_op, st):
     """Fold voltages ``u[:cnt]`` of samples ``k0 ..`` into the state ``st``."""
     if cnt == 0:
@@ -398,7 +398,7 @@ def loop_metrics(y, u, y_op, u_op, dt, i_dist, band_pct, out, h=None):
     _loop_metrics(y, u, h, y_op, u_op, dt, i_dist, band_pct, out)
 
 
-@njit(cache=True, fastmath=_FAST)
+@njit(cache=True, fastmath=_FAST, inline="always")
 def _loop_metrics(y, u, h, y_op, u_op, dt, i_dist, band_pct, out):
     """Kernel of :func:`loop_metrics` (``h`` of shape (n + 1, 4) or (0, 4))."""
     n = y.shape[0] - 1
