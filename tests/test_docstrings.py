@@ -83,7 +83,6 @@ MODULES = [
     "heurtune.core.errors",
     "heurtune.core.execution",
     "heurtune.core.lockstep",
-    "heurtune.objectives.qtp.batch_kernels",
     "heurtune.objectives.qtp.family",
     "heurtune.objectives.qtp.kernels",
     "heurtune.objectives.qtp.structures.ladr",

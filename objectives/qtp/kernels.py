@@ -9,7 +9,7 @@ import math
 import numpy as np
 from numba import njit
 
-# Status codes returned by simulate_loop.
+# Status codes returned by sampled_lane (simulate_loop).
 STATUS_OK = 0
 STATUS_DIVERGED = 1
 
@@ -442,10 +442,55 @@ def _modal_sum(z, ad, bd, lo, hi, w):
     return total
 
 
-@njit(cache=True, fastmath=_FAST)
+def loop_workspace(nd: int, nq: int) -> tuple:
+    """The working arrays of :func:`sampled_lane` for ``nd`` modal and ``nq`` dense controller
+    states: controller state (nd + nq), next dense state (nq), measured deviations (4), the
+    metric block (4, METRIC_BLOCK), the output and input fold states (2, OUT_STATE) and
+    (2, IN_STATE), and whether each pump's states are held (2, bool). The lane sets them up
+    itself; one workspace serves any number of lanes one after another.
+
+    Parameters
+    ----------
+    nd, nq : int
+
+    Returns
+    -------
+    tuple of ndarray
+    """
+    return (np.zeros(nd + nq), np.zeros(nq), np.zeros(4), np.empty((4, METRIC_BLOCK)), np.empty((2, OUT_STATE)),
+            np.zeros((2, IN_STATE)), np.zeros(2, dtype=np.bool_))
+
+
 def simulate_loop(P, level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel, segments,
                   dt, n_steps, noise, band_pct, metrics, y_rec, u_rec, h_rec, substeps=1):
+    """:func:`sampled_lane` of one candidate under one scenario, with working arrays of its own.
+
+    Parameters
+    ----------
+    P, level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel, segments, dt, n_steps, \
+noise, band_pct, metrics, y_rec, u_rec, h_rec, substeps
+        As :func:`sampled_lane` takes them.
+
+    Returns
+    -------
+    status, last : int
+        As :func:`sampled_lane` returns them.
+    """
+    return sampled_lane(P, level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel,
+                        segments, dt, n_steps, noise, band_pct, metrics, y_rec, u_rec, h_rec, substeps,
+                        loop_workspace(ad.shape[0], Ad.shape[0]))
+
+
+@njit(cache=True, fastmath=_FAST)
+def sampled_lane(P, level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel, segments,
+                 dt, n_steps, noise, band_pct, metrics, y_rec, u_rec, h_rec, substeps, work):
     """Fixed-step closed loop: sampled linear controller, RK4 nonlinear plant, metrics.
+
+    The per-lane loop of every driver of the sampled loop: the one-candidate path
+    (:func:`simulate_loop`), the scenarios of one controller (:func:`simulate_scenarios`), the
+    lanes of ``--device cpu-batch`` (:func:`simulate_lanes`) and, compiled from the same source
+    as a CUDA device function, the GPU kernel (``heurtune.objectives.qtp.gpu``). It allocates
+    nothing: its working arrays come in ``work``.
 
     The plant state ``x`` follows the square-root law of :func:`plant_coefficients` (levels
     for the level model, pressures for the bond-graph model with the coefficients of
@@ -501,6 +546,8 @@ def simulate_loop(P, level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd,
     substeps : int
         RK4 steps of the plant per sample (1: one step of ``dt``; more for a long sample period,
         the voltages still held over the whole sample)
+    work : tuple of ndarray
+        The working arrays of :func:`loop_workspace` (or larger ones), set up here.
 
     Returns
     -------
@@ -521,20 +568,21 @@ def simulate_loop(P, level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd,
     nq = Ad.shape[0]
     # unit states of pumps 1 and 2: [0, g1) and [g1, nu); other modal: [nu, nd); dense: [nd, nd + nq)
     g1, nu = segments[1], segments[2]
-    z = np.zeros(nd + nq)
-    z_dense = np.zeros(nq)
-    wv = np.zeros(4)
+    # controller state, next dense state, measured deviations; metric buffer and fold states
+    # (see _fold_output / _fold_input); whether each pump's states are held
+    z, z_dense, wv, buf, so, si, frozen = work
+    for i in range(nd + nq):
+        z[i] = 0.0
     cz1 = 0.0  # Cc z of the current sample (z starts at zero)
     cz2 = 0.0
-    # metric buffers and states (see _fold_output / _fold_input)
-    buf = np.empty((4, METRIC_BLOCK))
-    so = np.empty((2, OUT_STATE))
-    si = np.zeros((2, IN_STATE))
+    for j in range(2):
+        for i in range(IN_STATE):
+            si[j, i] = 0.0
+        frozen[j] = False
     _output_state_init(so[0])
     _output_state_init(so[1])
     nb = 0
     k0 = 0
-    frozen = np.zeros(2, dtype=np.bool_)
     h1, h2, h3, h4 = h_init[0], h_init[1], h_init[2], h_init[3]
     has_noise = noise.shape[0] > 0
     rec = y_rec.shape[0] > 0
@@ -671,10 +719,10 @@ def simulate_loop(P, level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd,
     return STATUS_DIVERGED, diverged_at
 
 
-@njit(cache=True, fastmath=_FAST)
 def simulate_scenarios(P, level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel,
                        segments, dt, n_steps, noise, band_pct, metrics, status):
-    """:func:`simulate_loop` of one controller under ``S`` scenarios in one call (metrics only).
+    """:func:`sampled_lane` of one controller under ``S`` scenarios, one after another on one
+    workspace (metrics only).
 
     Parameters
     ----------
@@ -687,10 +735,40 @@ def simulate_scenarios(P, level_per_state, h_init, h_op, ad, bd, state_input, Ad
     metrics : (S, N_METRICS) output; status : (S,) int64 output, each row exactly what
         :func:`simulate_loop` gives for that scenario
     """
-    y_rec = np.empty((0, 2))
-    u_rec = np.empty((0, 2))
-    h_rec = np.empty((0, 4))
+    work = loop_workspace(ad.shape[0], Ad.shape[0])
+    y_rec, u_rec, h_rec = np.empty((0, 2)), np.empty((0, 2)), np.empty((0, 4))
     for s in range(P.shape[1]):
-        status[s], _ = simulate_loop(P[:, s].copy(), level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd, Cc,
-                                     Dc, state_channel, segments, dt, n_steps, noise[s], band_pct, metrics[s], y_rec,
-                                     u_rec, h_rec)
+        status[s], _ = sampled_lane(np.ascontiguousarray(P[:, s]), level_per_state, h_init, h_op, ad, bd, state_input,
+                                    Ad, Bd, Cc, Dc, state_channel, segments, dt, n_steps, noise[s], band_pct,
+                                    metrics[s], y_rec, u_rec, h_rec, 1, work)
+
+
+def simulate_lanes(P, level_per_state, h_init, h_op, ad, bd, state_input, Ad, Bd, Cc, Dc, state_channel, segments,
+                   dt, n_steps, noise, lane_noise, band_pct, metrics, status):
+    """:func:`sampled_lane` of ``L`` lanes (a lane: one candidate under one scenario), one after
+    another on one workspace (metrics only): the sampled loop of ``--device cpu-batch``.
+
+    A lane runs the same compiled function as the one-candidate path, so its metrics are those
+    of :func:`simulate_loop` bit for bit, whatever the other lanes.
+
+    Parameters
+    ----------
+    P : (L, NP) per-lane parameter tables (:func:`scenario_table`), one row per lane
+    level_per_state : float; h_init, h_op : (4,) shared initial state and operating levels
+    ad, bd : (L, nd) modal factors and gains; state_input : (nd,) int64, shared
+    Ad : (L, nq, nq), Bd : (L, nq, 4), Cc : (L, 2, nd + nq), Dc : (L, 2, 4)
+    state_channel : (nd + nq,) int64 and segments : (4,) int64, shared (see ``DiscreteController``)
+    dt : float; n_steps : int, shared
+    noise : (S, n_steps + 1, 4) measurement noise of S draws (S may be 0)
+    lane_noise : (L,) int64, the draw each lane reads, or -1 for none
+    band_pct : float
+    metrics : (L, N_METRICS) output; status : (L,) int64 output, as ``simulate_loop`` returns
+    """
+    work = loop_workspace(ad.shape[1], Ad.shape[1])
+    y_rec, u_rec, h_rec = np.empty((0, 2)), np.empty((0, 2)), np.empty((0, 4))
+    no_noise = np.empty((0, 4))
+    for k in range(P.shape[0]):
+        lane_draw = noise[lane_noise[k]] if lane_noise[k] >= 0 else no_noise
+        status[k], _ = sampled_lane(P[k], level_per_state, h_init, h_op, ad[k], bd[k], state_input, Ad[k], Bd[k],
+                                    Cc[k], Dc[k], state_channel, segments, dt, n_steps, lane_draw, band_pct, metrics[k],
+                                    y_rec, u_rec, h_rec, 1, work)

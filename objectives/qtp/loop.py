@@ -15,7 +15,6 @@ import scipy.linalg.lapack
 
 from heurtune.core.errors import ConfigError
 from heurtune.core.problem import RANGE_RTOL
-from heurtune.objectives.qtp import batch_kernels as _batch_kernels
 from heurtune.objectives.qtp import continuous as _continuous
 from heurtune.objectives.qtp import continuous_kernels as _continuous_kernels
 from heurtune.objectives.qtp import kernels as _kernels
@@ -670,10 +669,11 @@ class ClosedLoop:
 
         The controllers are discretised once per time step (:func:`discretise_many`); the
         pairs (controller, scenario) whose scenarios share the step and the horizon and whose
-        discrete controllers share their structure run as the lanes of one call of the batched
-        kernel
-        (:func:`heurtune.objectives.qtp.batch_kernels.simulate_batch` on the CPU, or
-        :func:`heurtune.objectives.qtp.gpu.simulate_lanes` with ``device="gpu"``). The pairs
+        discrete controllers share their structure run as the lanes of one call
+        (:func:`heurtune.objectives.qtp.kernels.simulate_lanes` on the CPU, or
+        :func:`heurtune.objectives.qtp.gpu.simulate_lanes` with ``device="gpu"``), whose
+        per-lane loop is the one-candidate kernel's own
+        (:func:`~heurtune.objectives.qtp.kernels.sampled_lane`). The pairs
         of continuous-time scenarios run as the lanes of
         :func:`~heurtune.objectives.qtp.continuous_kernels.simulate_continuous_lanes` (or
         :func:`heurtune.objectives.qtp.gpu.simulate_continuous_lanes`), whose per-lane step is
@@ -690,7 +690,7 @@ class ClosedLoop:
         -------
         diverged : (n, S) bool ndarray
         metrics : (n, S, N_METRICS) ndarray
-            Each pair's metrics equal :meth:`run`'s within the rounding of the controller's sums
+            Each pair's metrics equal :meth:`run`'s within the rounding of the batched design
             (see ``tests/objectives/qtp/test_batch_kernels.py`` for the bound).
         """
         ctrls, scenarios = list(ctrls), list(scenarios)
@@ -762,7 +762,7 @@ class ClosedLoop:
 
     def _simulate_lanes(self, pairs, by_scenario, dt, n_steps, band, device):
         """Pack ``pairs`` of (candidate, discrete controller, scenario index) of one structure,
-        step and horizon into lane-last arrays (``by_scenario``: index to Scenario) and run
+        step and horizon into arrays of one lane per row (``by_scenario``: index to Scenario) and run
         them on ``device``."""
         L = len(pairs)
         first = pairs[0][1]
@@ -771,10 +771,10 @@ class ClosedLoop:
         noisy = [s for s in by_scenario if noises[s].shape[0] > 0]
         noise = np.stack([noises[s] for s in noisy]) if noisy else np.zeros((0, n_steps + 1, 4))
         noise_index = {s: k for k, s in enumerate(noisy)}
-        P = np.stack([tables[s] for _, _, s in pairs], axis=1)
+        P = np.stack([tables[s] for _, _, s in pairs])
 
-        def lanes(name):  # a discrete controller's array, the lanes on a last axis
-            return np.ascontiguousarray(np.stack([getattr(dc, name) for _, dc, _ in pairs], axis=-1))
+        def lanes(name):  # a discrete controller's array, one lane per row
+            return np.ascontiguousarray(np.stack([getattr(dc, name) for _, dc, _ in pairs]), dtype=np.float64)
 
         args = dict(
             P=P, level_per_state=self._level_per_state,
@@ -790,7 +790,7 @@ class ClosedLoop:
             return gpu.simulate_lanes(**args)
         metrics = np.empty((L, _kernels.N_METRICS))
         status = np.empty(L, dtype=np.int64)
-        _batch_kernels.simulate_batch(**args, metrics=metrics, status=status)
+        _kernels.simulate_lanes(**args, metrics=metrics, status=status)
         return status, metrics
 
     def metrics(self, sim: SimulationResult, scenario: Scenario, settling_band: float) -> np.ndarray:

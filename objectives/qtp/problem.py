@@ -21,8 +21,8 @@ from heurtune.objectives.qtp.controllers import ControllerDesignError
 from heurtune.objectives.qtp.loop import METRIC_NAMES, ClosedLoop, Scenario, physical_range_flags
 from heurtune.objectives.qtp.margins import linear_systems, loop_margins
 
-# Where a QTP problem's simulations run (TuningProblem.set_device): one candidate at a time, the
-# CPU's vector lanes (heurtune.objectives.qtp.batch_kernels), or a CUDA GPU (.gpu).
+# Where a QTP problem's simulations run (TuningProblem.set_device): one candidate at a time, a
+# batch of lanes in one call on the CPU (the kernels' simulate_lanes), or a CUDA GPU (.gpu).
 DEVICES = ("cpu", "cpu-batch", "gpu")
 
 __all__ = ["Problem", "DEVICES", "IntegralActionWarning", "STABILITY_CONSTRAINT", "WEIGHTED_METRICS", "OBJECTIVES"]

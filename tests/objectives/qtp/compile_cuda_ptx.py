@@ -40,6 +40,6 @@ print(f"continuous kernel: {len(ptx):,} characters of PTX")
 # the sampled loop's kernel (gpu.simulate_lanes)
 f8, i8 = nt.float64, nt.int64
 sampled = (array(2), f8, array(1), array(1), array(2), array(2), array(1, i8), array(3), array(3), array(3), array(3),
-           array(1, i8), array(1, i8), f8, i8, array(3), array(1, i8), f8, array(2), array(1, i8))
+           array(1, i8), array(1, i8), f8, i8, array(3), array(1, i8), f8, array(2), array(1, i8), array(2), array(2))
 ptx, _ = cuda.compile_ptx(gpu._make_kernel().py_func, sampled, cc=(9, 0))
 print(f"sampled kernel: {len(ptx):,} characters of PTX")

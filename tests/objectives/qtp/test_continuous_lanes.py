@@ -4,8 +4,8 @@ kernel against the one-candidate path.
 All three call ``continuous_kernels.continuous_lane``. The CPU lanes run the same compiled
 function on the same inputs, so they are compared bit for bit. The CUDA kernel is that
 function's Python source compiled again as a device function; Numba's CUDA simulator runs it in
-plain Python, without the kernels' floating-point licence (reassociation, fused multiply-adds),
-so it differs from the compiled one-candidate path by rounding: the bounds of
+plain Python (NumPy's and Python's arithmetic, not the compiled loops), so it may differ from
+the compiled one-candidate path by rounding: the bounds of
 ``test_batch_kernels.assert_metrics_close`` (1e-12 relative; ``ess``, ``Jdev`` and ``TV``, the
 differences of nearly equal numbers, against their operands). Measured: 2e-13 without switches;
 with saturation and tank limits 3e-12 on ``ess`` (a located switch near a tangential crossing

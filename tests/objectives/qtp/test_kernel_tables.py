@@ -14,7 +14,7 @@ import inspect
 import numpy as np
 import pytest
 
-from heurtune.objectives.qtp import batch_kernels, continuous_kernels, kernels
+from heurtune.objectives.qtp import continuous_kernels, kernels
 from heurtune.objectives.qtp.continuous import plan_steps
 from heurtune.objectives.qtp.controllers import LinearController
 from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
@@ -41,8 +41,6 @@ def test_scenario_table_rows_hold_what_their_names_say():
                    (kernels.P_HORIZON, 1)])
     assert [r for r, _ in rows] == list(np.cumsum([0] + [n for _, n in rows[:-1]]))
     assert sum(n for _, n in rows) == kernels.NP
-    # the batched kernel reads the same layout
-    assert batch_kernels.NP == kernels.NP
 
 
 def test_step_plan_table_columns_follow_the_plan():
@@ -65,8 +63,9 @@ OLD_SCENARIO_ARGUMENTS = {"c", "u_op", "out_dist", "in_dist", "i_out_dist", "i_i
                           "seg_steps", "seg_graded", "seg_dist", "seg_uin", "seg_post"}
 
 
-@pytest.mark.parametrize("kernel", [kernels.simulate_loop, kernels.simulate_scenarios, batch_kernels.simulate_batch,
-                                    continuous_kernels.simulate_continuous, continuous_kernels.continuous_lane])
+@pytest.mark.parametrize("kernel", [kernels.simulate_loop, kernels.sampled_lane, kernels.simulate_scenarios,
+                                    kernels.simulate_lanes, continuous_kernels.simulate_continuous,
+                                    continuous_kernels.continuous_lane])
 def test_kernels_take_the_tables(kernel):
     names = list(inspect.signature(getattr(kernel, "py_func", kernel)).parameters)
     assert names[0] == "P"
