@@ -211,7 +211,7 @@ class TuningProblem:
         """Run this problem's simulations on ``device``, one of :attr:`devices`.
 
         ``"cpu"`` simulates one candidate at a time (the numbers of the shipped experiments);
-        a family may offer ``"cpu-batch"`` (candidates side by side in the CPU's vector lanes)
+        a family may offer ``"cpu-batch"`` (a batch of candidates in one compiled call on the CPU)
         and ``"gpu"`` (one GPU thread per candidate and scenario), whose metrics equal the
         ``"cpu"`` ones within a stated rounding tolerance.
 

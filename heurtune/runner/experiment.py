@@ -1135,7 +1135,7 @@ def _parser():
     ap.add_argument("--backend", default="loky", help="loky (default) or dask")
     ap.add_argument("--device", default="cpu",
                     help="where the simulations run: cpu (default, one candidate at a time), cpu-batch "
-                         "(candidates side by side in vector lanes) or gpu (CUDA; pip install 'heurtune[gpu]')")
+                         "(a batch of candidates in one compiled call) or gpu (CUDA; pip install 'heurtune[gpu]')")
     ap.add_argument("--lockstep", action=argparse.BooleanOptionalAction, default=None,
                     help="advance the runs together, each generation of all runs evaluated as one batch "
                          "(same results; default: on with --device cpu-batch or gpu)")

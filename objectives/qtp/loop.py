@@ -665,7 +665,7 @@ class ClosedLoop:
         return out
 
     def run_batch(self, ctrls, scenarios, *, settling_band: float = 3.0, device: str = "cpu-batch"):
-        """Metrics of several controllers under several scenarios, candidates side by side.
+        """Metrics of several controllers under several scenarios, as the lanes of one batched call.
 
         The controllers are discretised once per time step (:func:`discretise_many`); the
         pairs (controller, scenario) whose scenarios share the step and the horizon and whose
