@@ -29,6 +29,9 @@ N_METRICS = len(METRIC_NAMES)
 
 # Floating-point licence for the simulation kernel: reassociation lets LLVM vectorise the
 # controller's matrix-vector products; NaN and inf keep their IEEE meaning (divergence checks).
+# Every jitted function that sampled_lane calls is inlined into it (inline="always"): a callee
+# compiled on its own and its copy in the caller's cached machine code would round differently
+# under this licence (docs/model.md, "Compiled once, the same numbers").
 _FAST = {"reassoc", "contract", "nsz", "arcp"}
 
 # Rows of a scenario's parameter table ``P`` (NP,), read by simulate_loop (one column of it by
@@ -398,7 +401,7 @@ def loop_metrics(y, u, y_op, u_op, dt, i_dist, band_pct, out, h=None):
     _loop_metrics(y, u, h, y_op, u_op, dt, i_dist, band_pct, out)
 
 
-@njit(cache=True, fastmath=_FAST, inline="always")
+@njit(cache=True, fastmath=_FAST)
 def _loop_metrics(y, u, h, y_op, u_op, dt, i_dist, band_pct, out):
     """Kernel of :func:`loop_metrics` (``h`` of shape (n + 1, 4) or (0, 4))."""
     n = y.shape[0] - 1
