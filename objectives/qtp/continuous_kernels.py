@@ -548,6 +548,31 @@ def _pair_switches(x1, u1, xm1, um1, x2, u2, xm2, um2, xb, ub, u_op, sat, asat, 
 
 
 @njit(cache=True, inline="always")
+def _pair_error(x2, xb, z2, zb, lam, Cm, Cq, nd, nq, s, u_gain, local_per, h2):
+    """Step doubling's estimate of a pair's local error (level units), per ``local_per`` seconds
+    of step: the pair's end ``x2``, ``z2`` against the double step's ``xb``, ``zb``, their
+    difference over 15 (fourth order). It reads the levels' difference and the controller
+    states': each state's push on a pump (``u_gain``: the pump's largest effect on a level) acts
+    on the levels for as long as it lasts, 1/|lam|, at most ``local_per`` seconds (an
+    integrator's error stays until the loop corrects it; a fast mode's is gone within its time
+    constant). ``h2`` is the double step's length."""
+    est = 0.0
+    for i in range(4):
+        est = max(est, abs(x2[i] - xb[i]))
+    est *= s
+    for r in range(2):
+        dv = 0.0
+        for i in range(nd):
+            lam_i = abs(lam[i])
+            tau = local_per if lam_i * local_per <= 1.0 else 1.0 / lam_i
+            dv += Cm[r, i] * (z2[i] - zb[i]) * tau
+        for i in range(nq):
+            dv += Cq[r, i] * (z2[nd + i] - zb[nd + i]) * local_per
+        est = max(est, u_gain * abs(dv))
+    return est * ((local_per / h2) / 15.0)
+
+
+@njit(cache=True, inline="always")
 def _band_side(x, s, d1, d2, h_op, band, w):
     """Which errors lie outside their settling band at plant state ``x``: bit i for |e_i| > band_i."""
     _measure(x, s, d1, d2, h_op, w)
@@ -1116,24 +1141,7 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
                                                         sat, asat, held, saturate, clip, u_min, u_max, h_max, c, ga,
                                                         ue):
                             break  # a switch inside the pair: the plain steps locate it
-                        # the levels' difference, and the controller states': each state's
-                        # push on a pump acts on the levels for as long as it lasts, 1/|lam|,
-                        # at most local_per seconds (an integrator's error stays until the loop
-                        # corrects it; a fast mode's is gone within its time constant)
-                        est = 0.0
-                        for i in range(4):
-                            est = max(est, abs(x2[i] - xb[i]))
-                        est *= s
-                        for r_ in range(2):
-                            dv = 0.0
-                            for i in range(nd):
-                                lam_i = abs(lam_e[i])
-                                tau = local_per if lam_i * local_per <= 1.0 else 1.0 / lam_i
-                                dv += Cm[r_, i] * (z2[i] - zb[i]) * tau
-                            for i in range(nq):
-                                dv += Cq[r_, i] * (z2[nd + i] - zb[nd + i]) * local_per
-                            est = max(est, u_gain * abs(dv))
-                        est *= (local_per / h2) / 15.0
+                        est = _pair_error(x2, xb, z2, zb, lam_e, Cm, Cq, nd, nq, s, u_gain, local_per, h2)
                         if est <= eps:
                             paired = True
                             break
