@@ -65,8 +65,8 @@ _INV_FACT_4 = tuple(1.0 / math.factorial(j + 4) for j in range(_TAYLOR_TERMS))
 # code. A freshly compiled caller runs the first, the same caller loaded from numba's cache the
 # second; with reassociation allowed LLVM optimises the two differently, and results parted at
 # rounding level between a first run and later ones. Without the licence both copies compute
-# the same values (tests/objectives/qtp/test_compiled_cache.py); it cost no measurable speed
-# (benchmarks/bench_evaluate.py).
+# the same values (tests/objectives/qtp/test_compiled_cache.py); the cost in speed is within
+# the spread of this project's machine (docs/model.md, "Compiled once, the same numbers").
 
 
 @njit(cache=True)
