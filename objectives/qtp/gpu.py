@@ -10,7 +10,7 @@ one-candidate and batched CPU paths, compiled the same way; its working arrays a
 local memory. Both kernels take the lanes' arrays of the CPU batch drivers
 (:func:`heurtune.objectives.qtp.continuous_kernels.simulate_continuous_lanes`,
 :func:`heurtune.objectives.qtp.kernels.simulate_lanes`), one lane per row. Device functions are
-built from the CPU kernels' own Python source (:func:`_device_functions`; the lane and what it
+built from the CPU kernels' own Python source (:func:`_device_lane`; the lane and what it
 calls, found by :func:`_reachable`): one text of the arithmetic for every target. Controller
 design stays on the CPU. Float64 throughout.
 
@@ -35,9 +35,6 @@ __all__ = ["available", "require", "simulate_lanes", "simulate_continuous_lanes"
 MAX_STATES = 64
 THREADS_PER_BLOCK = 128
 
-# The per-lane function that the sampled CUDA kernel calls, by module; the functions it calls are
-# found from it (_reachable), as for the continuous kernel's lane.
-_SAMPLED_ROOTS = {_kernels: ("sampled_lane",)}
 _KERNEL = None
 _CONTINUOUS_KERNEL = None
 
@@ -83,41 +80,28 @@ def _reachable(module, root: str) -> tuple:
     return tuple(found)
 
 
-def _with_callees(roots: dict) -> dict:
-    """``roots`` (module to names) with every jitted function of the same module they call,
-    directly or not, callees first (:func:`_reachable`)."""
-    out = {}
-    for module, names in roots.items():
-        found = []
-        for name in names:
-            found += [n for n in reversed(_reachable(module, name)) if n not in found]
-        out[module] = tuple(found)
-    return out
+def _device_lane(module, root: str):
+    """The CUDA device version of the jitted function ``root`` of ``module``, compiled from its
+    Python source together with every jitted function of the module it reaches
+    (:func:`_reachable`).
 
-
-def _device_functions(shared=None) -> dict:
-    """CUDA device versions of the functions in ``shared`` (module to names, callees first;
-    default: the sampled kernel's roots with their callees), compiled from their Python source.
-
-    Each function is rebuilt on one shared namespace in which the names of the others point to
-    their device versions, so that calls between them stay on the GPU.
+    Each function is rebuilt on one namespace (the module's constants, ``math`` and ``np``) in
+    which the names of the others point to their device versions, callees first, so that calls
+    between them stay on the GPU.
     """
-    shared = _with_callees(_SAMPLED_ROOTS) if shared is None else shared
     namespace = {"math": math, "np": np}
-    for module in shared:
-        namespace.update({k: v for k, v in vars(module).items() if k.isupper()})
-    for module, names in shared.items():
-        for name in names:
-            source = getattr(module, name).py_func
-            fn = types.FunctionType(source.__code__, namespace, name, source.__defaults__, source.__closure__)
-            namespace[name] = cuda.jit(device=True)(fn)
-    return namespace
+    namespace.update({k: v for k, v in vars(module).items() if k.isupper()})
+    for name in reversed(_reachable(module, root)):
+        source = getattr(module, name).py_func
+        fn = types.FunctionType(source.__code__, namespace, name, source.__defaults__, source.__closure__)
+        namespace[name] = cuda.jit(device=True)(fn)
+    return namespace[root]
 
 
 def _make_kernel():
     from numba import boolean, float64
 
-    lane = _device_functions()["sampled_lane"]
+    lane = _device_lane(_kernels, "sampled_lane")
     block, out_state, in_state = _kernels.METRIC_BLOCK, _kernels.OUT_STATE, _kernels.IN_STATE
 
     @cuda.jit
@@ -186,7 +170,7 @@ def simulate_lanes(*, P, level_per_state, h_init, h_op, ad, bd, state_input, Ad,
 
 
 def _make_continuous_kernel():
-    lane = _device_functions(_with_callees({_ck: ("continuous_lane",)}))["continuous_lane"]
+    lane = _device_lane(_ck, "continuous_lane")
 
     @cuda.jit
     def kernel(level_per_state, x_init, h_op, band_pct, P, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel, seg, n_seg,
