@@ -22,11 +22,13 @@ docs/model.md for the method, its step rule and its validation.
 Arrays and scalars in, preallocated arrays out; shapes and dtypes float64 unless stated.
 """
 
+import functools
 import math
 import threading
 
 import numpy as np
 from numba import njit
+from numba.core.cpu import CPUTargetOptions
 
 from heurtune.objectives.qtp.kernels import (
     LEVEL_LIMIT,
@@ -67,9 +69,17 @@ _INV_FACT_4 = tuple(1.0 / math.factorial(j + 4) for j in range(_TAYLOR_TERMS))
 # rounding level between a first run and later ones. Without the licence both copies compute
 # the same values (tests/objectives/qtp/test_compiled_cache.py); the cost in speed is within
 # the spread of this project's machine (docs/model.md, "Compiled once, the same numbers").
+#
+# The lane and what it calls allocate no array and return none: every array they touch comes
+# in from the caller, which keeps it alive. They are compiled without numba's reference
+# counting (``_nrt=False``), which would otherwise increment and decrement, atomically, the
+# count of every view they take (a step level's tables, a working row), some thirty times a
+# step: a third of the lane's time (perf, docs/model.md "Speed"). The arithmetic is unchanged,
+# bit for bit. A numba without the option compiles them as before.
+_kernel = functools.partial(njit, cache=True, **({"_nrt": False} if hasattr(CPUTargetOptions, "_nrt") else {}))
 
 
-@njit(cache=True)
+@_kernel
 def phi_scalar(z, out):
     """``out[k] = phi_k(z)`` for k = 0 .. 4, ``phi_0 = exp``, ``phi_{k+1}(z) = (phi_k(z) - 1/k!) / z``.
 
@@ -90,7 +100,7 @@ def phi_scalar(z, out):
         out[k + 1] = (out[k] - _INV_FACT[k]) / z
 
 
-@njit(cache=True)
+@_kernel
 def _matmul(A, B, out):
     """``out = A B`` for ``A`` (n, m), ``B`` (m, p); ``out`` must not alias either."""
     for i in range(A.shape[0]):
@@ -101,7 +111,7 @@ def _matmul(A, B, out):
             out[i, j] = acc
 
 
-@njit(cache=True)
+@_kernel
 def _add_c_m_b(Cq, M, Bq, tmp, out):
     """``out += Cq (M Bq)`` for ``Cq`` (2, n), ``M`` (n, n), ``Bq`` (n, 4); ``tmp`` (n, 4) scratch."""
     _matmul(M, Bq, tmp)
@@ -118,7 +128,7 @@ def _add_c_m_b(Cq, M, Bq, tmp, out):
 _HORNER_TERMS = 14
 
 
-@njit(cache=True)
+@_kernel
 def _phi_scaled(A, h, min_power, phi, X, T):
     """``phi[k] = phi_k(h 2^-s A)`` (k = 0 .. 4) for the least ``s >= min_power`` at which the
     argument's 1-norm is at most 1/2; returns ``s``. ``phi`` (N_PHI, n, n); ``X``, ``T`` (n, n)
@@ -160,7 +170,7 @@ def _phi_scaled(A, h, min_power, phi, X, T):
     return s
 
 
-@njit(cache=True)
+@_kernel
 def _phi_double(phi, new):
     """``new[k] = phi_k(2X)`` from ``phi[k] = phi_k(X)``:
     ``phi_k(2X) = 2^-k (phi_0(X) phi_k(X) + sum_{j=1..k} phi_j(X) / (k-j)!)``."""
@@ -176,7 +186,7 @@ def _phi_double(phi, new):
                 new[k, a, b] = acc * scale
 
 
-@njit(cache=True)
+@_kernel
 def _phi_at(A, h, phw, sqw):
     """``phi_k(h A)`` by scaling and squaring in the buffers ``phw`` (2, N_PHI, n, n); returns
     the index of the buffer that holds it. ``sqw`` (2, n, n) scratch."""
@@ -223,7 +233,7 @@ def phi_matrix_levels(A, h, out):
         level -= 1
 
 
-@njit(cache=True)
+@_kernel
 def _fact(n):
     f = 1.0
     for i in range(2, n + 1):
@@ -257,7 +267,7 @@ LOCAL_FLOOR = 1e-6
 ADAPTIVE_LOW_LEVEL = 1.0
 
 
-@njit(cache=True)
+@_kernel
 def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, n_levels, lv_only, rows, coup, prop_m, prop_q, prop_qb, pmc, pmh,
                 phw, sqw, rw, bw):
     """Everything an ETDRK4 step of the segment needs from the controller, per step level.
@@ -353,7 +363,7 @@ def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, n_levels, lv_only, rows, coup, p
         m -= 1
 
 
-@njit(cache=True, inline="always")
+@_kernel(inline="always")
 def _measure(x, s, d1, d2, h_op, w):
     """Measured deviations ``w`` of plant state ``x`` (levels ``s x``, disturbance on y1, y2)."""
     w[0] = s * x[0] + (d1 - h_op[0])
@@ -362,7 +372,7 @@ def _measure(x, s, d1, d2, h_op, w):
     w[3] = s * x[3] - h_op[3]
 
 
-@njit(cache=True, inline="always")
+@_kernel(inline="always")
 def _plant_n(x, w, c, v1, v2, Dc, nx):
     """Plant rows of N: outflows, operating (and input disturbance) voltages ``v`` and the
     static feedback ``Dc w``."""
@@ -378,14 +388,14 @@ def _plant_n(x, w, c, v1, v2, Dc, nx):
     nx[3] = c[9] * u1 - c[3] * s4
 
 
-@njit(cache=True, inline="always")
+@_kernel(inline="always")
 def _gw(G, w, g, acc):
     """``acc += g G w`` for a (2, 4) coupling ``G``."""
     acc[0] += g * (G[0, 0] * w[0] + G[0, 1] * w[1] + G[0, 2] * w[2] + G[0, 3] * w[3])
     acc[1] += g * (G[1, 0] * w[0] + G[1, 1] * w[1] + G[1, 2] * w[2] + G[1, 3] * w[3])
 
 
-@njit(cache=True, inline="always")
+@_kernel(inline="always")
 def _add_pump(x, c, v0, v1, out):
     """``out = x + Bp v`` with ``Bp v = (c6 v1, c7 v2, c8 v2, c9 v1)``."""
     out[0] = x[0] + c[6] * v0
@@ -394,7 +404,7 @@ def _add_pump(x, c, v0, v1, out):
     out[3] = x[3] + c[9] * v0
 
 
-@njit(cache=True, inline="always")
+@_kernel(inline="always")
 def _half_stage(x, nx_in, w_in, e0, e1, G, half, hh, c, pm0, pm1, s, d1, d2, h_op, v1, v2, Dn, acc, x_out, w_out,
                 nx_out):
     """A half-step stage of ETDRK4, ``E(h/2) Y_n + (h/2) phi_1(h/2 L) N_in`` (plant rows), from
@@ -411,7 +421,7 @@ def _half_stage(x, nx_in, w_in, e0, e1, G, half, hh, c, pm0, pm1, s, d1, d2, h_o
     _plant_n(x_out, w_out, c, v1, v2, Dn, nx_out)
 
 
-@njit(cache=True)
+@_kernel
 def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2, v1, v2, h_op, Dc, Dn, pm0, pm1,
                  scr, wst, r, acc, x_new, z_new, x_mid, du_mid, du_end, full):
     """One ETDRK4 (Cox-Matthews) step of length ``h`` from plant state ``x`` and controller
@@ -440,12 +450,23 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     xa, xb, xc, w = scr[4], scr[5], scr[6], scr[7]
     p2x, p3x = scr[8], scr[9]
     w_n, p2w, p3w = wst[0], wst[1], wst[2]
-    # The controller state's five readings (two rows each).
-    for k in range(N_ROWS):
-        rk = 0.0
-        for i in range(nz):
-            rk += rows[k, i] * z[i]
-        r[k] = rk
+    # The controller state's five readings (two rows each), summed side by side: each in the
+    # order of the states, as ten separate sums would, but without waiting on one another.
+    r0 = r1 = r2 = r3 = r4 = r5 = r6 = r7 = r8 = r9 = 0.0
+    for i in range(nz):
+        zi = z[i]
+        r0 += rows[0, i] * zi
+        r1 += rows[1, i] * zi
+        r2 += rows[2, i] * zi
+        r3 += rows[3, i] * zi
+        r4 += rows[4, i] * zi
+        r5 += rows[5, i] * zi
+        r6 += rows[6, i] * zi
+        r7 += rows[7, i] * zi
+        r8 += rows[8, i] * zi
+        r9 += rows[9, i] * zi
+    r[0], r[1], r[2], r[3], r[4] = r0, r1, r2, r3, r4
+    r[5], r[6], r[7], r[8], r[9] = r5, r6, r7, r8, r9
     # stage n
     _measure(x, s, d1, d2, h_op, w_n)
     _plant_n(x, w_n, c, v1, v2, Dn, nx_n)
@@ -525,7 +546,7 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     _gw(Dc, w, 1.0, du_mid)
 
 
-@njit(cache=True, inline="always")
+@_kernel(inline="always")
 def _switched(x, du, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua):
     """Whether a switching function (:func:`_event_values`) says an event has happened at a point."""
     _event_values(x, du, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua)
@@ -535,7 +556,7 @@ def _switched(x, du, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max,
     return False
 
 
-@njit(cache=True)
+@_kernel
 def _pair_switches(x1, u1, xm1, um1, x2, u2, xm2, um2, xb, ub, u_op, sat, asat, held, saturate, clip, u_min, u_max,
                    h_max, c, g, ua):
     """Whether a switching function has changed sign at a node of an adaptive pair: the mid
@@ -547,7 +568,7 @@ def _pair_switches(x1, u1, xm1, um1, x2, u2, xm2, um2, xb, ub, u_op, sat, asat, 
             or _switched(xb, ub, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua))
 
 
-@njit(cache=True, inline="always")
+@_kernel(inline="always")
 def _pair_error(x2, xb, z2, zb, lam, Cm, Cq, nd, nq, s, u_gain, local_per, h2):
     """Step doubling's estimate of a pair's local error (level units), per ``local_per`` seconds
     of step: the pair's end ``x2``, ``z2`` against the double step's ``xb``, ``zb``, their
@@ -572,14 +593,14 @@ def _pair_error(x2, xb, z2, zb, lam, Cm, Cq, nd, nq, s, u_gain, local_per, h2):
     return est * ((local_per / h2) / 15.0)
 
 
-@njit(cache=True, inline="always")
+@_kernel(inline="always")
 def _band_side(x, s, d1, d2, h_op, band, w):
     """Which errors lie outside their settling band at plant state ``x``: bit i for |e_i| > band_i."""
     _measure(x, s, d1, d2, h_op, w)
     return (1 if abs(w[0]) > band[0] else 0) + (2 if abs(w[1]) > band[1] else 0)
 
 
-@njit(cache=True)
+@_kernel
 def _pair_crosses_band(x0, xm1, x1, xm2, x2, xb, s, d1, d2, h_op, band, w):
     """Whether an error crosses its settling band between the nodes of an adaptive pair (its
     start, the mid and end points of its two steps, the end of the double step)."""
@@ -589,7 +610,7 @@ def _pair_crosses_band(x0, xm1, x1, xm2, x2, xb, s, d1, d2, h_op, band, w):
             or _band_side(xb, s, d1, d2, h_op, band, w) != side)
 
 
-@njit(cache=True, inline="always")
+@_kernel(inline="always")
 def _copy_rows(src, dst):
     """``dst[:] = src`` for (n, 4) working rows."""
     for r in range(src.shape[0]):
@@ -597,7 +618,7 @@ def _copy_rows(src, dst):
             dst[r, i] = src[r, i]
 
 
-@njit(cache=True)
+@_kernel
 def _pump_voltages(x, z, Cm, Cq, s, d1, d2, h_op, Dc, w, du):
     """Controller output ``du = C z + Dc w`` at state (x, z) (the operating voltage not added)."""
     nd = Cm.shape[1]
@@ -613,7 +634,7 @@ def _pump_voltages(x, z, Cm, Cq, s, d1, d2, h_op, Dc, w, du):
         du[1] += Cq[1, i] * z[nd + i]
 
 
-@njit(cache=True)
+@_kernel
 def _dense_at(theta, h, x, z, lam, bm, mi, Cm, Aq, Bq, Cq, c, s, d1, d2, h_op, Dc, pm0, pm1, scr, wst, w, x_out,
               du_out, ph, phw, sqw, vq):
     """Dense output at ``t_n + theta h`` of the step just taken from (x, z) by
@@ -691,7 +712,7 @@ _N_EXT = 8
 _N_SIG = 10
 
 
-@njit(cache=True, inline="always")
+@_kernel(inline="always")
 def _abs_moments(e0, em, e1):
     """``(int_0^1 |p|, int_0^1 s |p|)`` of the parabola p through e0, em, e1 at s = 0, 1/2, 1.
 
@@ -736,7 +757,7 @@ def _abs_moments(e0, em, e1):
     return m0, m1
 
 
-@njit(cache=True, inline="always")
+@_kernel(inline="always")
 def _vertex(t0, f0, t1, f1, t2, f2):
     """Extreme value of the parabola through three nodes (``t0 < t1 < t2``), its vertex kept
     within [t0, t2]; ``f1`` when the three are collinear."""
@@ -750,7 +771,7 @@ def _vertex(t0, f0, t1, f1, t2, f2):
     return f0 + s0 * (tv - t0) + curv * (tv - t0) * (tv - t1)
 
 
-@njit(cache=True, inline="always")
+@_kernel(inline="always")
 def _crossing(t0, f0, t1, f1, t2, f2, band, has_prev):
     """Time in [t1, t2] where the interpolant of the nodes crosses ``band`` (f1 > band >= f2):
     the parabola through (t0, t1, t2) when ``has_prev``, else the chord through t1 and t2."""
@@ -799,7 +820,7 @@ MAX_LOCATED_EVENTS = 500
 _LOCATE_ITERATIONS = 52
 
 
-@njit(cache=True)
+@_kernel
 def _mode_arrays(sat, pin, asat, held, lam, bm, Aq, Bq, channel, c, Dc, u_op, uin, u_min, u_max,
                  lam_e, bm_e, Aq_e, Bq_e, c_e, Dn, v, pm):
     """The effective loop of a switching mode: the saturated pumps' controller states frozen
@@ -834,7 +855,7 @@ def _mode_arrays(sat, pin, asat, held, lam, bm, Aq, Bq, channel, c, Dc, u_op, ui
         v[j] = (u_op[j] if free else lim) + uin[j]
 
 
-@njit(cache=True, inline="always")
+@_kernel(inline="always")
 def _tank_slope(i, x, u1, u2, c):
     """dx_i/dt of tank i with the applied voltages (unmasked coefficients)."""
     s1 = math.sqrt(max(x[0], 0.0))
@@ -850,7 +871,7 @@ def _tank_slope(i, x, u1, u2, c):
     return c[9] * u1 - c[3] * s4
 
 
-@njit(cache=True)
+@_kernel
 def _event_values(x, du, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_max, c, g, ua):
     """Switching functions at a point (plant state ``x``, controller output ``du``): ``g[k] > 0``
     when event k has happened (a free pump outside its range, a saturated one back inside, a
@@ -891,7 +912,7 @@ SEG_LOCAL_TOL, SEG_TOP, SEG_LOCAL_REL, SEG_LOCAL_PER = 9, 10, 11, 12
 N_SEG = 13
 
 
-@njit(cache=True)
+@_kernel
 def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, Cq, Dc, channel, seg, n_seg,
                     band_pct, metrics, out_dt, y_rec, u_rec, h_rec, n_rec, work):
     """The continuous-time closed loop of one lane (one controller under one scenario), by
@@ -1576,7 +1597,7 @@ def simulate_continuous_lanes(lanes, level_per_state, x_init, h_op, band_pct):
     return status, metrics, n_taken
 
 
-@njit(cache=True, inline="always")
+@_kernel(inline="always")
 def _applied(du, u_op, sat, saturate, u_min, u_max, out):
     """Applied voltage deviations: the controller's, or the limit's for a saturated pump."""
     for j in range(2):
@@ -1590,7 +1611,7 @@ def _applied(du, u_op, sat, saturate, u_min, u_max, out):
                 out[j] = min(max(du[j], u_min - u_op[j]), u_max - u_op[j])
 
 
-@njit(cache=True, inline="always")
+@_kernel(inline="always")
 def _signals(w, x, s, u_op, du, f):
     """The followed signals at a node: |e1|, |e2| (``w`` measured there), levels, voltages."""
     f[0] = abs(w[0])
@@ -1605,7 +1626,7 @@ def _signals(w, x, s, u_op, du, f):
     f[9] = w[1]
 
 
-@njit(cache=True, inline="always")
+@_kernel(inline="always")
 def _visit(t, f, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in, ex_has_prev, pending,
            tv, u_prev, first):
     """Fold one node (time ``t``, signals ``f``) into the extremes, the overshoot, the band
