@@ -74,8 +74,9 @@ _INV_FACT_4 = tuple(1.0 / math.factorial(j + 4) for j in range(_TAYLOR_TERMS))
 # in from the caller, which keeps it alive. They are compiled without numba's reference
 # counting (``_nrt=False``), which would otherwise increment and decrement, atomically, the
 # count of every view they take (a step level's tables, a working row), some thirty times a
-# step: a third of the lane's time (perf, docs/model.md "Speed"). The arithmetic is unchanged,
-# bit for bit. A numba without the option compiles them as before.
+# step: a fifth of the lane's time, by perf (docs/model.md, "No reference counting in the
+# lane"). The arithmetic is unchanged, bit for bit. A numba without the option compiles them as
+# before.
 _kernel = functools.partial(njit, cache=True, **({"_nrt": False} if hasattr(CPUTargetOptions, "_nrt") else {}))
 
 
