@@ -374,19 +374,31 @@ def _measure(x, s, d1, d2, h_op, w):
 
 
 @_kernel(inline="always")
-def _plant_n(x, w, c, v1, v2, Dc, nx):
-    """Plant rows of N: outflows, operating (and input disturbance) voltages ``v`` and the
-    static feedback ``Dc w``."""
-    u1 = v1 + Dc[0, 0] * w[0] + Dc[0, 1] * w[1] + Dc[0, 2] * w[2] + Dc[0, 3] * w[3]
-    u2 = v2 + Dc[1, 0] * w[0] + Dc[1, 1] * w[1] + Dc[1, 2] * w[2] + Dc[1, 3] * w[3]
-    s1 = math.sqrt(max(x[0], 0.0))
-    s2 = math.sqrt(max(x[1], 0.0))
-    s3 = math.sqrt(max(x[2], 0.0))
-    s4 = math.sqrt(max(x[3], 0.0))
-    nx[0] = c[4] * s3 - c[0] * s1 + c[6] * u1
-    nx[1] = c[5] * s4 - c[1] * s2 + c[7] * u2
-    nx[2] = c[8] * u2 - c[2] * s3
-    nx[3] = c[9] * u1 - c[3] * s4
+def _measure4(x0, x1, x2, x3, s, d1, d2, h_op):
+    """:func:`_measure` on a plant state held in four scalars; returns the four deviations."""
+    return s * x0 + (d1 - h_op[0]), s * x1 + (d2 - h_op[1]), s * x2 - h_op[2], s * x3 - h_op[3]
+
+
+@_kernel(inline="always")
+def _plant_n4(x0, x1, x2, x3, w0, w1, w2, w3, c, v1, v2, Dc):
+    """Plant rows of N at state ``x`` with measured deviations ``w`` (four scalars each):
+    outflows, operating (and input disturbance) voltages ``v`` and the static feedback
+    ``Dc w``."""
+    u1 = v1 + Dc[0, 0] * w0 + Dc[0, 1] * w1 + Dc[0, 2] * w2 + Dc[0, 3] * w3
+    u2 = v2 + Dc[1, 0] * w0 + Dc[1, 1] * w1 + Dc[1, 2] * w2 + Dc[1, 3] * w3
+    s1 = math.sqrt(max(x0, 0.0))
+    s2 = math.sqrt(max(x1, 0.0))
+    s3 = math.sqrt(max(x2, 0.0))
+    s4 = math.sqrt(max(x3, 0.0))
+    return (c[4] * s3 - c[0] * s1 + c[6] * u1, c[5] * s4 - c[1] * s2 + c[7] * u2, c[8] * u2 - c[2] * s3,
+            c[9] * u1 - c[3] * s4)
+
+
+@_kernel(inline="always")
+def _gw4(G, w0, w1, w2, w3, g, a0, a1):
+    """``(a0, a1) + g G w`` for a (2, 4) coupling ``G`` and ``w`` in four scalars."""
+    return (a0 + g * (G[0, 0] * w0 + G[0, 1] * w1 + G[0, 2] * w2 + G[0, 3] * w3),
+            a1 + g * (G[1, 0] * w0 + G[1, 1] * w1 + G[1, 2] * w2 + G[1, 3] * w3))
 
 
 @_kernel(inline="always")
@@ -406,25 +418,28 @@ def _add_pump(x, c, v0, v1, out):
 
 
 @_kernel(inline="always")
-def _half_stage(x, nx_in, w_in, e0, e1, G, half, hh, c, pm0, pm1, s, d1, d2, h_op, v1, v2, Dn, acc, x_out, w_out,
-                nx_out):
+def _half_stage(x0, x1, x2, x3, n0, n1, n2, n3, w0, w1, w2, w3, e0, e1, G, half, hh, c, pm0, pm1, s, d1, d2,
+                h_op, v1, v2, Dn):
     """A half-step stage of ETDRK4, ``E(h/2) Y_n + (h/2) phi_1(h/2 L) N_in`` (plant rows), from
-    the N and measured signals ``nx_in``, ``w_in`` of the stage before: writes its plant state
-    ``x_out``, measured signals ``w_out`` and plant rows of N ``nx_out``. ``e0``, ``e1`` are the
-    pumps' push ``(h/2) C phi_1(h/2) z`` and ``G`` the coupling ``C phi_2(h/2) B``."""
-    acc[0] = e0
-    acc[1] = e1
-    _gw(G, w_in, hh, acc)
-    for i in range(4):
-        x_out[i] = x[i] + half * nx_in[i]
-    _add_pump(x_out, c, pm0 * acc[0], pm1 * acc[1], x_out)
-    _measure(x_out, s, d1, d2, h_op, w_out)
-    _plant_n(x_out, w_out, c, v1, v2, Dn, nx_out)
+    the plant state ``x`` at the step's start and the N and measured signals ``n``, ``w`` of the
+    stage before (four scalars each). ``e0``, ``e1`` are the pumps' push ``(h/2) C phi_1(h/2) z``
+    and ``G`` the coupling ``C phi_2(h/2) B``. Returns the stage's plant state, measured
+    signals and plant rows of N (twelve scalars)."""
+    a0, a1 = _gw4(G, w0, w1, w2, w3, hh, e0, e1)
+    p0 = pm0 * a0
+    p1 = pm1 * a1
+    y0 = (x0 + half * n0) + c[6] * p0
+    y1 = (x1 + half * n1) + c[7] * p1
+    y2 = (x2 + half * n2) + c[8] * p1
+    y3 = (x3 + half * n3) + c[9] * p0
+    m0, m1, m2, m3 = _measure4(y0, y1, y2, y3, s, d1, d2, h_op)
+    q0, q1, q2, q3 = _plant_n4(y0, y1, y2, y3, m0, m1, m2, m3, c, v1, v2, Dn)
+    return y0, y1, y2, y3, m0, m1, m2, m3, q0, q1, q2, q3
 
 
 @_kernel
 def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2, v1, v2, h_op, Dc, Dn, pm0, pm1,
-                 scr, wst, r, acc, x_new, z_new, x_mid, du_mid, du_end, full):
+                 scr, wst, x_new, z_new, x_mid, du_mid, du_end, full):
     """One ETDRK4 (Cox-Matthews) step of length ``h`` from plant state ``x`` and controller
     state ``z`` (modal states first, then dense), tables of the step's level from
     :func:`step_tables`.
@@ -437,20 +452,19 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     controller term reduces to the couplings of the tables applied to the stages' ``w``, and
     the controller state is read once, by the ``rows`` (one pass). Writes the state after the
     step (``x_new``, ``z_new``), the dense output at the midpoint (``x_mid``, controller output
-    ``du_mid``) and the controller output at the end ``du_end``. Scratch: ``scr`` (10, 4) and
-    ``wst`` (3, 4), ``r`` (N_ROWS,) and ``acc`` (2,); after the step ``scr[0]``, ``scr[8]``,
-    ``scr[9]`` hold N_x at the start, P2x and P3x, and ``wst`` the measured signals w_n, P2w,
-    P3w, which :func:`_dense_at` reads. With ``full`` False only ``x_new`` and ``z_new`` are
+    ``du_mid``) and the controller output at the end ``du_end``. After the step ``scr[0]``,
+    ``scr[8]``, ``scr[9]`` ((10, 4); the other rows are not written) hold N_x at the start, P2x
+    and P3x, and ``wst`` (3, 4) the measured signals w_n, P2w, P3w, which :func:`_dense_at`
+    reads. With ``full`` False only ``x_new`` and ``z_new`` are
     written (the double step of a step-doubling estimate).
     """
     nd = prop_m.shape[1]
     nz = z.size
     half = 0.5 * h
     hh = half * half
-    nx_n, nx_a, nx_b, nx_c = scr[0], scr[1], scr[2], scr[3]
-    xa, xb, xc, w = scr[4], scr[5], scr[6], scr[7]
-    p2x, p3x = scr[8], scr[9]
-    w_n, p2w, p3w = wst[0], wst[1], wst[2]
+    # The stages live in scalars (the compiler keeps them in registers: working arrays, which
+    # may alias one another, would be stored and loaded again between the dependent stages);
+    # what the dense output reads afterwards is written to scr and wst at the end.
     # The controller state's five readings (two rows each), summed side by side: each in the
     # order of the states, as ten separate sums would, but without waiting on one another.
     r0 = r1 = r2 = r3 = r4 = r5 = r6 = r7 = r8 = r9 = 0.0
@@ -466,49 +480,72 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
         r7 += rows[7, i] * zi
         r8 += rows[8, i] * zi
         r9 += rows[9, i] * zi
-    r[0], r[1], r[2], r[3], r[4] = r0, r1, r2, r3, r4
-    r[5], r[6], r[7], r[8], r[9] = r5, r6, r7, r8, r9
+    # (rows _R_C1, _R_C10, _R_C0, _R_H1, _R_H0 are r0/r1, r2/r3, r4/r5, r6/r7, r8/r9)
     # stage n
-    _measure(x, s, d1, d2, h_op, w_n)
-    _plant_n(x, w_n, c, v1, v2, Dn, nx_n)
+    x0, x1, x2, x3 = x[0], x[1], x[2], x[3]
+    wn0, wn1, wn2, wn3 = _measure4(x0, x1, x2, x3, s, d1, d2, h_op)
+    nn0, nn1, nn2, nn3 = _plant_n4(x0, x1, x2, x3, wn0, wn1, wn2, wn3, c, v1, v2, Dn)
     # E(h/2) Y_n, plant rows: x + (h/2) Bp C phi_1(h/2) z
-    e0 = half * r[_R_C1]
-    e1 = half * r[_R_C1 + 1]
-    # a = E(h/2) Y_n + (h/2) phi_1(h/2 L) N_n, b = the same with N_a; their measured signals
-    # w_a, w_b are kept in the P2 and P3 slots until P2 and P3 are formed
-    _half_stage(x, nx_n, w_n, e0, e1, coup[_G_C2], half, hh, c, pm0, pm1, s, d1, d2, h_op, v1, v2, Dn, acc,
-                xa, p2w, nx_a)
-    _half_stage(x, nx_a, p2w, e0, e1, coup[_G_C2], half, hh, c, pm0, pm1, s, d1, d2, h_op, v1, v2, Dn, acc,
-                xb, p3w, nx_b)
+    e0 = half * r0
+    e1 = half * r1
+    # a = E(h/2) Y_n + (h/2) phi_1(h/2 L) N_n, b = the same with N_a
+    G = coup[_G_C2]
+    xa0, xa1, xa2, xa3, wa0, wa1, wa2, wa3, na0, na1, na2, na3 = _half_stage(
+        x0, x1, x2, x3, nn0, nn1, nn2, nn3, wn0, wn1, wn2, wn3, e0, e1, G, half, hh, c, pm0, pm1, s, d1, d2,
+        h_op, v1, v2, Dn)
+    _, _, _, _, wb0, wb1, wb2, wb3, nb0, nb1, nb2, nb3 = _half_stage(
+        x0, x1, x2, x3, na0, na1, na2, na3, wa0, wa1, wa2, wa3, e0, e1, G, half, hh, c, pm0, pm1, s, d1, d2,
+        h_op, v1, v2, Dn)
     # c = E(h/2) a + (h/2) phi_1(h/2 L) (2 N_b - N_n); the plant rows of E(h/2) a read
     # C phi_1(h/2) a_z with a_z = phi_0(h/2) z + (h/2) phi_1(h/2) B w_n
-    acc[0] = half * r[_R_C10]
-    acc[1] = half * r[_R_C10 + 1]
-    _gw(coup[_G_C11], w_n, hh, acc)
-    for i in range(4):
-        w[i] = 2.0 * p3w[i] - w_n[i]
-    _gw(coup[_G_C2], w, hh, acc)
-    for i in range(4):
-        xc[i] = xa[i] + half * (2.0 * nx_b[i] - nx_n[i])
-    _add_pump(xc, c, pm0 * acc[0], pm1 * acc[1], xc)
-    _measure(xc, s, d1, d2, h_op, w)
-    _plant_n(xc, w, c, v1, v2, Dn, nx_c)
+    a0, a1 = _gw4(coup[_G_C11], wn0, wn1, wn2, wn3, hh, half * r2, half * r3)
+    a0, a1 = _gw4(G, 2.0 * wb0 - wn0, 2.0 * wb1 - wn1, 2.0 * wb2 - wn2, 2.0 * wb3 - wn3, hh, a0, a1)
+    p0 = pm0 * a0
+    p1 = pm1 * a1
+    xc0 = (xa0 + half * (2.0 * nb0 - nn0)) + c[6] * p0
+    xc1 = (xa1 + half * (2.0 * nb1 - nn1)) + c[7] * p1
+    xc2 = (xa2 + half * (2.0 * nb2 - nn2)) + c[8] * p1
+    xc3 = (xa3 + half * (2.0 * nb3 - nn3)) + c[9] * p0
+    wc0, wc1, wc2, wc3 = _measure4(xc0, xc1, xc2, xc3, s, d1, d2, h_op)
+    nc0, nc1, nc2, nc3 = _plant_n4(xc0, xc1, xc2, xc3, wc0, wc1, wc2, wc3, c, v1, v2, Dn)
     # P2 = -3 N_n + 2 N_a + 2 N_b - N_c, P3 = 4 (N_n - N_a - N_b + N_c), for N_x and w
-    for i in range(4):
-        wa, wb = p2w[i], p3w[i]
-        p2w[i] = -3.0 * w_n[i] + 2.0 * (wa + wb) - w[i]
-        p3w[i] = 4.0 * (w_n[i] - wa - wb + w[i])
-        p2x[i] = -3.0 * nx_n[i] + 2.0 * (nx_a[i] + nx_b[i]) - nx_c[i]
-        p3x[i] = 4.0 * (nx_n[i] - nx_a[i] - nx_b[i] + nx_c[i])
+    q0 = -3.0 * wn0 + 2.0 * (wa0 + wb0) - wc0
+    q1 = -3.0 * wn1 + 2.0 * (wa1 + wb1) - wc1
+    q2 = -3.0 * wn2 + 2.0 * (wa2 + wb2) - wc2
+    q3 = -3.0 * wn3 + 2.0 * (wa3 + wb3) - wc3
+    t0 = 4.0 * (wn0 - wa0 - wb0 + wc0)
+    t1 = 4.0 * (wn1 - wa1 - wb1 + wc1)
+    t2 = 4.0 * (wn2 - wa2 - wb2 + wc2)
+    t3 = 4.0 * (wn3 - wa3 - wb3 + wc3)
+    px0 = -3.0 * nn0 + 2.0 * (na0 + nb0) - nc0
+    px1 = -3.0 * nn1 + 2.0 * (na1 + nb1) - nc1
+    px2 = -3.0 * nn2 + 2.0 * (na2 + nb2) - nc2
+    px3 = -3.0 * nn3 + 2.0 * (na3 + nb3) - nc3
+    tx0 = 4.0 * (nn0 - na0 - nb0 + nc0)
+    tx1 = 4.0 * (nn1 - na1 - nb1 + nc1)
+    tx2 = 4.0 * (nn2 - na2 - nb2 + nc2)
+    tx3 = 4.0 * (nn3 - na3 - nb3 + nc3)
+    # what the dense output and the controller update read: N_x at the start, P2x, P3x and the
+    # measured signals w_n, P2w, P3w
+    nx_n, p2x, p3x = scr[0], scr[8], scr[9]
+    w_n, p2w, p3w = wst[0], wst[1], wst[2]
+    nx_n[0], nx_n[1], nx_n[2], nx_n[3] = nn0, nn1, nn2, nn3
+    p2x[0], p2x[1], p2x[2], p2x[3] = px0, px1, px2, px3
+    p3x[0], p3x[1], p3x[2], p3x[3] = tx0, tx1, tx2, tx3
+    w_n[0], w_n[1], w_n[2], w_n[3] = wn0, wn1, wn2, wn3
+    p2w[0], p2w[1], p2w[2], p2w[3] = q0, q1, q2, q3
+    p3w[0], p3w[1], p3w[2], p3w[3] = t0, t1, t2, t3
     # end of the step
-    acc[0] = h * r[_R_H1]
-    acc[1] = h * r[_R_H1 + 1]
-    _gw(coup[_G_H2], w_n, h * h, acc)
-    _gw(coup[_G_H3], p2w, h * h, acc)
-    _gw(coup[_G_H4], p3w, h * h, acc)
-    for i in range(4):
-        x_new[i] = x[i] + h * (nx_n[i] + 0.5 * p2x[i] + p3x[i] * (1.0 / 6.0))
-    _add_pump(x_new, c, pm0 * acc[0], pm1 * acc[1], x_new)
+    h2 = h * h
+    a0, a1 = _gw4(coup[_G_H2], wn0, wn1, wn2, wn3, h2, h * r6, h * r7)
+    a0, a1 = _gw4(coup[_G_H3], q0, q1, q2, q3, h2, a0, a1)
+    a0, a1 = _gw4(coup[_G_H4], t0, t1, t2, t3, h2, a0, a1)
+    p0 = pm0 * a0
+    p1 = pm1 * a1
+    x_new[0] = (x0 + h * (nn0 + 0.5 * px0 + tx0 * (1.0 / 6.0))) + c[6] * p0
+    x_new[1] = (x1 + h * (nn1 + 0.5 * px1 + tx1 * (1.0 / 6.0))) + c[7] * p1
+    x_new[2] = (x2 + h * (nn2 + 0.5 * px2 + tx2 * (1.0 / 6.0))) + c[8] * p1
+    x_new[3] = (x3 + h * (nn3 + 0.5 * px3 + tx3 * (1.0 / 6.0))) + c[9] * p0
     for i in range(nd):
         col = mi[i]
         z_new[i] = prop_m[0, i] * z[i] + h * (prop_m[1, i] * w_n[col] + prop_m[2, i] * p2w[col]
@@ -522,29 +559,27 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
         z_new[nd + i] = acc_i
     if not full:
         return  # the state at the end is all a step-doubling estimate reads
-    du_end[0] = r[_R_H0]
-    du_end[1] = r[_R_H0 + 1]
-    _gw(coup[_G_H1], w_n, h, du_end)
-    _gw(coup[_G_H2], p2w, h, du_end)
-    _gw(coup[_G_H3], p3w, h, du_end)
-    _measure(x_new, s, d1, d2, h_op, w)
-    _gw(Dc, w, 1.0, du_end)
+    u0, u1 = _gw4(coup[_G_H1], wn0, wn1, wn2, wn3, h, r8, r9)
+    u0, u1 = _gw4(coup[_G_H2], q0, q1, q2, q3, h, u0, u1)
+    u0, u1 = _gw4(coup[_G_H3], t0, t1, t2, t3, h, u0, u1)
+    m0, m1, m2, m3 = _measure4(x_new[0], x_new[1], x_new[2], x_new[3], s, d1, d2, h_op)
+    du_end[0], du_end[1] = _gw4(Dc, m0, m1, m2, m3, 1.0, u0, u1)
     # midpoint: the dense output at theta = 1/2 (see _dense_at), tables at h/2
-    acc[0] = e0
-    acc[1] = e1
-    _gw(coup[_G_C2], w_n, hh, acc)
-    _gw(coup[_G_C3], p2w, 0.5 * hh, acc)
-    _gw(coup[_G_C4], p3w, 0.25 * hh, acc)
-    for i in range(4):
-        x_mid[i] = x[i] + half * (nx_n[i] + 0.25 * p2x[i] + p3x[i] * (1.0 / 24.0))
-    _add_pump(x_mid, c, pm0 * acc[0], pm1 * acc[1], x_mid)
-    du_mid[0] = r[_R_C0]
-    du_mid[1] = r[_R_C0 + 1]
-    _gw(coup[_G_C1], w_n, half, du_mid)
-    _gw(coup[_G_C2], p2w, 0.5 * half, du_mid)
-    _gw(coup[_G_C3], p3w, 0.25 * half, du_mid)
-    _measure(x_mid, s, d1, d2, h_op, w)
-    _gw(Dc, w, 1.0, du_mid)
+    a0, a1 = _gw4(G, wn0, wn1, wn2, wn3, hh, e0, e1)
+    a0, a1 = _gw4(coup[_G_C3], q0, q1, q2, q3, 0.5 * hh, a0, a1)
+    a0, a1 = _gw4(coup[_G_C4], t0, t1, t2, t3, 0.25 * hh, a0, a1)
+    p0 = pm0 * a0
+    p1 = pm1 * a1
+    xm0 = (x0 + half * (nn0 + 0.25 * px0 + tx0 * (1.0 / 24.0))) + c[6] * p0
+    xm1 = (x1 + half * (nn1 + 0.25 * px1 + tx1 * (1.0 / 24.0))) + c[7] * p1
+    xm2 = (x2 + half * (nn2 + 0.25 * px2 + tx2 * (1.0 / 24.0))) + c[8] * p1
+    xm3 = (x3 + half * (nn3 + 0.25 * px3 + tx3 * (1.0 / 24.0))) + c[9] * p0
+    x_mid[0], x_mid[1], x_mid[2], x_mid[3] = xm0, xm1, xm2, xm3
+    u0, u1 = _gw4(coup[_G_C1], wn0, wn1, wn2, wn3, half, r4, r5)
+    u0, u1 = _gw4(G, q0, q1, q2, q3, 0.5 * half, u0, u1)
+    u0, u1 = _gw4(coup[_G_C3], t0, t1, t2, t3, 0.25 * half, u0, u1)
+    m0, m1, m2, m3 = _measure4(xm0, xm1, xm2, xm3, s, d1, d2, h_op)
+    du_mid[0], du_mid[1] = _gw4(Dc, m0, m1, m2, m3, 1.0, u0, u1)
 
 
 @_kernel(inline="always")
@@ -955,14 +990,14 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
     # adaptive pairs: the second step's results, the double step's, and the stages of both steps
     x2, xm2, xb, xmb = w4[20], w4[21], w4[22], w4[23]
     scr1, wst1, scr2, wst2 = w4[24:34], w4[34:37], w4[37:47], w4[47:50]
-    u_mid, u_end, du0, acc, dur, v, pm = w2[0], w2[1], w2[2], w2[3], w2[4], w2[5], w2[6]
+    u_mid, u_end, du0, dur, v, pm = w2[0], w2[1], w2[2], w2[4], w2[5], w2[6]  # w2[3] unused
     ue, ua, u_prev, t_release, band = w2[7], w2[8], w2[9], w2[10], w2[11]
     iae, ise, itae, jj, jdev, tv, mp = w2[12], w2[13], w2[14], w2[15], w2[16], w2[17], w2[18]
     ex_prev, ex_out, ex_in = w2[19:21], w2[21:23], w2[23:25]
     excess = w2[25]  # a sliding pump's output beyond its limit at the last step end
     um2, ue2, umb, ueb = w2[26], w2[27], w2[28], w2[29]
     f0, fm, f1, lo, hi, win_v = w10[0], w10[1], w10[2], w10[3], w10[4], w10[5:8]
-    c_e, rbuf, gm, g1, ga = w10[8], w10[9], w10[10], w10[11], w10[12]
+    c_e, gm, g1, ga = w10[8], w10[10], w10[11], w10[12]  # w10[9] unused
     win_t, pmc, pmh = w10[13], w10[14], w10[15]
     z, z_new, z2, zb = wz[0], wz[1], wz[2], wz[3]
     lam_e, bm_e = wm[0], wm[1]
@@ -1141,18 +1176,18 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
                             h2 = 2.0 * h1
                             h1b = h1
                         _etdrk4_step(x, z, h1, rows[lv], coup[lv], prop_m[lv], prop_q[lv], prop_qb[lv], mi, c_e, s,
-                                     d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x_new,
+                                     d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, x_new,
                                      z_new, x_mid, u_mid, u_end, True)
                         _copy_rows(scr, scr1)
                         _copy_rows(wst, wst1)
                         _etdrk4_step(x_new, z_new, h1b, rows[lv], coup[lv], prop_m[lv], prop_q[lv], prop_qb[lv], mi,
-                                     c_e, s, d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x2,
+                                     c_e, s, d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, x2,
                                      z2, xm2, um2, ue2, True)
                         _copy_rows(scr, scr2)
                         _copy_rows(wst, wst2)
                         lb = lv - 1
                         _etdrk4_step(x, z, h2, rows[lb], coup[lb], prop_m[lb], prop_q[lb], prop_qb[lb], mi, c_e, s,
-                                     d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, xb, zb,
+                                     d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, xb, zb,
                                      xmb, umb, ueb, switching)
                         if min(min(x2[0], x2[1]), min(x2[2], x2[3])) * s < ADAPTIVE_LOW_LEVEL or min(
                                 min(xb[0], xb[1]), min(xb[2], xb[3])) * s < ADAPTIVE_LOW_LEVEL:
@@ -1204,7 +1239,7 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
                     if pos >= units:
                         hs = t_end - t  # the last step ends on the segment's end exactly
                     _etdrk4_step(x, z, hs, rows[level], coup[level], prop_m[level], prop_q[level], prop_qb[level], mi,
-                                 c_e, s, d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x_new,
+                                 c_e, s, d1, d2, v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, x_new,
                                  z_new, x_mid, u_mid, u_end, True)
             n_taken += 1
             if not (abs(x_new[0]) + abs(x_new[1]) + abs(x_new[2]) + abs(x_new[3]) < state_limit):
@@ -1242,7 +1277,7 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
                     step_tables(lam_e, bm_e, mi, Cm, Aq_e, Bq_e, Cq, hs, n_levels, 0 if lazy else -1, rows, coup,
                                 prop_m, prop_q, prop_qb, pmc, pmh, phw, sqw, rw, bw)
                     _etdrk4_step(x, z, hs, rows[0], coup[0], prop_m[0], prop_q[0], prop_qb[0], mi, c_e, s, d1, d2,
-                                 v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, rbuf, acc, x_new, z_new, x_mid,
+                                 v[0], v[1], h_op, Dc, Dn, pm[0], pm[1], scr, wst, x_new, z_new, x_mid,
                                  u_mid, u_end, True)
                     n_events += 1
                 elif fired >= 0:
