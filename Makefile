@@ -37,6 +37,8 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_batch.py --gpu
 	$(BIN)/python benchmarks/work_precision.py
 	$(BIN)/python benchmarks/step_rule.py
+	# the tree's continuous kernels against the last commit's, bit for bit and side by side (REV=... for another)
+	$(BIN)/python benchmarks/kernels_side_by_side.py --rev $(or $(REV),HEAD)
 	if $(BIN)/python -c "import pymoo" 2>/dev/null; then $(BIN)/python benchmarks/bench_sms_emoa.py; \
 	else echo "bench_sms_emoa: skipped (pymoo not installed: pip install 'heurtune[pymoo]')"; fi
 
