@@ -437,6 +437,13 @@ def _half_stage(x0, x1, x2, x3, n0, n1, n2, n3, w0, w1, w2, w3, e0, e1, G, half,
     return y0, y1, y2, y3, m0, m1, m2, m3, q0, q1, q2, q3
 
 
+@_kernel(inline="always")
+def _p2_p3(vn, va, vb, vc):
+    """ETDRK4's combinations of one component's stage values (start, a, b, c):
+    ``P2 = -3 v_n + 2 (v_a + v_b) - v_c`` and ``P3 = 4 (v_n - v_a - v_b + v_c)``."""
+    return -3.0 * vn + 2.0 * (va + vb) - vc, 4.0 * (vn - va - vb + vc)
+
+
 @_kernel
 def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2, v1, v2, h_op, Dc, Dn, pm0, pm1,
                  scr, wst, x_new, z_new, x_mid, du_mid, du_end, full):
@@ -508,23 +515,15 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     xc3 = (xa3 + half * (2.0 * nb3 - nn3)) + c[9] * p0
     wc0, wc1, wc2, wc3 = _measure4(xc0, xc1, xc2, xc3, s, d1, d2, h_op)
     nc0, nc1, nc2, nc3 = _plant_n4(xc0, xc1, xc2, xc3, wc0, wc1, wc2, wc3, c, v1, v2, Dn)
-    # P2 = -3 N_n + 2 N_a + 2 N_b - N_c, P3 = 4 (N_n - N_a - N_b + N_c), for N_x and w
-    q0 = -3.0 * wn0 + 2.0 * (wa0 + wb0) - wc0
-    q1 = -3.0 * wn1 + 2.0 * (wa1 + wb1) - wc1
-    q2 = -3.0 * wn2 + 2.0 * (wa2 + wb2) - wc2
-    q3 = -3.0 * wn3 + 2.0 * (wa3 + wb3) - wc3
-    t0 = 4.0 * (wn0 - wa0 - wb0 + wc0)
-    t1 = 4.0 * (wn1 - wa1 - wb1 + wc1)
-    t2 = 4.0 * (wn2 - wa2 - wb2 + wc2)
-    t3 = 4.0 * (wn3 - wa3 - wb3 + wc3)
-    px0 = -3.0 * nn0 + 2.0 * (na0 + nb0) - nc0
-    px1 = -3.0 * nn1 + 2.0 * (na1 + nb1) - nc1
-    px2 = -3.0 * nn2 + 2.0 * (na2 + nb2) - nc2
-    px3 = -3.0 * nn3 + 2.0 * (na3 + nb3) - nc3
-    tx0 = 4.0 * (nn0 - na0 - nb0 + nc0)
-    tx1 = 4.0 * (nn1 - na1 - nb1 + nc1)
-    tx2 = 4.0 * (nn2 - na2 - nb2 + nc2)
-    tx3 = 4.0 * (nn3 - na3 - nb3 + nc3)
+    # P2 = -3 N_n + 2 N_a + 2 N_b - N_c, P3 = 4 (N_n - N_a - N_b + N_c), for w and N_x
+    q0, t0 = _p2_p3(wn0, wa0, wb0, wc0)
+    q1, t1 = _p2_p3(wn1, wa1, wb1, wc1)
+    q2, t2 = _p2_p3(wn2, wa2, wb2, wc2)
+    q3, t3 = _p2_p3(wn3, wa3, wb3, wc3)
+    px0, tx0 = _p2_p3(nn0, na0, nb0, nc0)
+    px1, tx1 = _p2_p3(nn1, na1, nb1, nc1)
+    px2, tx2 = _p2_p3(nn2, na2, nb2, nc2)
+    px3, tx3 = _p2_p3(nn3, na3, nb3, nc3)
     # what the dense output and the controller update read: N_x at the start, P2x, P3x and the
     # measured signals w_n, P2w, P3w
     nx_n, p2x, p3x = scr[0], scr[8], scr[9]
