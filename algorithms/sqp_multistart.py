@@ -11,6 +11,11 @@ Starts and budget
 -----------------
 Starts are drawn in the parent from the run's generator, ``batch`` at a time (a Latin
 hypercube, or uniform); a batch is one epoch of the history and runs spread over the workers.
+Without an evaluation budget there are no caps, so every batch is drawn (in the same order) and
+handed to the workers at once: no worker waits for the slowest solve of a batch. The batches
+are still closed in order (offered, recorded as epochs), so the run is the same as batch by
+batch; a stop after a batch (``max_epochs``) cancels the solves not yet begun. Such a run keeps
+every worker busy by itself (``spreads_work``), and the experiment runner gives it all of them.
 With an evaluation budget each start of a batch gets a cap: the budget remaining when the batch
 begins, split evenly in start order (the first ``remaining % k`` get one more). A start that
 reaches its cap stops gracefully ("evaluation cap reached") and keeps its best point; what a
@@ -211,6 +216,12 @@ class SQPMultistart(Driver):
         super().__init__(space, settings, rng, compare)
         self.details = []
 
+    @staticmethod
+    def spreads_work(budget: dict) -> bool:
+        """Without an evaluation budget every start is known at once (see
+        :meth:`_run_unbudgeted`), so the local solves keep all the workers busy."""
+        return budget.get("max_evals") is None
+
     def _sample(self, k: int) -> np.ndarray:
         if self.settings.sampling == "uniform":
             return self.space.uniform(self.rng, k)
@@ -236,20 +247,21 @@ class SQPMultistart(Driver):
         solve = functools.partial(_local_solve, task)
         # Local solves finished by an earlier, interrupted attempt at this run, by start number.
         finished = {int(r["start"]): r for r in ctx.checkpoint.load()}
+        if ctx.remaining is None:
+            self._run_unbudgeted(ctx, records, solve, finished)
+            return
         launched, round_no = 0, 0
         while True:
             left = ctx.remaining
-            if left is not None and left <= 0:
+            if left <= 0:
                 ctx.check_stop()
                 return
             more = s.starts - launched
-            if more <= 0 and (left is None or not s.fill_budget):
+            if more <= 0 and not s.fill_budget:
                 return
-            k = s.batch if more <= 0 else min(s.batch, more)
-            if left is not None:
-                k = min(k, left)
+            k = min(s.batch if more <= 0 else min(s.batch, more), left)
             X0 = self._sample(k)
-            caps = [None] * k if left is None else even_caps(left, k)
+            caps = even_caps(left, k)
             items = [(launched + i, X0[i], caps[i]) for i in range(k)]
             results = [_reuse(finished.get(item[0]), item, round_no) for item in items]
             todo = [i for i in range(k) if results[i] is None]
@@ -258,17 +270,60 @@ class SQPMultistart(Driver):
                 res["round"], res["cap"] = round_no, caps[i]
                 results[i] = finished[items[i][0]] = res
                 ctx.checkpoint.save([finished[n] for n in sorted(finished)])
-            records.extend(results)
-            f = np.array([r["f"] for r in results])
-            v = np.array([r["violation"] for r in results])
-            X = np.array([r["x"] for r in results])
-            G = np.array([r["g"] for r in results]).reshape(len(results), -1)
-            ctx.count_evaluations(sum(r["nfev"] for r in results))
-            ctx.offer(X, f, v, G)
             launched += k
             round_no += 1
-            if ctx.record_epoch(f, v):
+            if _close_round(ctx, records, results):
                 return
+
+    def _run_unbudgeted(self, ctx, records, solve, finished):
+        """No evaluation budget: no caps, so every round's starts are known before any solve
+        ends. They are drawn in the same order as round by round and handed to the workers all
+        at once, so that no worker waits at the end of a round; the rounds are still closed
+        (offered, recorded as epochs) in order, and a stop after a round cancels the solves
+        not yet begun."""
+        s = self.settings
+        sizes = [min(s.batch, s.starts - first) for first in range(0, s.starts, s.batch)]
+        items, round_of = [], []
+        for round_no, k in enumerate(sizes):
+            first, X0 = len(items), self._sample(k)
+            items.extend((first + i, X0[i], None) for i in range(k))
+            round_of.extend([round_no] * k)
+        rounds = np.split(np.arange(len(items)), np.cumsum(sizes)[:-1])
+        results = [_reuse(finished.get(i), items[i], round_of[i]) for i in range(len(items))]
+        todo = [i for i in range(len(items)) if results[i] is None]
+        closed = 0
+
+        def close_ready():
+            nonlocal closed
+            while closed < len(rounds) and all(results[i] is not None for i in rounds[closed]):
+                stop = _close_round(ctx, records, [results[i] for i in rounds[closed]])
+                closed += 1
+                if stop:
+                    return True
+            return False
+
+        if close_ready():
+            return
+        for j, res in ctx.map_unordered(solve, [items[i] for i in todo]):
+            i = todo[j]
+            res["round"], res["cap"] = round_of[i], None
+            results[i] = finished[i] = res
+            ctx.checkpoint.save([finished[n] for n in sorted(finished)])
+            if close_ready():
+                return
+
+
+def _close_round(ctx, records, results) -> bool:
+    """Hand a finished round of local solves to the run: details, evaluations, best, epoch.
+    Returns whether the run stops after it."""
+    records.extend(results)
+    f = np.array([r["f"] for r in results])
+    v = np.array([r["violation"] for r in results])
+    X = np.array([r["x"] for r in results])
+    G = np.array([r["g"] for r in results]).reshape(len(results), -1)
+    ctx.count_evaluations(sum(r["nfev"] for r in results))
+    ctx.offer(X, f, v, G)
+    return ctx.record_epoch(f, v)
 
 
 def _reuse(record, item, round_no):

@@ -161,6 +161,13 @@ class Driver:
     def run(self, ctx: RunContext) -> None:
         raise NotImplementedError
 
+    @staticmethod
+    def spreads_work(budget: dict) -> bool:
+        """Whether a run under ``budget`` (``max_evals``, ``max_epochs``, ...) keeps every
+        worker busy by itself through :meth:`RunContext.map_unordered`. The experiment runner
+        then runs it alone over all the workers instead of whole on one. Default: False."""
+        return False
+
 
 class BudgetExhausted(Exception):
     """Raised by RunContext.evaluate when no evaluation is left."""

@@ -22,8 +22,11 @@ dirty, platform and BLAS), ``margins.parquet`` and figures. TITO experiments als
 and spectral-radius plots. Analytic designs named in ``controller.baselines`` (e.g. ``gpm``) are
 written as runs of their own (one each, algorithm = the baseline's name).
 
-With more pending runs than workers, whole runs go to the workers; otherwise the runs go one
-after the other, each evaluating its batches on all workers.
+Runs whose driver keeps every worker busy by itself (multistart SQP without an evaluation
+budget: its local solves are handed out all at once) go one after the other, each over all the
+workers, so that runs of unequal length never leave a worker idle. Of the other runs, with more
+pending runs than workers, whole runs go to the workers; otherwise the runs go one after the
+other, each evaluating its batches on all workers.
 
 Before the first run, one evaluation of every case is calibrated on this machine and device and
 the planned work printed (runs, evaluations, estimated time; :mod:`heurtune.runner.workplan`);
@@ -872,33 +875,50 @@ def _run_pending(config, pending, parts, bar, fingerprints, *, jobs, backend, sc
         _run_lockstep(config, pending, parts, bar, fingerprints, jobs=jobs, backend=backend, scheduler=scheduler,
                       executor=executor)
         return
-    whole_runs = backend == "dask" or executor is not None or (jobs > 1 and len(pending) >= jobs)
-    if not whole_runs:
-        # Few runs: one after the other, each spreading its batches over the workers.
-        for i, spec in enumerate(pending):
-            prob = _problem(config, spec.case)
-            try:
-                with Evaluator(prob, n_jobs=jobs) as ev:
-                    row, hist = execute(config, spec, ev, parts=parts)
-            except Exception as exc:
-                if is_worker_death(exc):  # a worker of this run's evaluations died
-                    raise WorkerDied(i, exc) from exc
-                raise
-            _persist(parts, spec, row, hist, fingerprints[spec.part_name])
-            bar.update(row, spec.part_name)
+    # Runs whose driver keeps every worker busy by itself (multistart SQP without a budget): one
+    # after another, each over all the workers. The others: whole runs on the workers when there
+    # are enough of them, else one after another, each spreading its batches.
+    on_pool = backend != "dask" and executor is None
+    spread = [i for i, s in enumerate(pending) if jobs > 1 and on_pool and _spreads_work(s)]
+    rest = [i for i in range(len(pending)) if i not in spread]
+    whole_runs = backend == "dask" or executor is not None or (jobs > 1 and len(rest) >= jobs)
+    for i in spread + ([] if whole_runs else rest):
+        spec = pending[i]
+        prob = _problem(config, spec.case)
+        try:
+            with Evaluator(prob, n_jobs=jobs) as ev:
+                row, hist = execute(config, spec, ev, parts=parts)
+        except Exception as exc:
+            if is_worker_death(exc) or isinstance(exc, WorkerDied):  # a worker of this run's evaluations died
+                raise WorkerDied(i, exc) from exc
+            raise
+        _persist(parts, spec, row, hist, fingerprints[spec.part_name])
+        bar.update(row, spec.part_name)
+    if not whole_runs or not rest:
         return
     # Whole runs on the workers (each evaluating in its own process); the kernels are warmed
     # here first, so that the workers load them from the cache.
-    _problem(config, pending[0].case).warm_up()
+    whole = [pending[i] for i in rest]
+    _problem(config, whole[0].case).warm_up()
     pool = Pool(jobs, backend, scheduler, executor=executor)
     try:
         with pool:
-            for i, (row, hist) in pool.imap_unordered(functools.partial(execute, config, parts=parts), pending):
-                _persist(parts, pending[i], row, hist, fingerprints[pending[i].part_name])
-                bar.update(row, pending[i].part_name)
+            for j, (row, hist) in pool.imap_unordered(functools.partial(execute, config, parts=parts), whole):
+                _persist(parts, whole[j], row, hist, fingerprints[whole[j].part_name])
+                bar.update(row, whole[j].part_name)
+    except WorkerDied as exc:
+        pool.abort()
+        raise WorkerDied(rest[exc.index], exc) from exc
     except BaseException:
         pool.abort()
         raise
+
+
+def _spreads_work(spec: RunSpec) -> bool:
+    """Whether the run's optimiser keeps every worker busy by itself (a driver whose
+    ``spreads_work(budget)`` says so), so that it runs alone over all the workers."""
+    spreads = getattr(registry.get(spec.algorithm).cls, "spreads_work", None)
+    return bool(spreads is not None and spreads(spec.budget))
 
 
 def _run_lockstep(config, pending, parts, bar, fingerprints, *, jobs, backend, scheduler, executor=None):

@@ -266,18 +266,19 @@ def _wavy_fun():
     return wavy
 
 
+@pytest.mark.parametrize("budget", [260, None])
 @pytest.mark.parametrize("n_jobs", [1, 2])
-def test_sqp_resumes_from_its_checkpoint_without_resolving(n_jobs):
+def test_sqp_resumes_from_its_checkpoint_without_resolving(n_jobs, budget):
     """Each finished start is saved at once; a rerun from a partial checkpoint solves only the
     other starts and ends exactly like the uninterrupted run (caps of a budget included)."""
     wavy = _wavy_fun()
-    kw = dict(max_evals=260, settings=dict(starts=7, max_iter=15, batch=3))
+    kw = dict(max_evals=budget, settings=dict(starts=7, max_iter=15, batch=3))
     whole_ck = _Snapshots()
     whole = _sqp_run(wavy, whole_ck, n_jobs, **kw)
     saves = whole_ck.saves
     assert [len(s) for s in saves] == list(range(1, len(whole.details) + 1))  # one save per start
     assert [r["start"] for r in saves[-1]] == list(whole.details.start)
-    partial = saves[4]  # 5 starts saved: round 0 and two of round 1
+    partial = saves[4]  # the first 5 starts to end (in order with one worker: round 0, two of round 1)
     calls = []
 
     def counted(X):
@@ -295,6 +296,27 @@ def test_sqp_resumes_from_its_checkpoint_without_resolving(n_jobs):
     pd.testing.assert_frame_equal(resumed.details, whole.details)
     cols = ["epoch", "n_evals", "best_f", "best_violation", "mean_f", "sd_f", "feasible_fraction"]
     pd.testing.assert_frame_equal(resumed.history[cols], whole.history[cols])
+
+
+@pytest.mark.parametrize("n_jobs", [1, 2])
+def test_sqp_without_a_budget_hands_out_every_start_and_closes_rounds_in_order(n_jobs):
+    """Without a budget every start goes to the workers at once: the run must equal one that
+    goes round by round (a budget it never reaches), and a stop after a round must keep
+    exactly the rounds before it."""
+    wavy = _wavy_fun()
+    settings = dict(starts=8, max_iter=15, batch=3)
+    ahead = _sqp_run(wavy, _Snapshots(), n_jobs, settings=settings)
+    by_round = _sqp_run(wavy, _Snapshots(), n_jobs, max_evals=10**6, settings=dict(settings, fill_budget=False))
+    assert ahead.details["cap"].isna().all() and by_round.details["cap"].notna().all()
+    assert list(ahead.details["round"]) == [0, 0, 0, 1, 1, 1, 2, 2]
+    pd.testing.assert_frame_equal(ahead.details.drop(columns="cap"), by_round.details.drop(columns="cap"))
+    cols = ["epoch", "n_evals", "best_f", "best_violation", "mean_f", "sd_f", "feasible_fraction"]
+    pd.testing.assert_frame_equal(ahead.history[cols], by_round.history[cols])
+    assert ahead.f == by_round.f and ahead.n_evals == by_round.n_evals
+    stopped = _sqp_run(wavy, _Snapshots(), n_jobs, max_epochs=1, settings=settings)
+    assert stopped.stop_reason == "max_epochs" and list(stopped.history.epoch) == [0, 1]
+    pd.testing.assert_frame_equal(stopped.details, ahead.details.iloc[:6])
+    assert stopped.n_evals == ahead.details.nfev.iloc[:6].sum()
 
 
 def test_sqp_refuses_a_checkpoint_of_another_run():

@@ -115,6 +115,20 @@ def test_same_starts_with_one_and_two_workers(reference):
     _same(_read(out), whole)
 
 
+def test_only_multistart_runs_without_a_budget_spread_their_starts_over_the_workers():
+    """Such runs go one after another over all the workers (the two-worker run above took that
+    path); every other run stays whole on one worker."""
+    from heurtune.runner.experiment import RunSpec, _spreads_work
+
+    def spec(algorithm, budget):
+        return RunSpec("min", 0, algorithm, 0, 0, {}, budget, 1)
+
+    assert _spreads_work(spec("sqp_multistart", {"max_epochs": 5}))
+    assert not _spreads_work(spec("sqp_multistart", {"max_evals": 100}))
+    assert not _spreads_work(spec("cmaes_sqp", {}))
+    assert not _spreads_work(spec("cs", {}))
+
+
 def test_no_starts_file_without_a_multistart_driver(tmp_path):
     cfg = tmp_path / "cs_small.toml"
     cfg.write_text('extends = "cs_folqi_qtp"\nruns = 1\n[plant]\ncases = ["min"]\n'
