@@ -365,18 +365,16 @@ def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, n_levels, lv_only, rows, coup, p
 
 
 @_kernel(inline="always")
-def _measure(x, s, d1, d2, h_op, w):
-    """Measured deviations ``w`` of plant state ``x`` (levels ``s x``, disturbance on y1, y2)."""
-    w[0] = s * x[0] + (d1 - h_op[0])
-    w[1] = s * x[1] + (d2 - h_op[1])
-    w[2] = s * x[2] - h_op[2]
-    w[3] = s * x[3] - h_op[3]
+def _measure4(x0, x1, x2, x3, s, d1, d2, h_op):
+    """Measured deviations of a plant state held in four scalars (levels ``s x``, disturbance
+    on y1, y2); returns the four deviations."""
+    return s * x0 + (d1 - h_op[0]), s * x1 + (d2 - h_op[1]), s * x2 - h_op[2], s * x3 - h_op[3]
 
 
 @_kernel(inline="always")
-def _measure4(x0, x1, x2, x3, s, d1, d2, h_op):
-    """:func:`_measure` on a plant state held in four scalars; returns the four deviations."""
-    return s * x0 + (d1 - h_op[0]), s * x1 + (d2 - h_op[1]), s * x2 - h_op[2], s * x3 - h_op[3]
+def _measure(x, s, d1, d2, h_op, w):
+    """:func:`_measure4` of plant state ``x`` into ``w``."""
+    w[0], w[1], w[2], w[3] = _measure4(x[0], x[1], x[2], x[3], s, d1, d2, h_op)
 
 
 @_kernel(inline="always")
@@ -403,9 +401,8 @@ def _gw4(G, w0, w1, w2, w3, g, a0, a1):
 
 @_kernel(inline="always")
 def _gw(G, w, g, acc):
-    """``acc += g G w`` for a (2, 4) coupling ``G``."""
-    acc[0] += g * (G[0, 0] * w[0] + G[0, 1] * w[1] + G[0, 2] * w[2] + G[0, 3] * w[3])
-    acc[1] += g * (G[1, 0] * w[0] + G[1, 1] * w[1] + G[1, 2] * w[2] + G[1, 3] * w[3])
+    """``acc += g G w`` for a (2, 4) coupling ``G`` (:func:`_gw4` on arrays)."""
+    acc[0], acc[1] = _gw4(G, w[0], w[1], w[2], w[3], g, acc[0], acc[1])
 
 
 @_kernel(inline="always")
@@ -989,15 +986,15 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
     # adaptive pairs: the second step's results, the double step's, and the stages of both steps
     x2, xm2, xb, xmb = w4[20], w4[21], w4[22], w4[23]
     scr1, wst1, scr2, wst2 = w4[24:34], w4[34:37], w4[37:47], w4[47:50]
-    u_mid, u_end, du0, dur, v, pm = w2[0], w2[1], w2[2], w2[4], w2[5], w2[6]  # w2[3] unused
-    ue, ua, u_prev, t_release, band = w2[7], w2[8], w2[9], w2[10], w2[11]
-    iae, ise, itae, jj, jdev, tv, mp = w2[12], w2[13], w2[14], w2[15], w2[16], w2[17], w2[18]
-    ex_prev, ex_out, ex_in = w2[19:21], w2[21:23], w2[23:25]
-    excess = w2[25]  # a sliding pump's output beyond its limit at the last step end
-    um2, ue2, umb, ueb = w2[26], w2[27], w2[28], w2[29]
+    u_mid, u_end, du0, dur, v, pm = w2[0], w2[1], w2[2], w2[3], w2[4], w2[5]
+    ue, ua, u_prev, t_release, band = w2[6], w2[7], w2[8], w2[9], w2[10]
+    iae, ise, itae, jj, jdev, tv, mp = w2[11], w2[12], w2[13], w2[14], w2[15], w2[16], w2[17]
+    ex_prev, ex_out, ex_in = w2[18:20], w2[20:22], w2[22:24]
+    excess = w2[24]  # a sliding pump's output beyond its limit at the last step end
+    um2, ue2, umb, ueb = w2[25], w2[26], w2[27], w2[28]
     f0, fm, f1, lo, hi, win_v = w10[0], w10[1], w10[2], w10[3], w10[4], w10[5:8]
-    c_e, gm, g1, ga = w10[8], w10[10], w10[11], w10[12]  # w10[9] unused
-    win_t, pmc, pmh = w10[13], w10[14], w10[15]
+    c_e, gm, g1, ga = w10[8], w10[9], w10[10], w10[11]
+    win_t, pmc, pmh = w10[12], w10[13], w10[14]
     z, z_new, z2, zb = wz[0], wz[1], wz[2], wz[3]
     lam_e, bm_e = wm[0], wm[1]
     Aq_e, Bq_e = wq, wqb
@@ -1496,8 +1493,8 @@ def step_rule(A, B, D, lam, bm, mi, Cm, h_max, radius, min_step, stability_radiu
 
 # Rows of the working arrays of continuous_lane (float64 unless stated): see its first lines.
 _W4_ROWS = 50
-_W2_ROWS = 30
-_W10_ROWS = 16
+_W2_ROWS = 29
+_W10_ROWS = 15
 
 
 def workspace_shapes(nd: int, nq: int) -> list:
