@@ -880,7 +880,7 @@ def _run_pending(config, pending, parts, bar, fingerprints, *, jobs, backend, sc
     # are enough of them, else one after another, each spreading its batches.
     on_pool = backend != "dask" and executor is None
     spread = [i for i, s in enumerate(pending) if jobs > 1 and on_pool and _spreads_work(s)]
-    rest = [i for i in range(len(pending)) if i not in spread]
+    rest = sorted(set(range(len(pending))) - set(spread))
     whole_runs = backend == "dask" or executor is not None or (jobs > 1 and len(rest) >= jobs)
     for i in spread + ([] if whole_runs else rest):
         spec = pending[i]
