@@ -10,12 +10,16 @@ default ``sqrt(machine eps)``, one-sided away from the faces).
 Starts and budget
 -----------------
 Starts are drawn in the parent from the run's generator, ``batch`` at a time (a Latin
-hypercube, or uniform); a batch is one epoch of the history and runs spread over the workers.
+hypercube, or uniform); a batch is one epoch of the history, and its solves are spread over
+the workers.
+
 Without an evaluation budget there are no caps, so every batch is drawn (in the same order) and
 handed to the workers at once: no worker waits for the slowest solve of a batch. The batches
 are still closed in order (offered, recorded as epochs), so the run is the same as batch by
 batch; a stop after a batch (``max_epochs``) cancels the solves not yet begun. Such a run keeps
-every worker busy by itself (``spreads_work``), and the experiment runner gives it all of them.
+every worker busy by itself (``spreads_work``), and the experiment runner gives it all the
+workers of its local pool in turn (not under Dask, an executor or lockstep).
+
 With an evaluation budget each start of a batch gets a cap: the budget remaining when the batch
 begins, split evenly in start order (the first ``remaining % k`` get one more). A start that
 reaches its cap stops gracefully ("evaluation cap reached") and keeps its best point; what a

@@ -22,11 +22,12 @@ dirty, platform and BLAS), ``margins.parquet`` and figures. TITO experiments als
 and spectral-radius plots. Analytic designs named in ``controller.baselines`` (e.g. ``gpm``) are
 written as runs of their own (one each, algorithm = the baseline's name).
 
-Runs whose driver keeps every worker busy by itself (multistart SQP without an evaluation
-budget: its local solves are handed out all at once) go one after the other, each over all the
-workers, so that runs of unequal length never leave a worker idle. Of the other runs, with more
-pending runs than workers, whole runs go to the workers; otherwise the runs go one after the
-other, each evaluating its batches on all workers.
+On the local pool with several workers (not Dask, an executor or lockstep), runs whose driver
+keeps every worker busy by itself (multistart SQP without an evaluation budget: its local
+solves are handed out all at once) go first, one after the other, each over all the workers, so
+that runs of unequal length never leave a worker idle. Of the other runs, with at least as many
+as workers, whole runs go to the workers; otherwise the runs go one after the other, each
+evaluating its batches on all workers.
 
 Before the first run, one evaluation of every case is calibrated on this machine and device and
 the planned work printed (runs, evaluations, estimated time; :mod:`heurtune.runner.workplan`);
