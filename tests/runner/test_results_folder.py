@@ -365,6 +365,44 @@ def test_a_killed_worker_names_the_run_and_the_folder_resumes(tmp_path, capsys):
     pd.testing.assert_frame_equal(results(tmp_path / "out"), results(tmp_path / "whole"))
 
 
+def test_a_worker_killed_under_a_spread_run_names_that_run(tmp_path):
+    """A driver that spreads its work units over all the workers (``spreads_work``): the
+    first run ends, a worker dies under the second, in its first work unit. The error names
+    the second run (not the run at the unit's index), and the first run is kept."""
+    (tmp_path / "die_spread.py").write_text(
+        "import dataclasses, multiprocessing, os, pathlib, signal\n"
+        "from heurtune.core.engine import Driver\n"
+        "from heurtune.core.registry import register\n"
+        "@dataclasses.dataclass(frozen=True)\n"
+        "class S:\n    n: int = 4\n"
+        "MARK = pathlib.Path(os.environ['DIE_SPREAD_MARK'])\n"
+        "def _unit(item):\n"
+        "    if item == 0 and MARK.exists() and 'Loky' in multiprocessing.current_process().name:\n"
+        "        os.kill(os.getpid(), signal.SIGKILL)\n"
+        "    return item\n"
+        "@register('die_spread', kind='driver', settings=S, description='test: kills a worker in a work unit')\n"
+        "class DieSpread(Driver):\n"
+        "    @staticmethod\n"
+        "    def spreads_work(budget):\n        return True\n"
+        "    def run(self, ctx):\n"
+        "        f, v, _ = ctx.evaluate(self.space.uniform(self.rng, 1))\n"
+        "        ctx.record_epoch(f, v)\n"
+        "        for _ in ctx.map_unordered(_unit, list(range(self.settings.n))):\n            pass\n"
+        "        MARK.touch()\n")
+    cfg = tmp_path / "die.toml"
+    cfg.write_text('extends = "cs_folqi_qtp"\nplugins = ["die_spread.py"]\nruns = 1\n'
+                   '[[optimisers]]\nname = "die_spread"\nmax_epochs = 2\n')
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "heurtune.experiment", str(cfg), "--out", str(out), "--jobs", "2", "--no-figures"]
+    died = subprocess.run(cmd, capture_output=True, text=True, timeout=600,
+                          env=dict(os.environ, DIE_SPREAD_MARK=str(tmp_path / "mark")))
+    assert died.returncode == 2, died.stderr
+    errors = [line for line in died.stderr.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "a worker process died" in errors[0] and "nmp__0-die_spread__0000" in errors[0]
+    assert "Traceback" not in died.stderr
+    assert [p.name for p in (out / "parts").glob("*.run.parquet")] == ["min__0-die_spread__0000.run.parquet"]
+
+
 def test_a_folder_of_an_earlier_heurtune_is_refused_in_one_line(copy, capsys):
     """Parts without a fingerprint (as every earlier version wrote them): what made them cannot
     be checked, so they are neither reused nor silently redone."""
