@@ -406,12 +406,16 @@ def _gw(G, w, g, acc):
 
 
 @_kernel(inline="always")
+def _pump4(y0, y1, y2, y3, c, v0, v1):
+    """``y + Bp v`` for a plant state in four scalars, with ``Bp v = (c6 v1, c7 v2, c8 v2,
+    c9 v1)``; returns the four components."""
+    return y0 + c[6] * v0, y1 + c[7] * v1, y2 + c[8] * v1, y3 + c[9] * v0
+
+
+@_kernel(inline="always")
 def _add_pump(x, c, v0, v1, out):
-    """``out = x + Bp v`` with ``Bp v = (c6 v1, c7 v2, c8 v2, c9 v1)``."""
-    out[0] = x[0] + c[6] * v0
-    out[1] = x[1] + c[7] * v1
-    out[2] = x[2] + c[8] * v1
-    out[3] = x[3] + c[9] * v0
+    """``out = x + Bp v`` (:func:`_pump4` on arrays)."""
+    out[0], out[1], out[2], out[3] = _pump4(x[0], x[1], x[2], x[3], c, v0, v1)
 
 
 @_kernel(inline="always")
@@ -425,10 +429,7 @@ def _half_stage(x0, x1, x2, x3, n0, n1, n2, n3, w0, w1, w2, w3, e0, e1, G, half,
     a0, a1 = _gw4(G, w0, w1, w2, w3, hh, e0, e1)
     p0 = pm0 * a0
     p1 = pm1 * a1
-    y0 = (x0 + half * n0) + c[6] * p0
-    y1 = (x1 + half * n1) + c[7] * p1
-    y2 = (x2 + half * n2) + c[8] * p1
-    y3 = (x3 + half * n3) + c[9] * p0
+    y0, y1, y2, y3 = _pump4(x0 + half * n0, x1 + half * n1, x2 + half * n2, x3 + half * n3, c, p0, p1)
     m0, m1, m2, m3 = _measure4(y0, y1, y2, y3, s, d1, d2, h_op)
     q0, q1, q2, q3 = _plant_n4(y0, y1, y2, y3, m0, m1, m2, m3, c, v1, v2, Dn)
     return y0, y1, y2, y3, m0, m1, m2, m3, q0, q1, q2, q3
@@ -456,10 +457,9 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     controller term reduces to the couplings of the tables applied to the stages' ``w``, and
     the controller state is read once, by the ``rows`` (one pass). Writes the state after the
     step (``x_new``, ``z_new``), the dense output at the midpoint (``x_mid``, controller output
-    ``du_mid``) and the controller output at the end ``du_end``. After the step ``scr[0]``,
-    ``scr[8]``, ``scr[9]`` ((10, 4); the other rows are not written) hold N_x at the start, P2x
-    and P3x, and ``wst`` (3, 4) the measured signals w_n, P2w, P3w, which :func:`_dense_at`
-    reads. With ``full`` False only ``x_new`` and ``z_new`` are
+    ``du_mid``) and the controller output at the end ``du_end``. After the step ``scr``
+    (3, 4) holds N_x at the start, P2x and P3x, and ``wst`` (3, 4) the measured signals w_n,
+    P2w, P3w, which :func:`_dense_at` reads. With ``full`` False only ``x_new`` and ``z_new`` are
     written (the double step of a step-doubling estimate).
     """
     nd = prop_m.shape[1]
@@ -506,10 +506,8 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     a0, a1 = _gw4(G, 2.0 * wb0 - wn0, 2.0 * wb1 - wn1, 2.0 * wb2 - wn2, 2.0 * wb3 - wn3, hh, a0, a1)
     p0 = pm0 * a0
     p1 = pm1 * a1
-    xc0 = (xa0 + half * (2.0 * nb0 - nn0)) + c[6] * p0
-    xc1 = (xa1 + half * (2.0 * nb1 - nn1)) + c[7] * p1
-    xc2 = (xa2 + half * (2.0 * nb2 - nn2)) + c[8] * p1
-    xc3 = (xa3 + half * (2.0 * nb3 - nn3)) + c[9] * p0
+    xc0, xc1, xc2, xc3 = _pump4(xa0 + half * (2.0 * nb0 - nn0), xa1 + half * (2.0 * nb1 - nn1),
+                                xa2 + half * (2.0 * nb2 - nn2), xa3 + half * (2.0 * nb3 - nn3), c, p0, p1)
     wc0, wc1, wc2, wc3 = _measure4(xc0, xc1, xc2, xc3, s, d1, d2, h_op)
     nc0, nc1, nc2, nc3 = _plant_n4(xc0, xc1, xc2, xc3, wc0, wc1, wc2, wc3, c, v1, v2, Dn)
     # P2 = -3 N_n + 2 N_a + 2 N_b - N_c, P3 = 4 (N_n - N_a - N_b + N_c), for w and N_x
@@ -523,7 +521,7 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     px3, tx3 = _p2_p3(nn3, na3, nb3, nc3)
     # what the dense output and the controller update read: N_x at the start, P2x, P3x and the
     # measured signals w_n, P2w, P3w
-    nx_n, p2x, p3x = scr[0], scr[8], scr[9]
+    nx_n, p2x, p3x = scr[0], scr[1], scr[2]
     w_n, p2w, p3w = wst[0], wst[1], wst[2]
     nx_n[0], nx_n[1], nx_n[2], nx_n[3] = nn0, nn1, nn2, nn3
     p2x[0], p2x[1], p2x[2], p2x[3] = px0, px1, px2, px3
@@ -538,10 +536,9 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     a0, a1 = _gw4(coup[_G_H4], t0, t1, t2, t3, h2, a0, a1)
     p0 = pm0 * a0
     p1 = pm1 * a1
-    x_new[0] = (x0 + h * (nn0 + 0.5 * px0 + tx0 * (1.0 / 6.0))) + c[6] * p0
-    x_new[1] = (x1 + h * (nn1 + 0.5 * px1 + tx1 * (1.0 / 6.0))) + c[7] * p1
-    x_new[2] = (x2 + h * (nn2 + 0.5 * px2 + tx2 * (1.0 / 6.0))) + c[8] * p1
-    x_new[3] = (x3 + h * (nn3 + 0.5 * px3 + tx3 * (1.0 / 6.0))) + c[9] * p0
+    x_new[0], x_new[1], x_new[2], x_new[3] = _pump4(
+        x0 + h * (nn0 + 0.5 * px0 + tx0 * (1.0 / 6.0)), x1 + h * (nn1 + 0.5 * px1 + tx1 * (1.0 / 6.0)),
+        x2 + h * (nn2 + 0.5 * px2 + tx2 * (1.0 / 6.0)), x3 + h * (nn3 + 0.5 * px3 + tx3 * (1.0 / 6.0)), c, p0, p1)
     for i in range(nd):
         col = mi[i]
         z_new[i] = prop_m[0, i] * z[i] + h * (prop_m[1, i] * w_n[col] + prop_m[2, i] * p2w[col]
@@ -566,10 +563,10 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     a0, a1 = _gw4(coup[_G_C4], t0, t1, t2, t3, 0.25 * hh, a0, a1)
     p0 = pm0 * a0
     p1 = pm1 * a1
-    xm0 = (x0 + half * (nn0 + 0.25 * px0 + tx0 * (1.0 / 24.0))) + c[6] * p0
-    xm1 = (x1 + half * (nn1 + 0.25 * px1 + tx1 * (1.0 / 24.0))) + c[7] * p1
-    xm2 = (x2 + half * (nn2 + 0.25 * px2 + tx2 * (1.0 / 24.0))) + c[8] * p1
-    xm3 = (x3 + half * (nn3 + 0.25 * px3 + tx3 * (1.0 / 24.0))) + c[9] * p0
+    xm0, xm1, xm2, xm3 = _pump4(
+        x0 + half * (nn0 + 0.25 * px0 + tx0 * (1.0 / 24.0)), x1 + half * (nn1 + 0.25 * px1 + tx1 * (1.0 / 24.0)),
+        x2 + half * (nn2 + 0.25 * px2 + tx2 * (1.0 / 24.0)), x3 + half * (nn3 + 0.25 * px3 + tx3 * (1.0 / 24.0)),
+        c, p0, p1)
     x_mid[0], x_mid[1], x_mid[2], x_mid[3] = xm0, xm1, xm2, xm3
     u0, u1 = _gw4(coup[_G_C1], wn0, wn1, wn2, wn3, half, r4, r5)
     u0, u1 = _gw4(G, q0, q1, q2, q3, 0.5 * half, u0, u1)
@@ -684,7 +681,7 @@ def _dense_at(theta, h, x, z, lam, bm, mi, Cm, Aq, Bq, Cq, c, s, d1, d2, h_op, D
     tau = theta * h
     nd = lam.size
     nq = Aq.shape[0]
-    nx_n, p2x, p3x = scr[0], scr[8], scr[9]
+    nx_n, p2x, p3x = scr[0], scr[1], scr[2]
     w_n, p2w, p3w = wst[0], wst[1], wst[2]
     g0 = 0.0
     g1 = 0.0  # C (tau phi_1 z + tau^2 (phi_2 B w_n + ...)): the controller's push on the levels
@@ -982,10 +979,10 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
     # the working arrays by name (rows of w4, w2, w10; see workspace_shapes)
     rows, coup, prop_m, prop_q, prop_qb, wz, wm, wq, wqb, w4, w2, w10, wi, wb, phw, sqw, rw, bw, vq = work
     x, x_new, x_mid, w, xr = w4[0], w4[1], w4[2], w4[3], w4[4]
-    scr, wst, Dn = w4[5:15], w4[15:18], w4[18:20]
+    scr, wst, Dn = w4[5:8], w4[8:11], w4[11:13]
     # adaptive pairs: the second step's results, the double step's, and the stages of both steps
-    x2, xm2, xb, xmb = w4[20], w4[21], w4[22], w4[23]
-    scr1, wst1, scr2, wst2 = w4[24:34], w4[34:37], w4[37:47], w4[47:50]
+    x2, xm2, xb, xmb = w4[13], w4[14], w4[15], w4[16]
+    scr1, wst1, scr2, wst2 = w4[17:20], w4[20:23], w4[23:26], w4[26:29]
     u_mid, u_end, du0, dur, v, pm = w2[0], w2[1], w2[2], w2[3], w2[4], w2[5]
     ue, ua, u_prev, t_release, band = w2[6], w2[7], w2[8], w2[9], w2[10]
     iae, ise, itae, jj, jdev, tv, mp = w2[11], w2[12], w2[13], w2[14], w2[15], w2[16], w2[17]
@@ -1492,7 +1489,7 @@ def step_rule(A, B, D, lam, bm, mi, Cm, h_max, radius, min_step, stability_radiu
 
 
 # Rows of the working arrays of continuous_lane (float64 unless stated): see its first lines.
-_W4_ROWS = 50
+_W4_ROWS = 29
 _W2_ROWS = 29
 _W10_ROWS = 15
 
