@@ -124,22 +124,28 @@ class _Tracked:
         self.cache = collections.OrderedDict()
         self.cache_size = 2 * task.lower.size + 4  # x and both sets of difference points
         self.best = None  # (x, f, v, g)
+        self.prefetched = {}  # values of points a finite difference is about to ask for
 
-    def values(self, x):
+    def _key(self, x):
         x = np.clip(np.asarray(x, dtype=np.float64).reshape(-1), self.task.lower, self.task.upper)
         if not np.all(np.isfinite(x)):
             raise _BadIterate
-        key = x.tobytes()
+        return x, x.tobytes()
+
+    def values(self, x):
+        x, key = self._key(x)
         hit = self.cache.get(key)
         if hit is not None:
             return hit
         if self.cap is not None and self.nfev >= self.cap:
             raise _CapReached
-        X = x[None, :]
-        f, g = self.task.objective(X)
+        fg = self.prefetched.pop(key, None)
+        if fg is None:
+            f, g = self.task.objective(x[None, :])
+            fg = f[0], g[0]
+        f, g = fg
         self.nfev += 1
-        f = float(np.where(np.isnan(f[0]), np.inf, f[0]))
-        g = g[0]
+        f = float(np.where(np.isnan(f), np.inf, f))
         v = float(violation(g[None, :])[0])
         if self.best is None or self.task.compare.better(f, v, self.best[1], self.best[2]):
             self.best = (x, f, v, g)
@@ -153,6 +159,51 @@ class _Tracked:
 
     def ineq(self, x):
         return -self.values(x)[1]
+
+    def map(self, fun, points):
+        """The map SLSQP's finite differences call (its ``workers``): the points that calls one
+        by one would evaluate (not cached, within the cap, up to a non-finite one) go to the
+        objective as one batch, then ``fun`` takes every point in order exactly as one-by-one
+        calls would, reading the batch's values when it evaluates. Counts, caps, the best point
+        and the cache are those of one-by-one calls: only the objective's calls are fewer (for
+        an objective that evaluates each row on its own, as heurtune's batches assume)."""
+        points = [np.array(p, dtype=np.float64) for p in points]
+        cached = collections.OrderedDict.fromkeys(self.cache)  # the cache's keys, as calls would leave them
+        todo = []
+        for p in points:
+            try:
+                x, key = self._key(p)
+            except _BadIterate:
+                break
+            if key in cached:
+                continue
+            if self.cap is not None and self.nfev + len(todo) >= self.cap:
+                break
+            todo.append(x)
+            cached[key] = None
+            if len(cached) > self.cache_size:
+                cached.popitem(last=False)
+        if len(todo) > 1:
+            F, G = self.task.objective(np.array(todo))
+            self.prefetched = {x.tobytes(): (f, g) for x, f, g in zip(todo, F, G)}
+        try:
+            return [fun(p) for p in points]
+        finally:
+            self.prefetched = {}
+
+
+def _slsqp_takes_workers() -> bool:
+    """Whether scipy's SLSQP takes a map for its finite differences (scipy >= 1.16)."""
+    import inspect
+
+    try:
+        from scipy.optimize._slsqp_py import _minimize_slsqp
+    except ImportError:
+        return False
+    return "workers" in inspect.signature(_minimize_slsqp).parameters
+
+
+_SLSQP_TAKES_WORKERS = _slsqp_takes_workers()
 
 
 def _local_solve(task: _Task, item):
@@ -177,6 +228,8 @@ def _solve_pinned(task: _Task, item, Bounds, minimize):
     options = dict(maxiter=task.max_iter, ftol=task.ftol)
     if task.fd_step > 0:
         options["eps"] = task.fd_step
+    if _SLSQP_TAKES_WORKERS:  # the gradient's difference points in one call of the objective
+        options["workers"] = tracked.map
     success, message = False, ""
     try:
         f0, g0 = tracked.values(x0)

@@ -104,6 +104,11 @@ class ContinuousController:
 
     @classmethod
     def _build(cls, ctrl) -> ContinuousController:
+        if ctrl.modal_arrays is not None:  # every block modal, concatenated by the design
+            lam, b, col, channel = (arr.copy() for arr in ctrl.modal_arrays)  # writeable, as the kernels' types are
+            return cls(lam=lam, b=b, col=col, Cm=np.ascontiguousarray(ctrl.C), Aq=np.zeros((0, 0)),
+                       Bq=np.zeros((0, 4)), Cq=np.zeros((2, 0)), D=np.ascontiguousarray(ctrl.D, dtype=np.float64),
+                       channel=channel)
         lam, b, col, Cm, dense, ch_m, ch_q = [], [], [], [], [], [], []
 
         def real(x):

@@ -1465,14 +1465,18 @@ def step_rule(A, B, D, lam, bm, mi, Cm, h_max, radius, min_step, stability_radiu
     ``h 2^j rho(A + B D_(h 2^j)) <= stability_radius``, plus one; 0 if none). See
     ``continuous.feedback_step`` and ``continuous.adaptive_top``.
 
+    ``D_h`` depends on ``h`` only through the modes it folds (``|lam_i| h > 1``), a set that
+    grows with ``h``: its size names it, so each radius is computed once per set.
+
     Returns
     -------
     h : float
     top : int
     """
+    known = np.full(lam.size + 1, -1.0)  # radius by number of folded modes (-1: not yet)
     h = h_max
     while h > min_step:
-        rho = feedback_radius(A, B, D, lam, bm, mi, Cm, h)
+        rho = _folded_radius(A, B, D, lam, bm, mi, Cm, h, known)
         if not math.isfinite(rho):
             return min_step, 0
         if h * rho <= radius:
@@ -1482,10 +1486,22 @@ def step_rule(A, B, D, lam, bm, mi, Cm, h_max, radius, min_step, stability_radiu
         return min_step, 0
     for j in range(top_max - 1, 0, -1):
         hj = h * 2.0 ** j
-        rho = feedback_radius(A, B, D, lam, bm, mi, Cm, hj)
+        rho = _folded_radius(A, B, D, lam, bm, mi, Cm, hj, known)
         if math.isfinite(rho) and hj * rho <= stability_radius:
             return h, j + 1
     return h, 0
+
+
+@njit(cache=True)
+def _folded_radius(A, B, D, lam, bm, mi, Cm, h, known):
+    """:func:`feedback_radius` at ``h``, kept in ``known`` by the number of modes folded."""
+    folded = 0
+    for i in range(lam.size):
+        if abs(lam[i]) * h > 1.0:
+            folded += 1
+    if known[folded] < 0.0:
+        known[folded] = feedback_radius(A, B, D, lam, bm, mi, Cm, h)
+    return known[folded]
 
 
 # Rows of the working arrays of continuous_lane (float64 unless stated): see its first lines.

@@ -22,6 +22,7 @@ sign.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import functools
 import typing
@@ -55,6 +56,9 @@ _UNIT_ROWS = np.eye(2)
 # Largest Riccati residual accepted, relative to the size of its terms.
 RICCATI_RESIDUAL_TOL = 1e-9
 _DGEES = scipy.linalg.lapack.get_lapack_funcs("gees", dtype=np.float64)
+# Riccati gains of recent weights (see _weighted_lqr_gain).
+_LQR_CACHE_SIZE = 64
+_lqr_cache: collections.OrderedDict = collections.OrderedDict()
 
 
 def _left_half_plane(re, im):
@@ -73,6 +77,7 @@ class ControllerDesignError(DesignError):
     def __init__(self, reason: str, detail: str = ""):
         super().__init__(f"{reason}: {detail}" if detail else reason)
         self.reason = reason
+        self.detail = detail
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,6 +99,10 @@ class LinearController:
         What :meth:`modal_blocks` returns, when the design knows it already (FOLQI builds its
         fractional integrators in partial fractions): the same arrays, without deriving them
         from ``A``, ``B``, ``C`` again. None: derived.
+    modal_arrays : tuple or None
+        When every block is modal and the design knows it: the blocks' ``lam``, ``b`` (nz,),
+        the measured signal each state reads and the pump it belongs to (nz,) int64,
+        concatenated in block order (read-only). None: taken from :meth:`modal_blocks`.
     """
 
     A: np.ndarray
@@ -104,6 +113,7 @@ class LinearController:
     block_channel: tuple
     minimal: bool = True
     modal: tuple | None = dataclasses.field(default=None, compare=False, repr=False)
+    modal_arrays: tuple | None = dataclasses.field(default=None, compare=False, repr=False)
 
     @property
     def n_states(self) -> int:
@@ -341,6 +351,31 @@ def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.n
     return K
 
 
+def _weighted_lqr_gain(A: np.ndarray, B: np.ndarray, q: list, r: list) -> np.ndarray:
+    """``lqr_gain(A, B, diag(q), diag(r))``, remembered for the last ``_LQR_CACHE_SIZE``
+    weights (keyed by their exact bits and those of ``A`` and ``B``; the gain is read-only).
+
+    A finite-difference gradient moves one tuning value at a time, and the moves of the
+    integral gains and orders keep the weights: those designs reuse the Riccati solution. A
+    failed design is remembered as its error and raised again.
+    """
+    key = (A.tobytes(), B.tobytes(), np.array(q, dtype=np.float64).tobytes(),
+           np.array(r, dtype=np.float64).tobytes())
+    hit = _lqr_cache.get(key)
+    if hit is None:
+        try:
+            hit = lqr_gain(A, B, np.diag(q), np.diag(r))
+            hit.flags.writeable = False
+        except ControllerDesignError as exc:
+            hit = exc
+        if len(_lqr_cache) >= _LQR_CACHE_SIZE:
+            _lqr_cache.popitem(last=False)
+        _lqr_cache[key] = hit
+    if isinstance(hit, ControllerDesignError):
+        raise ControllerDesignError(hit.reason, hit.detail)
+    return hit
+
+
 # Which error each pump integrates: "diagonal" (thesis eq. 3.9: pump r integrates e_r) or
 # "anti-diagonal" (pump 1 integrates e2, pump 2 integrates e1).
 PAIRINGS = ("diagonal", "anti-diagonal")
@@ -405,14 +440,44 @@ def folqi_design(values: dict, A, B, alphas, order, band, realisation, pairing="
     ------
     ControllerDesignError
     """
-    Q = np.diag([values["Q11"], values["Q22"], values["Q33"], values["Q44"]])
-    R = np.diag([values["R11"], values["R22"]])
-    K = lqr_gain(A, B, Q, R)
+    K = _weighted_lqr_gain(A, B, [values["Q11"], values["Q22"], values["Q33"], values["Q44"]],
+                           [values["R11"], values["R22"]])
+    layout = _folqi_layout(tuple(float(a) for a in alphas), order, tuple(band), realisation, pairing)
     ki = (values["Ki1"], values["Ki2"])
-    parts = []
-    modal_parts = []
+    Cc = np.zeros((N_INPUTS, layout.A.shape[0]))
+    Dc = -K
+    for ch, (cf, df, err, start, stop) in enumerate(layout.outputs):
+        Cc[ch, start:stop] = ki[ch] * cf
+        Dc[ch, err] -= ki[ch] * df
+    modal = None
+    if layout.poles is not None:
+        # Partial fractions are the modal form already: each block is diagonal and reads one
+        # error (what modal_blocks would derive from the matrices, taken from them as it would).
+        modal = tuple(("modal", poles, layout.B[start:stop, err], Cc[:, start:stop], err, ch)
+                      for ch, (poles, (_, _, err, start, stop)) in enumerate(zip(layout.poles, layout.outputs)))
+    return LinearController(layout.A, layout.B, Cc, Dc, layout.blocks, (0, 1), modal=modal,
+                            modal_arrays=layout.modal_arrays)
+
+
+class _FolqiLayout(typing.NamedTuple):
+    """What a FOLQI's controller matrices take from its orders alone (:func:`_folqi_layout`);
+    the arrays are read-only."""
+
+    A: np.ndarray  # (nz, nz) block diagonal: the integrators' state matrices
+    B: np.ndarray  # (nz, 4) each block reads its error
+    blocks: tuple  # (start, stop) per pump
+    outputs: tuple  # per pump: (output row of the block, direct term, error read, start, stop)
+    poles: tuple | None  # per pump, the modal poles; None unless both blocks are modal
+    modal_arrays: tuple | None  # LinearController.modal_arrays when both blocks are modal
+
+
+@functools.lru_cache(maxsize=1024)
+def _folqi_layout(alphas: tuple, order: int, band: tuple, realisation: str, pairing: str) -> _FolqiLayout:
+    """The part of :func:`folqi_design` that depends on the orders alone, kept for repeated
+    orders (a finite-difference gradient moves one tuning value at a time)."""
+    parts, modal_parts = [], []
     for a in alphas:
-        modal = _integrator_modal(float(a), order, tuple(band), realisation)
+        modal = _integrator_modal(a, order, band, realisation)
         modal_parts.append(modal)
         if modal is None:
             parts.append(fractional_integrator(a, order, band, realisation).state_space())
@@ -422,26 +487,27 @@ def folqi_design(values: dict, A, B, alphas, order, band, realisation, pairing="
     nz = sum(p[0].shape[0] for p in parts)
     Ac = np.zeros((nz, nz))
     Bc = np.zeros((nz, N_MEASURED))
-    Cc = np.zeros((N_INPUTS, nz))
-    Dc = -K.copy()
-    blocks = []
-    # Partial fractions are the modal form already: each block is diagonal and reads one error
-    # (what modal_blocks would derive from the matrices, taken from them as it would).
-    modal = []
+    blocks, outputs = [], []
     start = 0
     for ch, (Af, bf, cf, df) in enumerate(parts):
         stop = start + Af.shape[0]
         err = _error_of_pump(pairing, ch)
         Ac[start:stop, start:stop] = Af
         Bc[start:stop, err] = -bf  # e_err = -w_err
-        Cc[ch, start:stop] = ki[ch] * cf
-        Dc[ch, err] -= ki[ch] * df
         blocks.append((start, stop))
-        if modal_parts[ch] is not None:
-            modal.append(("modal", modal_parts[ch][0], Bc[start:stop, err], Cc[:, start:stop], err, ch))
+        outputs.append((cf, df, err, start, stop))
         start = stop
-    modal = tuple(modal) if len(modal) == len(parts) else None
-    return LinearController(Ac, Bc, Cc, Dc, tuple(blocks), (0, 1), modal=modal)
+    poles = modal_arrays = None
+    if all(m is not None for m in modal_parts):
+        poles = tuple(m[0] for m in modal_parts)
+        sizes = [p.size for p in poles]
+        modal_arrays = (np.concatenate(poles),
+                        np.concatenate([Bc[b0:b1, o[2]] for (b0, b1), o in zip(blocks, outputs)]),
+                        np.repeat(np.array([o[2] for o in outputs], dtype=np.int64), sizes),
+                        np.repeat(np.arange(len(parts), dtype=np.int64), sizes))
+    for arr in (Ac, Bc) + (modal_arrays or ()):
+        arr.flags.writeable = False
+    return _FolqiLayout(Ac, Bc, tuple(blocks), tuple(outputs), poles, modal_arrays)
 
 
 def ladr_design(values: dict, pairing: str = "diagonal") -> LinearController:

@@ -152,7 +152,7 @@ class Problem(TuningProblem):
         stable, else None; with the reason ("" when designed and stable) and, for an unstable
         loop, its eigenvalue margin. Design and stability are those of the nominal
         linearisation, which no scenario changes."""
-        if not np.all(np.isfinite(x)):
+        if not np.isfinite(x).all():
             return None, "invalid_parameter", 0.0
         try:
             ctrl = self.loop.controller(dict(zip(self.names, x.tolist())))
@@ -167,7 +167,7 @@ class Problem(TuningProblem):
 
     @staticmethod
     def _simulated_reason(diverged, values) -> str:
-        return "diverged" if diverged else ("" if np.all(np.isfinite(values)) else "non_finite")
+        return "diverged" if diverged else ("" if np.isfinite(values).all() else "non_finite")
 
     def _evaluate_one(self, x, scenarios: list, metrics_rows: np.ndarray) -> tuple:
         """Per scenario, the reason ("" when simulated), and for an unstable loop its
@@ -231,37 +231,41 @@ class Problem(TuningProblem):
         n, k = X.shape[0], len(scs)
         m = len(self.constraint_names)
         metrics = np.full((k, n, len(METRIC_NAMES)), np.nan)
-        f = np.full((k, n), FAILED_OBJECTIVE)
-        g = np.full((k, n, m), FAILED_VIOLATION)
         reason = np.empty((k, n), dtype=object)
-        margins = self._evaluate_batch(X, scs, metrics, reason) if self.device != "cpu" else None
-        for i in range(n):
-            if margins is None:
-                reason[:, i], margin = self._evaluate_one(X[i], scs, metrics[:, i])
-            else:
-                margin = margins[i]
-            for s in range(k):
-                if reason[s, i] == "":
-                    if self._objective_w is None:
-                        f[s, i] = metrics[s, i, self._objective_idx].sum()
-                    else:
-                        f[s, i] = metrics[s, i, self._objective_idx] @ self._objective_w
-                    g[s, i] = 0.0 if self._stability_only else (
-                        metrics[s, i, self._constraint_idx] / self._constraint_limit - 1.0)
-                else:
-                    metrics[s, i] = np.nan
-                    if reason[s, i] == "unstable":
-                        # Graded: the less unstable, the smaller the violation, so Deb's rules
-                        # and SLSQP both see a way back to stability.
-                        g[s, i] = FAILED_VIOLATION * (1.0 + min(margin, UNSTABLE_MARGIN_CAP))
+        if self.device != "cpu":
+            margins = self._evaluate_batch(X, scs, metrics, reason)
+        else:
+            margins = np.zeros(n)
+            for i in range(n):
+                reason[:, i], margins[i] = self._evaluate_one(X[i], scs, metrics[:, i])
+        simulated = reason == ""
+        metrics[~simulated] = np.nan
+        if self._objective_w is None:
+            f = metrics[:, :, self._objective_idx].sum(axis=2)
+        else:
+            f = np.empty((k, n))
+            for s, i in zip(*np.nonzero(simulated)):
+                f[s, i] = metrics[s, i, self._objective_idx] @ self._objective_w
+        f[~simulated] = FAILED_OBJECTIVE
+        if self._stability_only:
+            g = np.zeros((k, n, m))
+        else:
+            g = metrics[:, :, self._constraint_idx] / self._constraint_limit - 1.0
+        g[~simulated] = FAILED_VIOLATION
+        unstable = reason == "unstable"
+        if unstable.any():
+            # Graded: the less unstable, the smaller the violation, so Deb's rules and SLSQP
+            # both see a way back to stability.
+            graded = FAILED_VIOLATION * (1.0 + np.minimum(margins, UNSTABLE_MARGIN_CAP))
+            g[unstable] = np.broadcast_to(graded, (k, n))[unstable][:, None]
+        feasible = simulated & np.all(g <= 0.0, axis=2)
         out = []
         for s in range(k):
-            feasible = (reason[s] == "") & np.all(g[s] <= 0.0, axis=1)
             F = None
             if self.objective_names is not None:
                 F = np.column_stack([metrics[s][:, idx].sum(axis=1) for idx in self._objectives_idx])
-                F[reason[s] != ""] = FAILED_OBJECTIVE
-            out.append(Evaluation(f[s], g[s], feasible, metrics[s], METRIC_NAMES, self.constraint_names, reason[s],
+                F[~simulated[s]] = FAILED_OBJECTIVE
+            out.append(Evaluation(f[s], g[s], feasible[s], metrics[s], METRIC_NAMES, self.constraint_names, reason[s],
                                   F, self.objective_names or ()))
         return out
 

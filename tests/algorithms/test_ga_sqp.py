@@ -230,6 +230,36 @@ def test_sqp_is_bit_identical_with_one_and_two_workers():
     pd.testing.assert_frame_equal(a.history[cols], b.history[cols])
 
 
+@pytest.mark.skipif(not sqp._SLSQP_TAKES_WORKERS, reason="this scipy's SLSQP takes no map for its differences")
+@pytest.mark.parametrize("max_evals", [None, 457])
+def test_sqp_batched_differences_change_nothing_but_the_calls(monkeypatch, max_evals):
+    rows = []
+
+    def wavy(X):
+        rows.append(len(X))
+        f = ((X - 0.2) ** 2).sum(axis=1) + 0.1 * np.cos(5 * X).sum(axis=1)
+        f[X[:, 0] > 0.9] = np.nan  # a failed corner: NaN objective
+        return f, (X[:, 0] ** 2 - X[:, 1] - 0.5)[:, None]
+
+    lo, hi = [-1.0] * 5, [1.0] * 5
+    kw = dict(seed=3, max_evals=max_evals, settings=dict(starts=7, max_iter=30, batch=3))
+    batched = heurtune.minimize(wavy, lo, hi, "sqp_multistart", **kw)
+    batched_rows, rows[:] = list(rows), []
+    monkeypatch.setattr(sqp, "_SLSQP_TAKES_WORKERS", False)
+    single = heurtune.minimize(wavy, lo, hi, "sqp_multistart", **kw)
+    assert set(rows) == {1} and max(batched_rows) == 5  # a gradient's five points in one call
+    # the same evaluations (none wasted), counts, caps, best points and history
+    assert sum(batched_rows) == sum(rows) == batched.n_evals == single.n_evals
+    if max_evals is not None:
+        assert batched.n_evals == max_evals
+        assert (batched.details.message == "evaluation cap reached").any()  # caps cut gradients
+    pd.testing.assert_frame_equal(batched.details, single.details)
+    np.testing.assert_array_equal(batched.x, single.x)
+    assert batched.f == single.f and batched.violation == single.violation
+    pd.testing.assert_frame_equal(batched.history.drop(columns="wall_time_s"),
+                                  single.history.drop(columns="wall_time_s"))
+
+
 def test_sqp_max_epochs_counts_batches():
     res = heurtune.minimize(_disk, [-2, -2], [2, 2], "sqp_multistart", seed=0, max_epochs=2,
                             settings=dict(starts=20, batch=3))

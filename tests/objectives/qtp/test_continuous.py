@@ -178,6 +178,36 @@ def test_folded_feedback_is_the_static_gain_of_the_fast_modes():
     assert cont.feedback_step(loop.A, loop.B, dataclasses_replace(cc, D=bad), 0.125, TOL) == cont.MIN_STEP
 
 
+def test_step_rule_computes_each_folded_radius_once_with_the_same_result():
+    """``step_rule`` keeps each radius by the number of modes folded (the folded set grows with
+    h, so its size names it); its step and adaptive range equal those of the rule written out
+    with a fresh radius at every step tried, on random candidates of both plants and both
+    tolerances, including ones whose step is halved."""
+    rng = np.random.default_rng(4)
+    halved = 0
+    for case in ("min", "nmp"):
+        loop = ClosedLoop(preset(case), "folqi")
+        for _ in range(40):
+            values = dict(zip(("Q11", "Q22", "Q33", "Q44"), rng.uniform(0.01, 2.5, 4)),
+                          R11=rng.uniform(0.1, 5), R22=rng.uniform(0.1, 5), Ki1=rng.uniform(0.1, 10),
+                          Ki2=rng.uniform(0.1, 10), alpha1=rng.uniform(0.1, 1.9), alpha2=rng.uniform(0.1, 1.9))
+            cc = cont.ContinuousController.from_linear(loop.controller(values))
+            for tol in (TOL, 16 * TOL):
+                radius = cont.FEEDBACK_STEP_RADIUS * (tol / cont.REFERENCE_TOLERANCE) ** 0.25
+
+                def rho(h):
+                    return ck.feedback_radius(loop.A, loop.B, cc.D, cc.lam, cc.b, cc.col, cc.Cm, h)
+
+                h = 0.25
+                while h > cont.MIN_STEP and h * rho(h) > radius:
+                    h *= 0.5
+                top = next((j + 1 for j in range(ck.ADAPTIVE_TOP - 1, 0, -1)
+                            if h * 2.0 ** j * rho(h * 2.0 ** j) <= cont.ADAPTIVE_STABILITY_RADIUS), 0)
+                halved += h < 0.25
+                assert cont.feedback_step_and_top(loop.A, loop.B, cc, 0.25, tol) == (h, top)
+    assert halved > 0
+
+
 def test_feedback_step_keeps_the_step_of_ordinary_candidates_and_halves_it_for_a_fast_plant():
     """The thesis gains keep the structure's step (so their plan, and every result made with
     it, is unchanged); a fast feedback halves it until ``h rho <= 0.75``; a looser tolerance

@@ -147,3 +147,33 @@ def test_folqi_modal_form_is_what_the_matrices_give(alphas, realisation, pairing
     again = build_controller("folqi", values, A, B, realisation=realisation, pairing=pairing)
     for name in ("A", "B", "C", "D"):
         np.testing.assert_array_equal(getattr(again, name), getattr(ctrl, name))
+    # the kernels' form built from the design's concatenated modal arrays is the one built
+    # from the blocks, array for array, and writeable (as the kernels were compiled for)
+    from heurtune.objectives.qtp.continuous import ContinuousController
+
+    fast = ContinuousController.from_linear(ctrl)
+    slow = ContinuousController.from_linear(dataclasses.replace(ctrl, modal_arrays=None))
+    assert ctrl.modal_arrays is not None
+    for field in dataclasses.fields(ContinuousController):
+        a, b = getattr(fast, field.name), getattr(slow, field.name)
+        assert a.dtype == b.dtype and a.flags.c_contiguous and a.flags.writeable, field.name
+        np.testing.assert_array_equal(a, b)
+
+
+def test_weighted_lqr_gains_are_remembered_exactly():
+    """The Riccati gains of recent weights are reused: the same bits as ``lqr_gain``, read-only,
+    and a failed design fails again with its reason."""
+    from heurtune.objectives.qtp import controllers
+
+    A, B, _ = linearise(preset("nmp"))
+    q, r = [0.4431, 0.3027, 0.4434, 1.5722], [4.2253, 2.5994]
+    K = controllers._weighted_lqr_gain(A, B, q, r)
+    np.testing.assert_array_equal(K, lqr_gain(A, B, np.diag(q), np.diag(r)))
+    assert controllers._weighted_lqr_gain(A, B, list(q), list(r)) is K and not K.flags.writeable
+    assert controllers._weighted_lqr_gain(A, B, q[:3] + [1.5723], r) is not K
+    A_bad = np.array([[1.0, 0.0], [0.0, -1.0]])
+    B_bad = np.array([[0.0], [1.0]])
+    for _ in range(2):
+        with pytest.raises(ControllerDesignError) as info:
+            controllers._weighted_lqr_gain(A_bad, B_bad, [1.0, 1.0], [1.0])
+        assert info.value.reason == "riccati_failed"
