@@ -195,7 +195,7 @@ def test_step_rule_computes_each_folded_radius_once_with_the_same_result():
             for tol in (TOL, 16 * TOL):
                 radius = cont.FEEDBACK_STEP_RADIUS * (tol / cont.REFERENCE_TOLERANCE) ** 0.25
 
-                def rho(h):
+                def rho(h, loop=loop, cc=cc):
                     return ck.feedback_radius(loop.A, loop.B, cc.D, cc.lam, cc.b, cc.col, cc.Cm, h)
 
                 h = 0.25
