@@ -1,11 +1,15 @@
 """Multistart SQP: ``scipy.optimize.minimize(method="SLSQP")`` from many starts in the box.
 
-Each local solve runs whole on a worker (``RunContext.map_unordered``): it calls the user's objective
-itself, one point at a time, evaluating f and g together once per point (a small cache serves
-SLSQP's separate requests for f, g and their finite-difference Jacobians, which use the same
-points). Constraints ``g(x) <= 0`` go to SLSQP as inequalities ``-g(x) >= 0``; the box as
-bounds. Gradients are SLSQP's own forward differences (absolute step ``fd_step``, scipy's
-default ``sqrt(machine eps)``, one-sided away from the faces).
+Each local solve runs whole on a worker (``RunContext.map_unordered``) and calls the user's
+objective itself, evaluating f and g together once per point (a small cache serves SLSQP's
+separate requests for f, g and their finite-difference Jacobians, which use the same points).
+Constraints ``g(x) <= 0`` go to SLSQP as inequalities ``-g(x) >= 0``; the box as bounds.
+Gradients are SLSQP's own forward differences (absolute step ``fd_step``, scipy's default
+``sqrt(machine eps)``, one-sided away from the faces). Where scipy's SLSQP takes a map for them
+(``workers``, scipy >= 1.16), the difference points of a gradient go to the objective as one
+batch, which saves its per-call overhead; SLSQP still takes their values one by one, so the
+counts, caps, best points and every iterate are those of one-point calls (for an objective that
+evaluates each row on its own, as every batch in heurtune assumes).
 
 Starts and budget
 -----------------
@@ -115,7 +119,7 @@ class _Task:
 
 
 class _Tracked:
-    """The user's objective seen one point at a time: caches, counts, caps, keeps the best."""
+    """The user's objective as SLSQP sees it, point by point: caches, counts, caps, keeps the best."""
 
     def __init__(self, task: _Task, cap):
         self.task = task
