@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import io
 import math
-import time
 from importlib import resources
 
 import numpy as np
@@ -378,7 +377,6 @@ def test_write_chapter5_on_a_real_smoke_run(tmp_path):
     import heurtune
     from heurtune.runner.experiment import run_experiment
 
-    t0 = time.perf_counter()
     cfg = tmp_path / "tiny.toml"
     cfg.write_text('extends = "thesis_heuristics"\nruns = 1\n[plant]\ncases = ["min"]\n')
     out = run_experiment(str(cfg), runs=1, smoke=True, out=tmp_path / "res", figures=False,
@@ -393,7 +391,6 @@ def test_write_chapter5_on_a_real_smoke_run(tmp_path):
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[3] == "4.3728" and cells[4] != ""  # printed and heurtune (printed gains simulated)
     assert "IOLQI / Non-minimum" in md  # the case not run: printed cells kept
-    assert time.perf_counter() - t0 < 80
 
 
 def test_a_case_whose_runs_all_failed_has_empty_heurtune_cells_and_says_why():
