@@ -6,7 +6,6 @@ python-control on Pade-approximated delays (closed-loop eigenvalues, ``control.b
 """
 
 import math
-import time
 import warnings
 
 import control
@@ -410,16 +409,24 @@ def test_design_grid_bounds_the_phase_step_where_the_element_matters():
         td.loop_metrics_batch(dec.z11(w[w > 0.01]), w[w > 0.01], np.ones((1, int((w > 0.01).sum()))))
 
 
-def test_batch_metrics_are_vectorised():
-    # Loose guard against per-frequency Python loops (about 6 ms measured for 50 x 2000 on 2 busy cores).
+def test_batch_metrics_treat_each_row_on_its_own():
+    """A batch of 50 candidates gives each row what that row alone gives, field by field: the
+    verdicts and counts exactly, the numbers to 1e-12 (numpy's SIMD loops round the last bit
+    differently by where a value falls in the array: 1 ulp seen). The batch's speed (about 6 ms
+    for 50 x 2000 on 2 busy cores) is a benchmark's business, not a test's."""
+    import dataclasses
+
     dec = inverted_decoupler(preset("ccts"))
     w = _grid(dec.z11, 300.0)
     rng = np.random.default_rng(0)
     Cw = td.pid_freqresp(rng.uniform(0, 20, 50), rng.uniform(0, 0.5, 50), np.zeros(50), 10.0, w)
     Pw = dec.z11(w)
-    times = []
-    for _ in range(5):
-        t0 = time.perf_counter()
-        td.loop_metrics_batch(Pw, w, Cw)
-        times.append(time.perf_counter() - t0)
-    assert np.median(times) < 0.1
+    batch = td.loop_metrics_batch(Pw, w, Cw)
+    for i in (0, 17, 49):
+        one = td.loop_metrics_batch(Pw, w, Cw[i:i + 1])
+        for field in dataclasses.fields(batch):
+            a, b = getattr(batch, field.name)[i:i + 1], getattr(one, field.name)
+            if a.dtype.kind == "f":
+                np.testing.assert_allclose(a, b, rtol=1e-12, atol=0.0, err_msg=field.name)
+            else:
+                np.testing.assert_array_equal(a, b, err_msg=field.name)
