@@ -196,8 +196,10 @@ class _Tracked:
             self.prefetched = {}
 
 
+@functools.cache
 def _slsqp_takes_workers() -> bool:
-    """Whether scipy's SLSQP takes a map for its finite differences (scipy >= 1.16)."""
+    """Whether scipy's SLSQP takes a map for its finite differences (scipy >= 1.16); asked on a
+    worker's first solve, so that importing this module does not import scipy.optimize."""
     import inspect
 
     try:
@@ -206,8 +208,6 @@ def _slsqp_takes_workers() -> bool:
         return False
     return "workers" in inspect.signature(_minimize_slsqp).parameters
 
-
-_SLSQP_TAKES_WORKERS = _slsqp_takes_workers()
 
 
 def _local_solve(task: _Task, item):
@@ -232,7 +232,7 @@ def _solve_pinned(task: _Task, item, Bounds, minimize):
     options = dict(maxiter=task.max_iter, ftol=task.ftol)
     if task.fd_step > 0:
         options["eps"] = task.fd_step
-    if _SLSQP_TAKES_WORKERS:  # the gradient's difference points in one call of the objective
+    if _slsqp_takes_workers():  # the gradient's difference points in one call of the objective
         options["workers"] = tracked.map
     success, message = False, ""
     try:

@@ -230,7 +230,7 @@ def test_sqp_is_bit_identical_with_one_and_two_workers():
     pd.testing.assert_frame_equal(a.history[cols], b.history[cols])
 
 
-@pytest.mark.skipif(not sqp._SLSQP_TAKES_WORKERS, reason="this scipy's SLSQP takes no map for its differences")
+@pytest.mark.skipif(not sqp._slsqp_takes_workers(), reason="this scipy's SLSQP takes no map for its differences")
 @pytest.mark.parametrize("max_evals", [None, 457])
 def test_sqp_batched_differences_change_nothing_but_the_calls(monkeypatch, max_evals):
     rows = []
@@ -245,7 +245,7 @@ def test_sqp_batched_differences_change_nothing_but_the_calls(monkeypatch, max_e
     kw = dict(seed=3, max_evals=max_evals, settings=dict(starts=7, max_iter=30, batch=3))
     batched = heurtune.minimize(wavy, lo, hi, "sqp_multistart", **kw)
     batched_rows, rows[:] = list(rows), []
-    monkeypatch.setattr(sqp, "_SLSQP_TAKES_WORKERS", False)
+    monkeypatch.setattr(sqp, "_slsqp_takes_workers", lambda: False)
     single = heurtune.minimize(wavy, lo, hi, "sqp_multistart", **kw)
     assert set(rows) == {1} and max(batched_rows) == 5  # a gradient's five points in one call
     # the same evaluations (none wasted), counts, caps, best points and history
