@@ -475,34 +475,38 @@ class _FolqiLayout(typing.NamedTuple):
 def _folqi_layout(alphas: tuple, order: int, band: tuple, realisation: str, pairing: str) -> _FolqiLayout:
     """The part of :func:`folqi_design` that depends on the orders alone, kept for repeated
     orders (a finite-difference gradient moves one tuning value at a time)."""
-    parts, modal_parts = [], []
-    for a in alphas:
-        modal = _integrator_modal(a, order, band, realisation)
-        modal_parts.append(modal)
-        if modal is None:
-            parts.append(fractional_integrator(a, order, band, realisation).state_space())
-        else:  # diagonal form: the discretisation needs no eigen-decomposition
-            poles, residues, d = modal
-            parts.append((np.diag(poles), np.ones(poles.size), residues, d))
-    nz = sum(p[0].shape[0] for p in parts)
-    Ac = np.zeros((nz, nz))
-    Bc = np.zeros((nz, N_MEASURED))
+    modal_parts = [_integrator_modal(a, order, band, realisation) for a in alphas]
+    poles = modal_arrays = None
+    if all(m is not None for m in modal_parts):
+        # diagonal form (the discretisation needs no eigen-decomposition): A is the poles,
+        # each state reads its error with weight -1 (e = -w), and the output weights are the
+        # residues
+        poles = tuple(m[0] for m in modal_parts)
+        parts = [(None, None, residues, d) for _, residues, d in modal_parts]
+        sizes = [p.size for p in poles]
+        lam = np.concatenate(poles)
+        Ac = np.diag(lam)
+    else:
+        parts = [fractional_integrator(a, order, band, realisation).state_space() if m is None
+                 else (np.diag(m[0]), np.ones(m[0].size), m[1], m[2]) for a, m in zip(alphas, modal_parts)]
+        sizes = [p[0].shape[0] for p in parts]
+        Ac = np.zeros((sum(sizes), sum(sizes)))
+    Bc = np.zeros((Ac.shape[0], N_MEASURED))
     blocks, outputs = [], []
     start = 0
-    for ch, (Af, bf, cf, df) in enumerate(parts):
-        stop = start + Af.shape[0]
+    for ch, ((Af, bf, cf, df), size) in enumerate(zip(parts, sizes)):
+        stop = start + size
         err = _error_of_pump(pairing, ch)
-        Ac[start:stop, start:stop] = Af
-        Bc[start:stop, err] = -bf  # e_err = -w_err
+        if poles is None:
+            Ac[start:stop, start:stop] = Af
+            Bc[start:stop, err] = -bf  # e_err = -w_err
+        else:
+            Bc[start:stop, err] = -1.0
         blocks.append((start, stop))
         outputs.append((cf, df, err, start, stop))
         start = stop
-    poles = modal_arrays = None
-    if all(m is not None for m in modal_parts):
-        poles = tuple(m[0] for m in modal_parts)
-        sizes = [p.size for p in poles]
-        modal_arrays = (np.concatenate(poles),
-                        np.concatenate([Bc[b0:b1, o[2]] for (b0, b1), o in zip(blocks, outputs)]),
+    if poles is not None:
+        modal_arrays = (lam, np.full(lam.size, -1.0),
                         np.repeat(np.array([o[2] for o in outputs], dtype=np.int64), sizes),
                         np.repeat(np.arange(len(parts), dtype=np.int64), sizes))
     for arr in (Ac, Bc) + (modal_arrays or ()):

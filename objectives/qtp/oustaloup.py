@@ -26,6 +26,7 @@ import math
 import numpy as np
 
 from heurtune.core.errors import ConfigError
+from heurtune.objectives.qtp.oustaloup_kernels import partial_fraction_residues
 
 __all__ = ["oustaloup_zpk", "FractionalIntegrator", "fractional_integrator", "REALISATIONS"]
 
@@ -114,9 +115,8 @@ class FractionalIntegrator:
         if self.n_integrators > 1:
             return None
         poles = np.concatenate([self.poles, np.zeros(self.n_integrators)])
-        diff = poles[:, None] - poles[None, :]
-        np.fill_diagonal(diff, 1.0)
-        residues = self.gain * np.prod(poles[:, None] - self.zeros[None, :], axis=1) / np.prod(diff, axis=1)
+        residues = np.empty(poles.size)
+        partial_fraction_residues(poles, self.zeros, float(self.gain), residues)
         d = float(self.gain) if len(self.zeros) == len(poles) else 0.0
         return poles, residues, d
 

@@ -140,6 +140,19 @@ def test_folqi_modal_form_is_what_the_matrices_give(alphas, realisation, pairing
         return
     given = ctrl.modal_blocks()
     assert len(given) == len(derived) == 2
+    # the matrices written straight from the poles: A diagonal, each state reading its
+    # pump's error with weight -1 (e = -w), the outputs the residues times Ki
+    errors = (0, 1) if pairing == "diagonal" else (1, 0)
+    expected_B = np.zeros((ctrl.n_states, 4))
+    expected_C = np.zeros((2, ctrl.n_states))
+    for ch, ((start, stop), poles) in enumerate(zip(ctrl.blocks, (g[1] for g in given))):
+        np.testing.assert_array_equal(np.diag(ctrl.A)[start:stop], poles)
+        expected_B[start:stop, errors[ch]] = -1.0
+        expected_C[ch, start:stop] = values[f"Ki{ch + 1}"] * fractional_integrator(
+            alphas[ch], 5, (1e-3, 1e3), realisation).modal()[1]
+    np.testing.assert_array_equal(ctrl.A, np.diag(np.diag(ctrl.A)))
+    np.testing.assert_array_equal(ctrl.B, expected_B)
+    np.testing.assert_array_equal(ctrl.C, expected_C)
     for g, d in zip(given, derived):
         assert g[0] == d[0] == "modal" and g[4:] == d[4:]
         for a, b in zip(g[1:4], d[1:4]):
