@@ -278,7 +278,7 @@ def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, n_levels, lv_only, rows, coup, p
     together). For each step level ``lv`` (step ``H = h 2^-lv``, half step ``c = H / 2``; Lambda the modal
     eigenvalues (+) the dense blocks, B the input matrix, C the output matrix) writes
 
-    - ``rows[lv]`` (N_ROWS, nd + nq): ``C phi_1(c)``, ``C phi_1(c) phi_0(c)``, ``C phi_0(c)``,
+    - ``rows[lv]`` (nd + nq, N_ROWS): ``C phi_1(c)``, ``C phi_1(c) phi_0(c)``, ``C phi_0(c)``,
       ``C phi_1(H)``, ``C phi_0(H)`` (two rows each), applied to the controller state;
     - ``coup[lv]`` (N_COUPLINGS, 2, 4): ``C phi_k(c) B`` (k = 1..4), ``C phi_1(c)^2 B``,
       ``C phi_k(H) B`` (k = 1..4), applied to measured signals;
@@ -297,9 +297,9 @@ def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, n_levels, lv_only, rows, coup, p
     for lv in range(lv_lo, lv_hi):
         H = h / 2.0 ** lv
         c = 0.5 * H
-        for r in range(N_ROWS):
-            for i in range(nd + nq):
-                rows[lv, r, i] = 0.0
+        for i in range(nd + nq):
+            for r in range(N_ROWS):
+                rows[lv, i, r] = 0.0
         for g in range(N_COUPLINGS):
             for r in range(2):
                 for j in range(4):
@@ -310,11 +310,11 @@ def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, n_levels, lv_only, rows, coup, p
             col = mi[i]
             for r in range(2):
                 cr = Cm[r, i]
-                rows[lv, _R_C1 + r, i] = cr * pmc[1]
-                rows[lv, _R_C10 + r, i] = cr * pmc[1] * pmc[0]
-                rows[lv, _R_C0 + r, i] = cr * pmc[0]
-                rows[lv, _R_H1 + r, i] = cr * pmh[1]
-                rows[lv, _R_H0 + r, i] = cr * pmh[0]
+                rows[lv, i, _R_C1 + r] = cr * pmc[1]
+                rows[lv, i, _R_C10 + r] = cr * pmc[1] * pmc[0]
+                rows[lv, i, _R_C0 + r] = cr * pmc[0]
+                rows[lv, i, _R_H1 + r] = cr * pmh[1]
+                rows[lv, i, _R_H0 + r] = cr * pmh[0]
                 cb = cr * bm[i]
                 for k in range(1, 5):
                     coup[lv, _G_C1 + k - 1, r, col] += cb * pmc[k]
@@ -336,9 +336,9 @@ def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, n_levels, lv_only, rows, coup, p
             _matmul(Cq, ph[0], rw[2])  # C phi_0(c)
             for r in range(2):
                 for i in range(nq):
-                    rows[lv, _R_C1 + r, nd + i] = rw[0, r, i]
-                    rows[lv, _R_C10 + r, nd + i] = rw[1, r, i]
-                    rows[lv, _R_C0 + r, nd + i] = rw[2, r, i]
+                    rows[lv, nd + i, _R_C1 + r] = rw[0, r, i]
+                    rows[lv, nd + i, _R_C10 + r] = rw[1, r, i]
+                    rows[lv, nd + i, _R_C0 + r] = rw[2, r, i]
             for k in range(1, 5):
                 _add_c_m_b(Cq, ph[k], Bq, bw, coup[lv, _G_C1 + k - 1])
             _add_c_m_b(rw[0], ph[1], Bq, bw, coup[lv, _G_C11])
@@ -348,8 +348,8 @@ def step_tables(lam, bm, mi, Cm, Aq, Bq, Cq, h, n_levels, lv_only, rows, coup, p
             _matmul(Cq, ph[0], rw[2])
             for r in range(2):
                 for i in range(nq):
-                    rows[lv, _R_H1 + r, nd + i] = rw[0, r, i]
-                    rows[lv, _R_H0 + r, nd + i] = rw[2, r, i]
+                    rows[lv, nd + i, _R_H1 + r] = rw[0, r, i]
+                    rows[lv, nd + i, _R_H0 + r] = rw[2, r, i]
             for k in range(1, 5):
                 _add_c_m_b(Cq, ph[k], Bq, bw, coup[lv, _G_H1 + k - 1])
             for i in range(nq):
@@ -474,16 +474,16 @@ def _etdrk4_step(x, z, h, rows, coup, prop_m, prop_q, prop_qb, mi, c, s, d1, d2,
     r0 = r1 = r2 = r3 = r4 = r5 = r6 = r7 = r8 = r9 = 0.0
     for i in range(nz):
         zi = z[i]
-        r0 += rows[0, i] * zi
-        r1 += rows[1, i] * zi
-        r2 += rows[2, i] * zi
-        r3 += rows[3, i] * zi
-        r4 += rows[4, i] * zi
-        r5 += rows[5, i] * zi
-        r6 += rows[6, i] * zi
-        r7 += rows[7, i] * zi
-        r8 += rows[8, i] * zi
-        r9 += rows[9, i] * zi
+        r0 += rows[i, 0] * zi
+        r1 += rows[i, 1] * zi
+        r2 += rows[i, 2] * zi
+        r3 += rows[i, 3] * zi
+        r4 += rows[i, 4] * zi
+        r5 += rows[i, 5] * zi
+        r6 += rows[i, 6] * zi
+        r7 += rows[i, 7] * zi
+        r8 += rows[i, 8] * zi
+        r9 += rows[i, 9] * zi
     # (rows _R_C1, _R_C10, _R_C0, _R_H1, _R_H0 are r0/r1, r2/r3, r4/r5, r6/r7, r8/r9)
     # stage n
     x0, x1, x2, x3 = x[0], x[1], x[2], x[3]
@@ -1526,7 +1526,7 @@ def workspace_shapes(nd: int, nq: int) -> list:
     nz, d, q = nd + nq, nd, nq
     f, i8, b1 = np.float64, np.int64, np.bool_
     L = MAX_STEP_LEVELS
-    return [((L, N_ROWS, nz), f), ((L, N_COUPLINGS, 2, 4), f), ((L, 4, d), f), ((L, q, q), f), ((L, 3, q, 4), f),
+    return [((L, nz, N_ROWS), f), ((L, N_COUPLINGS, 2, 4), f), ((L, 4, d), f), ((L, q, q), f), ((L, 3, q, 4), f),
             ((4, nz), f), ((2, d), f), ((q, q), f), ((q, 4), f),
             ((_W4_ROWS, 4), f), ((_W2_ROWS, 2), f), ((_W10_ROWS, 10), f), ((10 + L,), i8), ((3, 2), b1),
             ((2, N_PHI, q, q), f), ((2, q, q), f), ((3, 2, q), f), ((q, 4), f), ((3, q), f)]
