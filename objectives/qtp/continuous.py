@@ -104,11 +104,11 @@ class ContinuousController:
 
     @classmethod
     def _build(cls, ctrl) -> ContinuousController:
+        D = np.ascontiguousarray(ctrl.D, dtype=np.float64)
         if ctrl.modal_arrays is not None:  # every block modal, concatenated by the design
             lam, b, col, channel = (arr.copy() for arr in ctrl.modal_arrays)  # writeable, as the kernels' types are
-            return cls(lam=lam, b=b, col=col, Cm=np.ascontiguousarray(ctrl.C), Aq=np.zeros((0, 0)),
-                       Bq=np.zeros((0, 4)), Cq=np.zeros((2, 0)), D=np.ascontiguousarray(ctrl.D, dtype=np.float64),
-                       channel=channel)
+            return cls(lam=lam, b=b, col=col, Cm=np.ascontiguousarray(ctrl.C), D=D, channel=channel,
+                       **cls._dense_part([]))
         lam, b, col, Cm, dense, ch_m, ch_q = [], [], [], [], [], [], []
 
         def real(x):
@@ -125,10 +125,21 @@ class ContinuousController:
             else:
                 dense.append(part[1:4])
                 ch_q.append(np.full(part[1].shape[0], part[4], dtype=np.int64))
+
+        def cat(xs, empty):
+            return np.ascontiguousarray(np.concatenate(xs)) if xs else empty
+
+        return cls(lam=cat(lam, np.zeros(0)), b=cat(b, np.zeros(0)), col=cat(col, np.zeros(0, dtype=np.int64)),
+                   Cm=np.ascontiguousarray(np.hstack(Cm)) if Cm else np.zeros((2, 0)), D=D,
+                   channel=np.concatenate(ch_m + ch_q) if ch_m or ch_q else np.zeros(0, dtype=np.int64),
+                   **cls._dense_part(dense))
+
+    @staticmethod
+    def _dense_part(dense: list) -> dict:
+        """``Aq``, ``Bq``, ``Cq`` of the dense blocks ``[(A, B, C), ...]``, block diagonal in
+        their order (empty arrays of the kernels' shapes when there are none)."""
         nq = sum(d[0].shape[0] for d in dense)
-        Aq = np.zeros((nq, nq))
-        Bq = np.zeros((nq, 4))
-        Cq = np.zeros((2, nq))
+        Aq, Bq, Cq = np.zeros((nq, nq)), np.zeros((nq, 4)), np.zeros((2, nq))
         k = 0
         for A, B, C in dense:
             m = A.shape[0]
@@ -136,13 +147,7 @@ class ContinuousController:
             Bq[k:k + m] = B
             Cq[:, k:k + m] = C
             k += m
-        def cat(xs, empty):
-            return np.ascontiguousarray(np.concatenate(xs)) if xs else empty
-
-        return cls(lam=cat(lam, np.zeros(0)), b=cat(b, np.zeros(0)), col=cat(col, np.zeros(0, dtype=np.int64)),
-                   Cm=np.ascontiguousarray(np.hstack(Cm)) if Cm else np.zeros((2, 0)), Aq=Aq, Bq=Bq,
-                   Cq=np.ascontiguousarray(Cq), D=np.ascontiguousarray(ctrl.D, dtype=np.float64),
-                   channel=np.concatenate(ch_m + ch_q) if ch_m or ch_q else np.zeros(0, dtype=np.int64))
+        return dict(Aq=Aq, Bq=Bq, Cq=Cq)
 
 
 def step_at_reference(kind: str | None) -> float:
