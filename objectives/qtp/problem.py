@@ -239,25 +239,30 @@ class Problem(TuningProblem):
             for i in range(n):
                 reason[:, i], margins[i] = self._evaluate_one(X[i], scs, metrics[:, i])
         simulated = reason == ""
-        metrics[~simulated] = np.nan
+        # (the masks below change nothing when every candidate was simulated, the usual case,
+        # whose bookkeeping matters when one candidate is evaluated at a time: line searches)
+        failed = not simulated.all()
+        if failed:
+            metrics[~simulated] = np.nan
         if self._objective_w is None:
             f = metrics[:, :, self._objective_idx].sum(axis=2)
         else:
             f = np.empty((k, n))
             for s, i in zip(*np.nonzero(simulated)):
                 f[s, i] = metrics[s, i, self._objective_idx] @ self._objective_w
-        f[~simulated] = FAILED_OBJECTIVE
         if self._stability_only:
             g = np.zeros((k, n, m))
         else:
             g = metrics[:, :, self._constraint_idx] / self._constraint_limit - 1.0
-        g[~simulated] = FAILED_VIOLATION
-        unstable = reason == "unstable"
-        if unstable.any():
-            # Graded: the less unstable, the smaller the violation, so Deb's rules and SLSQP
-            # both see a way back to stability.
-            graded = FAILED_VIOLATION * (1.0 + np.minimum(margins, UNSTABLE_MARGIN_CAP))
-            g[unstable] = np.broadcast_to(graded, (k, n))[unstable][:, None]
+        if failed:
+            f[~simulated] = FAILED_OBJECTIVE
+            g[~simulated] = FAILED_VIOLATION
+            unstable = reason == "unstable"
+            if unstable.any():
+                # Graded: the less unstable, the smaller the violation, so Deb's rules and
+                # SLSQP both see a way back to stability.
+                graded = FAILED_VIOLATION * (1.0 + np.minimum(margins, UNSTABLE_MARGIN_CAP))
+                g[unstable] = np.broadcast_to(graded, (k, n))[unstable][:, None]
         feasible = simulated & np.all(g <= 0.0, axis=2)
         out = []
         for s in range(k):
