@@ -479,10 +479,9 @@ def _folqi_layout(alphas: tuple, order: int, band: tuple, realisation: str, pair
     poles = modal_arrays = None
     if all(m is not None for m in modal_parts):
         # diagonal form (the discretisation needs no eigen-decomposition): A is the poles,
-        # each state reads its error with weight -1 (e = -w), and the output weights are the
-        # residues
+        # each state reads its error with weight 1, and the output weights are the residues
         poles = tuple(m[0] for m in modal_parts)
-        parts = [(None, None, residues, d) for _, residues, d in modal_parts]
+        parts = [(None, np.ones(p.size), residues, d) for p, residues, d in modal_parts]
         sizes = [p.size for p in poles]
         lam = np.concatenate(poles)
         Ac = np.diag(lam)
@@ -497,11 +496,9 @@ def _folqi_layout(alphas: tuple, order: int, band: tuple, realisation: str, pair
     for ch, ((Af, bf, cf, df), size) in enumerate(zip(parts, sizes)):
         stop = start + size
         err = _error_of_pump(pairing, ch)
-        if poles is None:
+        if Af is not None:  # (diagonal form: Ac holds the poles already)
             Ac[start:stop, start:stop] = Af
-            Bc[start:stop, err] = -bf  # e_err = -w_err
-        else:
-            Bc[start:stop, err] = -1.0
+        Bc[start:stop, err] = -bf  # e_err = -w_err
         blocks.append((start, stop))
         outputs.append((cf, df, err, start, stop))
         start = stop
