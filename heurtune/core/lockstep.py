@@ -25,6 +25,7 @@ spreads over its workers or hands to a batched kernel.
 from __future__ import annotations
 
 import itertools
+import queue
 import threading
 
 import numpy as np
@@ -61,8 +62,9 @@ class Client:
     workers = 1
 
     def imap_unordered(self, fn, items):
-        """Run ``fn(item)`` for every item, each in a thread of the lockstep; yield
-        ``(index, result)`` in order once all have ended."""
+        """Run ``fn(item)`` for every item, each in a thread of the lockstep, at most
+        :attr:`Lockstep.fan_out_width` at once; yield ``(index, result)`` as each ends
+        (:meth:`Lockstep.fan_out`)."""
         return self.hub.fan_out(fn, items)
 
 
@@ -75,6 +77,9 @@ class Lockstep:
         ``evaluate({group: X}) -> {group: (f, g)}``: a batch per group (e.g. the runs' case),
         all evaluated in one go.
     """
+
+    #: Items of one :meth:`fan_out` that run at once (the local solves of one multistart run).
+    fan_out_width = 32
 
     def __init__(self, evaluate):
         self._evaluate = evaluate
@@ -119,31 +124,52 @@ class Lockstep:
 
     def fan_out(self, fn, items):
         """Run ``fn(item)`` for every item in threads that take part in the lockstep (the
-        calling thread waits meanwhile and so steps out of it); yield ``(index, result)``."""
+        calling thread steps out of it meanwhile); yield ``(index, result)`` as each ends.
+
+        At most :attr:`fan_out_width` items run at once; the next starts as one ends. A
+        consumer that stops early (a multistart run whose ``max_epochs`` is reached) starts
+        no further item: the generator waits for the running ones and returns. Each item's
+        result does not depend on which others share its batches, so the width changes only
+        the batches' sizes, never a result."""
         items = list(items)
         if not items:
             return
-        results = [None] * len(items)
-        errors = []
+        ended = queue.SimpleQueue()
 
         def work(i, item):
+            result, error = None, None
             try:
-                results[i] = fn(item)
+                result = fn(item)
             except BaseException as exc:  # noqa: BLE001 - re-raised in the calling thread
-                errors.append(exc)
-            finally:
-                self._join(-1)
+                error = exc
+            self._join(-1)
+            ended.put((i, result, error))
 
-        threads = [threading.Thread(target=work, args=(i, item), daemon=True) for i, item in enumerate(items)]
-        self._join(len(items) - 1)  # the items in, the caller out, in one step
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join()
-        self._join(1)
-        if errors:
-            raise errors[0]
-        yield from enumerate(results)
+        def start(i):
+            threading.Thread(target=work, args=(i, items[i]), daemon=True).start()
+
+        first = min(self.fan_out_width, len(items))
+        self._join(first - 1)  # the first items in, the caller out, in one step
+        for i in range(first):
+            start(i)
+        launched, running = first, first
+        try:
+            while running:
+                i, result, error = ended.get()
+                running -= 1
+                if error is not None:
+                    raise error
+                yield i, result
+                if launched < len(items):
+                    self._join(1)
+                    start(launched)
+                    launched += 1
+                    running += 1
+        finally:  # stopped early, or an item failed: let the running items end
+            while running:
+                ended.get()
+                running -= 1
+            self._join(1)
 
     # -- the driving side --------------------------------------------------------------------
     def run(self, targets):

@@ -976,7 +976,7 @@ def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warning
     history = history[lead + [c for c in history.columns if c not in lead]]
     write_parquet(runs, out_dir / "runs.parquet")
     write_parquet(history, out_dir / "history.parquet")
-    _gather_starts(exp, specs, parts, out_dir)
+    _gather_starts(exp, specs, parts, out_dir, history)
     pareto = _gather_parts(exp, specs, parts, "pareto")
     if pareto is not None:
         write_parquet(pareto, out_dir / "pareto.parquet")
@@ -1027,16 +1027,25 @@ def _gather_parts(exp, specs, parts, kind: str) -> pd.DataFrame | None:
     return table[lead + [c for c in table.columns if c not in lead]]
 
 
-def _gather_starts(exp, specs, parts, out_dir):
+def _gather_starts(exp, specs, parts, out_dir, history):
     """``starts.parquet``: every local solve of the finished multistart runs (none: no file).
 
     Columns: experiment, case, algorithm, optimiser_index, run, start, round, cap, x0_<name>
     (start point), <name> (the point kept), f, violation, feasible, nit, nfev, success, message.
+
+    Only the rounds the run closed (its epochs in ``history``) are kept. A run that stops at
+    ``max_epochs`` lets the solves already begun end, and they are saved for a resume; how
+    many of them there are depends on the workers and the scheduling, so they are left out
+    here and the file is the same whatever the number of workers or the device.
     """
     starts = _gather_parts(exp, specs, parts, "starts")
     if starts is not None:
         kept_apart = [c for c in starts.columns if c == "run_key" or (c.startswith("g_") and c[2:].isdigit())]
         starts = starts.drop(columns=kept_apart)
+        key = ["case", "algorithm", "optimiser_index", "run"]
+        last = history.groupby(key)["epoch"].max().rename("_last_epoch").reset_index()
+        starts = starts.merge(last, on=key, how="left")
+        starts = starts[starts["round"] <= starts["_last_epoch"]].drop(columns="_last_epoch").reset_index(drop=True)
         write_parquet(starts, out_dir / "starts.parquet")
 
 

@@ -1,5 +1,6 @@
 """Runs in lockstep: one batch per generation across runs, each run's results as if alone."""
 
+import functools
 import threading
 
 import numpy as np
@@ -103,3 +104,46 @@ def test_runner_lockstep_gives_the_same_files(tmp_path):
         a, b = (pd.read_parquet(out[k] / f"{name}.parquet") for k in (False, True))
         cols = [c for c in a.columns if "wall" not in c]
         pd.testing.assert_frame_equal(a[cols], b[cols], check_exact=True)
+
+
+@pytest.mark.parametrize("width", [1, 3, 32])
+def test_fan_out_runs_a_window_of_items_and_starts_none_after_an_early_stop(width):
+    """A driver's items run at most ``fan_out_width`` at once, each item's values are its own
+    whatever shares its batches, and a consumer that stops early (a multistart run at its
+    ``max_epochs``) leaves the items not yet started unstarted."""
+    started, running, most = [], [0], [0]
+    guard = threading.Lock()
+
+    def evaluate(batches):
+        return {group: (X.sum(axis=1), np.zeros((X.shape[0], 0))) for group, X in batches.items()}
+
+    hub = Lockstep(evaluate)
+    hub.fan_out_width = width
+
+    def solve(client, k):
+        with guard:
+            started.append(k)
+            running[0] += 1
+            most[0] = max(most[0], running[0])
+        total = 0.0
+        for step in range(3):  # a few evaluations per item, as a local solve makes
+            f, _ = client(np.full((1 + step, 2), float(k)))
+            total += float(f.sum())
+        with guard:
+            running[0] -= 1
+        return total
+
+    def driver():
+        client = hub.client("g")
+        got = {}
+        for j, value in client.imap_unordered(functools.partial(solve, client), range(40)):
+            got[j] = value
+            if len(got) == 5:
+                break
+        return got
+
+    [(_, got)] = list(hub.run([driver]))
+    assert most[0] <= width
+    assert len(got) == 5 and all(v == 2.0 * j * (1 + 2 + 3) for j, v in got.items())
+    assert len(started) <= 5 + width - 1  # at most the window that was running at the stop
+    assert running[0] == 0  # the running items ended before the driver went on

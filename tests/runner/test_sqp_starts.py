@@ -18,7 +18,7 @@ HISTORY_KEYS = ["case", "run", "epoch", "n_evals", "best_f", "best_violation", "
 STARTS = 5
 
 
-def _config(folder, name="sqp_small", max_iter=3, extra=""):
+def _config(folder, name="sqp_small", max_iter=3, extra="", starts=STARTS, batch=3):
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{name}.toml"
     path.write_text(
@@ -26,7 +26,7 @@ def _config(folder, name="sqp_small", max_iter=3, extra=""):
         + extra
         + "[scenario]\nhorizon = 60.0\ndt = 0.05\n"
         + '[[optimisers]]\nname = "sqp_multistart"\n'
-        + f"settings = {{ starts = {STARTS}, max_iter = {max_iter}, batch = 3 }}\n"
+        + f"settings = {{ starts = {starts}, max_iter = {max_iter}, batch = {batch} }}\n"
     )
     return path
 
@@ -113,6 +113,24 @@ def test_same_starts_with_one_and_two_workers(reference):
     out = tmp / "two"
     assert run([str(_config(tmp)), "--out", str(out), "--jobs", "2", "--no-figures"]) == 0
     _same(_read(out), whole)
+
+
+def test_a_stop_at_max_epochs_keeps_the_closed_rounds_whatever_the_workers_or_lockstep(tmp_path):
+    """Solves that end after the run's stop (begun on another worker, or in the lockstep's
+    window) are saved for a resume but are not in starts.parquet, which is therefore the same
+    with one worker, two, and in lockstep, and adds up to the runs' evaluations."""
+    config = _config(tmp_path, name="sqp_stop", starts=12, batch=2)
+    out = {}
+    for tag, extra in (("one", []), ("two", ["--jobs", "2"]), ("lockstep", ["--jobs", "2", "--lockstep"])):
+        out[tag] = tmp_path / tag
+        assert run([str(config), "--out", str(out[tag]), "--max-epochs", "1", "--no-figures", *extra]) == 0
+    res = {tag: _read(o) for tag, o in out.items()}
+    starts, runs = res["one"]["starts"], res["one"]["runs"]
+    assert set(starts["round"]) == {0, 1} and len(starts) == 2 * 4
+    for _, r in runs.iterrows():
+        assert starts.loc[starts["case"] == r["case"], "nfev"].sum() == r["n_evals"]
+    _same(res["two"], res["one"])
+    _same(res["lockstep"], res["one"])
 
 
 def test_only_multistart_runs_without_a_budget_spread_their_starts_over_the_workers():
