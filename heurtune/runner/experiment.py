@@ -1036,7 +1036,7 @@ def _gather_starts(exp, specs, parts, out_dir, history):
     Only the rounds the run closed (its epochs in ``history``) are kept. A run that stops at
     ``max_epochs`` lets the solves already begun end, and they are saved for a resume; how
     many of them there are depends on the workers and the scheduling, so they are left out
-    here and the file is the same whatever the number of workers or the device.
+    here and the file is the same whatever the number of workers, with or without lockstep.
     """
     starts = _gather_parts(exp, specs, parts, "starts")
     if starts is not None:
