@@ -245,7 +245,7 @@ def stability_margins(loop, ctrls) -> np.ndarray:
         else:
             out[i] = loop.stability_margin(ctrl)
     for members in by_size.values():
-        M = np.stack([ctrls[i].closed_loop_matrix(loop.A, loop.B) for i in members])
+        M = _closed_loop_matrices(loop.A, loop.B, [ctrls[i] for i in members])
         finite = np.isfinite(M).all(axis=(1, 2))
         margins = np.full(len(members), np.inf)
         if finite.any():
@@ -255,6 +255,20 @@ def stability_margins(loop, ctrls) -> np.ndarray:
                 margins[finite] = [loop.stability_margin(ctrls[members[j]]) for j in np.flatnonzero(finite)]
         out[members] = margins
     return out
+
+
+def _closed_loop_matrices(A: np.ndarray, B: np.ndarray, ctrls) -> np.ndarray:
+    """``np.stack([c.closed_loop_matrix(A, B) for c in ctrls])`` for minimal controllers of one
+    size, assembled for the stack at once (the same blocks; the products ``B Dc`` and ``B Cc``
+    by numpy's stacked matmul)."""
+    n, nc = A.shape[0], ctrls[0].n_states
+    Ac, Bc, Cc, Dc = (np.stack([getattr(c, name) for c in ctrls]) for name in "ABCD")
+    M = np.empty((len(ctrls), n + nc, n + nc))
+    M[:, :n, :n] = A + B @ Dc
+    M[:, :n, n:] = B @ Cc
+    M[:, n:, :n] = Bc
+    M[:, n:, n:] = Ac
+    return M
 
 
 def _modal_pattern(ctrl) -> tuple | None:

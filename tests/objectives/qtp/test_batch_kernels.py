@@ -191,6 +191,31 @@ def test_gpu_kernel_under_the_cuda_simulator():
 
 # -- the design of a batch ---------------------------------------------------------------------
 
+@pytest.mark.parametrize("experiment", ["cs_folqi_qtp", "cs_iolqi_qtp"])
+def test_stacked_closed_loop_matrices_are_each_controllers_own(experiment):
+    """The stability check of a batch assembles the closed-loop matrices of one size together;
+    each must be the controller's ``closed_loop_matrix`` (the same blocks and products: equal to
+    the last bit here, to 1e-15 relative wherever numpy's stacked matmul rounds differently)."""
+    import heurtune
+    from heurtune.objectives.qtp.batch_design import _closed_loop_matrices
+
+    prob = heurtune.load_experiment(experiment).problem("nmp")
+    loop = prob.loop
+    X = prob.lower + np.random.default_rng(3).random((60, prob.dim)) * (prob.upper - prob.lower)
+    by_size = {}
+    for x in X:
+        ctrl = loop.controller(dict(zip(prob.names, x.tolist())))
+        by_size.setdefault(ctrl.n_states, []).append(ctrl)
+    assert len(by_size) >= (2 if experiment == "cs_folqi_qtp" else 1)  # orders with 0, 1 and 2 integrators
+    for ctrls in by_size.values():
+        M = _closed_loop_matrices(loop.A, loop.B, ctrls)
+        for Mi, ctrl in zip(M, ctrls):
+            ref = ctrl.closed_loop_matrix(loop.A, loop.B)
+            np.testing.assert_allclose(Mi, ref, rtol=1e-15, atol=1e-15 * np.abs(ref).max())
+            np.testing.assert_array_equal(Mi[4:, 4:], ctrl.A)  # the blocks where they belong
+            np.testing.assert_array_equal(Mi[4:, :4], ctrl.B)
+
+
 @pytest.mark.parametrize("experiment, case, options", [
     ("cs_folqi_qtp", "min", {}), ("cs_folqi_qtp", "nmp", {}), ("cs_iolqi_qtp", "min", {}), ("cs_lqi_qtp", "min", {}),
     ("cs_folqi_qtp", "min", {"realisation": "integer_split"}), ("cs_folqi_qtp", "nmp", {"pairing": "anti-diagonal"}),
