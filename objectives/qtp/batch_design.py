@@ -176,33 +176,58 @@ def folqi_controllers(kind: str, values: np.ndarray, names, A, B, *, oustaloup_o
     for i in rows:
         groups.setdefault((n1[i], int1[i], n2[i], int2[i]), []).append(i)
     for (a1, i1, a2, i2), members in groups.items():
-        members = np.array(members)
         modal = [_modal_integrators(alphas[members, 0], a1, i1, oustaloup_order, band, realisation),
                  _modal_integrators(alphas[members, 1], a2, i2, oustaloup_order, band, realisation)]
-        sizes = [p[0].shape[1] for p in modal]
-        nz = sum(sizes)
-        blocks = ((0, sizes[0]), (sizes[0], nz))
+        gain = np.stack([gains[i] for i in members])
+        designed = []
         for j, i in enumerate(members):
-            Ki = gains[i]
-            if np.isnan(Ki[0, 0]):  # the stacked Riccati solution was not accepted
+            if np.isnan(gain[j, 0, 0]):  # the stacked Riccati solution was not accepted
                 try:
-                    Ki = lqr_gain(A, B, np.diag(q[i]), np.diag(r[i]))
+                    gain[j] = lqr_gain(A, B, np.diag(q[i]), np.diag(r[i]))
                 except ControllerDesignError as exc:
                     out[i] = exc
                     continue
-            Ac = np.zeros((nz, nz))
-            Bc = np.zeros((nz, N_MEASURED))
-            Cc = np.zeros((N_INPUTS, nz))
-            Dc = -Ki
-            for ch, (start, stop) in enumerate(blocks):
-                poles, residues, d = modal[ch]
-                err = _error_of_pump(pairing, ch)
-                Ac[np.arange(start, stop), np.arange(start, stop)] = poles[j]
-                Bc[start:stop, err] = -1.0
-                Cc[ch, start:stop] = ki[i, ch] * residues[j]
-                Dc[ch, err] -= ki[i, ch] * d[j]
-            out[i] = LinearController(Ac, Bc, Cc, Dc, blocks, (0, 1))
+            designed.append(j)
+        _modal_controllers(out, [members[j] for j in designed], [(p[designed], c[designed], d[designed])
+                                                                  for p, c, d in modal],
+                           gain[designed], ki[members][designed], pairing)
     return out
+
+
+def _modal_controllers(out: list, rows: list, modal: list, gain: np.ndarray, ki: np.ndarray, pairing: str) -> None:
+    """The FOLQI controllers (into ``out[rows]``) of candidates whose two integrators are in
+    partial fractions of one layout: ``modal`` per pump ``(poles, residues, d)`` with a row per
+    candidate, ``gain`` their LQR gains (k, 2, 4), ``ki`` their integral gains (k, 2). The
+    matrices of all of them are written at once, by the element-wise arithmetic of
+    :func:`~heurtune.objectives.qtp.controllers.folqi_design`, and each controller carries its
+    modal form as that design's does (so the continuous loop reads it without deriving it)."""
+    k = len(rows)
+    if k == 0:
+        return
+    sizes = [p.shape[1] for p, _, _ in modal]
+    nz = sum(sizes)
+    blocks = ((0, sizes[0]), (sizes[0], nz))
+    errs = [_error_of_pump(pairing, ch) for ch in range(N_INPUTS)]
+    lam = np.concatenate([p for p, _, _ in modal], axis=1)
+    Ac = np.zeros((k, nz, nz))
+    Ac[:, np.arange(nz), np.arange(nz)] = lam
+    Bc = np.zeros((k, nz, N_MEASURED))
+    Cc = np.zeros((k, N_INPUTS, nz))
+    Dc = -gain
+    for ch, ((start, stop), (_, residues, d), err) in enumerate(zip(blocks, modal, errs)):
+        Bc[:, start:stop, err] = -1.0
+        Cc[:, ch, start:stop] = ki[:, ch, None] * residues
+        Dc[:, ch, err] -= ki[:, ch] * d
+    b = np.full(nz, -1.0)
+    col = np.repeat(np.array(errs, dtype=np.int64), sizes)
+    channel = np.repeat(np.arange(N_INPUTS, dtype=np.int64), sizes)
+    for arr in (Ac, Bc, lam, b, col, channel):  # read-only, as the one-candidate design's
+        arr.flags.writeable = False
+    for j, i in enumerate(rows):
+        parts = tuple(("modal", lam[j, start:stop], Bc[j, start:stop, err], Cc[j, :, start:stop], err, ch)
+                      for ch, ((start, stop), err) in enumerate(zip(blocks, errs)))
+        out[i] = LinearController(Ac[j], Bc[j], Cc[j], Dc[j], blocks, (0, 1), modal=parts,
+                                  modal_arrays=(lam[j], b, col, channel))
 
 
 def _one(kind, values, A, B, order, band, realisation, pairing):

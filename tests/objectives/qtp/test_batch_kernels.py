@@ -248,6 +248,14 @@ def test_batch_design_equals_the_one_candidate_design(experiment, case, options)
             np.testing.assert_allclose(ctrls[i].C, ctrl.C, rtol=1e-12, atol=0.0)
             np.testing.assert_array_equal(ctrls[i].A, ctrl.A)
             np.testing.assert_array_equal(ctrls[i].B, ctrl.B)
+            # the modal form the design hands the continuous loop: the same, where it has one
+            assert (ctrls[i].modal_arrays is None) == (ctrl.modal_arrays is None)
+            for got, ref in zip(ctrls[i].modal_arrays or (), ctrl.modal_arrays or ()):
+                np.testing.assert_array_equal(got, ref)
+            for got, ref in zip(ctrls[i].modal_blocks(), ctrl.modal_blocks()):
+                assert len(got) == len(ref) and got[0] == ref[0]
+                for a, b in zip(got[1:], ref[1:]):  # arrays (C's from the gains: 1e-12), signal, pump
+                    np.testing.assert_allclose(a, b, rtol=1e-12, atol=0.0)
         if reason == "unstable":
             assert margins[i] == pytest.approx(margin, rel=1e-9)
     assert designed >= (1 if case == "nmp" else 5)
