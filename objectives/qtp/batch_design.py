@@ -195,7 +195,7 @@ def folqi_controllers(kind: str, values: np.ndarray, names, A, B, *, oustaloup_o
 
 
 def _modal_controllers(out: list, rows: list, modal: list, gain: np.ndarray, ki: np.ndarray, pairing: str) -> None:
-    """The FOLQI controllers (into ``out[rows]``) of candidates whose two integrators are in
+    """The FOLQI or IOLQI controllers (into ``out[rows]``) of candidates whose two integrators are in
     partial fractions of one layout: ``modal`` per pump ``(poles, residues, d)`` with a row per
     candidate, ``gain`` their LQR gains (k, 2, 4), ``ki`` their integral gains (k, 2). The
     matrices of all of them are written at once, by the element-wise arithmetic of
