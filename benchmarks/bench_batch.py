@@ -38,11 +38,12 @@ import numpy as np  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
 import heurtune  # noqa: E402
-from heurtune.objectives.qtp import controllers, gpu  # noqa: E402
+from heurtune.objectives.qtp import gpu  # noqa: E402
 from heurtune.runner.machine import cpu_name  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import reference_qtp  # noqa: E402
+from bench_evaluate import forget_designs  # noqa: E402
 
 GAINS = dict(Q11=0.4431, Q22=0.3027, Q33=0.4434, Q44=1.5722, R11=4.2253, R22=2.5994,
              Ki1=1.7411, Ki2=7.1716, alpha1=0.9814, alpha2=0.8437)
@@ -57,14 +58,6 @@ def metric_differences(got, ref):
     rest = [j for j in range(len(METRIC_NAMES)) if j not in ess]
     rel = np.abs(got[:, rest] - ref[:, rest]) / np.maximum(np.abs(ref[:, rest]), 1e-300)
     return float(np.nanmax(rel)), float(np.nanmax(np.abs(got[:, ess] - ref[:, ess])))
-
-
-def forget_designs():
-    """Empty the one-candidate design's caches (Riccati gains of recent weights, FOLQI layouts
-    and Oustaloup filters of recent orders)."""
-    controllers._lqr_cache.clear()
-    controllers._folqi_layout.cache_clear()
-    controllers._integrator_modal.cache_clear()
 
 
 def best_of(fn, repeats, before=None):
@@ -123,7 +116,8 @@ def main(argv=None):
         full = {}
         for device in ("cpu", "cpu-batch"):
             prob.set_device(device)
-            full[device] = best_of(lambda: prob.evaluate_scenarios(X, [sc]), args.repeats, forget_designs) / n
+            full[device] = best_of(lambda: prob.evaluate_scenarios(X, [sc]), args.repeats,
+                                   lambda: forget_designs(filters=True)) / n
         prob.set_device("cpu")
         lsoda = best_of(lambda: reference_qtp.reference_loop(plant, GAINS, t, method="LSODA", rtol=1e-3, atol=1e-6),
                         1)

@@ -47,13 +47,16 @@ GAINS = dict(Q11=0.4431, Q22=0.3027, Q33=0.4434, Q44=1.5722, R11=4.2253, R22=2.5
              Ki1=1.7411, Ki2=7.1716, alpha1=0.9814, alpha2=0.8437)
 
 
-def forget_designs():
+def forget_designs(filters=False):
     """Empty the design's caches of recent weights and orders (``controllers._lqr_cache``,
     ``_folqi_layout``), which a study's finite-difference gradients hit but a benchmark that
     repeats one candidate would hit every time; the filters of an order stay cached, as
-    before those caches existed."""
+    before those caches existed, unless ``filters`` (``_integrator_modal``: a batch of new
+    candidates has new orders)."""
     controllers._lqr_cache.clear()
     controllers._folqi_layout.cache_clear()
+    if filters:
+        controllers._integrator_modal.cache_clear()
 
 
 def median_ms(fn, repeats):
