@@ -78,7 +78,10 @@ def lqr_gains(A: np.ndarray, B: np.ndarray, q: np.ndarray, r: np.ndarray) -> np.
         if not good.any():
             return K
         idx = np.argsort(~stable[good], axis=1, kind="stable")[:, :n]  # the stable ones first
-        U = np.take_along_axis(V[good], idx[:, None, :], axis=2)
+        # complex whatever the batch: numpy's eig returns real vectors when every eigenvalue of the
+        # stack is real, and a real solve rounds otherwise than a complex one, so a candidate's
+        # gains would depend on the candidates beside it
+        U = np.take_along_axis(V[good], idx[:, None, :], axis=2).astype(np.complex128, copy=False)
         U11, U21 = U[:, :n, :], U[:, n:, :]
         try:
             P = np.linalg.solve(np.swapaxes(U11, 1, 2), np.swapaxes(U21, 1, 2))
