@@ -40,6 +40,7 @@ from heurtune.objectives.qtp.controllers import (
     LinearController,
     _error_of_pump,
     folqi_design,
+    loop_state_matrix,
     lqr_gain,
 )
 from heurtune.objectives.qtp.oustaloup import _INTEGER_TOL
@@ -287,16 +288,8 @@ def stability_margins(loop, ctrls) -> np.ndarray:
 
 def _closed_loop_matrices(A: np.ndarray, B: np.ndarray, ctrls) -> np.ndarray:
     """``np.stack([c.closed_loop_matrix(A, B) for c in ctrls])`` for minimal controllers of one
-    size, assembled for the stack at once (the same blocks; the products ``B Dc`` and ``B Cc``
-    by numpy's stacked matmul)."""
-    n, nc = A.shape[0], ctrls[0].n_states
-    Ac, Bc, Cc, Dc = (np.stack([getattr(c, name) for c in ctrls]) for name in "ABCD")
-    M = np.empty((len(ctrls), n + nc, n + nc))
-    M[:, :n, :n] = A + B @ Dc
-    M[:, :n, n:] = B @ Cc
-    M[:, n:, :n] = Bc
-    M[:, n:, n:] = Ac
-    return M
+    size, assembled for the stack at once by :func:`~heurtune.objectives.qtp.controllers.loop_state_matrix`."""
+    return loop_state_matrix(A, B, *(np.stack([getattr(c, name) for c in ctrls]) for name in "ABCD"))
 
 
 def _modal_pattern(ctrl) -> tuple | None:

@@ -231,13 +231,22 @@ class LinearController:
 
             red = control.ss(Ac, Bc, Cc, Dc).minreal()
             Ac, Bc, Cc = np.asarray(red.A), np.asarray(red.B), np.asarray(red.C)
-        n, nc = A.shape[0], Ac.shape[0]
-        M = np.empty((n + nc, n + nc))
-        M[:n, :n] = A + B @ Dc
-        M[:n, n:] = B @ Cc
-        M[n:, :n] = Bc
-        M[n:, n:] = Ac
-        return M
+        return loop_state_matrix(A, B, Ac, Bc, Cc, Dc)
+
+
+def loop_state_matrix(A: np.ndarray, B: np.ndarray, Ac: np.ndarray, Bc: np.ndarray, Cc: np.ndarray,
+                      Dc: np.ndarray) -> np.ndarray:
+    """State matrix ``[[A + B Dc, B Cc], [Bc, Ac]]`` of the linearised plant ``(A, B)`` (full state
+    measured) in a loop with the controller ``(Ac, Bc, Cc, Dc)``; the controller's matrices may
+    carry a leading axis of candidates (then one matrix per candidate, the products by numpy's
+    stacked matmul)."""
+    n, nc = A.shape[0], Ac.shape[-1]
+    M = np.empty(Ac.shape[:-2] + (n + nc, n + nc))
+    M[..., :n, :n] = A + B @ Dc
+    M[..., :n, n:] = B @ Cc
+    M[..., n:, :n] = Bc
+    M[..., n:, n:] = Ac
+    return M
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
