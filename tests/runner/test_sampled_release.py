@@ -6,12 +6,14 @@ commit e1bb82f (where the QTP configs said ``[scenario] dt = 0.01``, the sampled
 ``python -m heurtune.experiment NAME --smoke --seed 7 --jobs 1 --no-figures``; everything but
 the wall time. The test reruns each with ``sample_time = 0.01`` and compares: the problem ids,
 statuses, evaluation counts and texts exactly (the resolved settings may hold settings added
-since, such as PSO's ``bounds``, at their defaults), the numbers to 1e-9 relative and ess, a
+since, such as PSO's ``bounds``, at their defaults), the numbers to 1e-8 relative and ess, a
 difference of nearly equal levels, to 1e-10 % of the level absolute. On the machine that wrote the
 file they are equal bit for bit (``python tests/runner/test_sampled_release.py compare ROOT``
 checks a folder of such runs exactly); the margins are for CPUs that round differently (other
 BLAS kernels or vector widths): the Intel Xeon of 2026-12-04 gives the file's ess values to about
-2e-14 % and its other numbers within 1e-9.
+2e-14 % and its other numbers within 1e-9; an AMD EPYC with AVX2 only (the same day) its ess
+values to 1e-14 % and its other numbers within 1.7e-9 (umin of an nmp LQI, whose augmented
+Riccati equation is poorly conditioned, so the last bits of the gains move the metrics most).
 
 Such a difference in the last bits of an evaluation moves a finite-difference gradient by about
 1e-8 relative, and an optimiser stepping along those gradients (SQP, Newton-Raphson, DFP, steepest
@@ -42,7 +44,7 @@ from qtp_cases import sampled_experiment
 REFERENCE = Path(__file__).with_name("sampled_release_smoke.json")
 SKIPPED_COLUMNS = ("wall_time_s",)
 KEY = ["case", "algorithm", "run"]
-RTOL = 1e-9
+RTOL = 1e-8
 ESS_ATOL = 1e-10  # % of the operating level
 # Optimisers whose steps follow finite-difference gradients (see the module docstring).
 FINITE_DIFFERENCE = frozenset({"sqp_multistart", "newton_raphson", "dfp", "steepest_descent", "bfgs"})

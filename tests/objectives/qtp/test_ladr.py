@@ -300,8 +300,10 @@ def test_margin_is_that_of_the_reduced_loop():
         zeros, _ = _split_spectrum(loop, ctrl)
         assert np.all(np.abs(zeros) < 1e-5)
         _, rest = _split_spectrum(loop, ctrl)
-        # Eigenvalues near 0 carry ~1e-8 absolute rounding (minreal's and the full matrix's).
-        assert loop.stability_margin(ctrl) == pytest.approx(rest.real.max(), rel=1e-4, abs=1e-7)
+        # Eigenvalues near 0 carry rounding of 1e-8 to 1.3e-7 absolute, by CPU (minreal's and the
+        # full matrix's; the largest on an AMD EPYC with AVX2 only, for a slow mode at -1.0e-5),
+        # against the 1e-5 the structural zeros are allowed above
+        assert loop.stability_margin(ctrl) == pytest.approx(rest.real.max(), rel=1e-4, abs=1e-6)
 
 
 @pytest.mark.parametrize("mode", ["min", "nmp"])
