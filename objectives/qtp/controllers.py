@@ -29,10 +29,10 @@ import typing
 
 import numpy as np
 import scipy.linalg
-import scipy.linalg.lapack
 
 from heurtune.core.errors import DesignError
 from heurtune.core.structures import get_structure
+from heurtune.objectives.qtp import design_kernels as _design_kernels
 from heurtune.objectives.qtp.oustaloup import fractional_integrator
 
 __all__ = [
@@ -55,14 +55,9 @@ N_INPUTS = 2
 _UNIT_ROWS = np.eye(2)
 # Largest Riccati residual accepted, relative to the size of its terms.
 RICCATI_RESIDUAL_TOL = 1e-9
-_DGEES = scipy.linalg.lapack.get_lapack_funcs("gees", dtype=np.float64)
 # Riccati gains of recent weights (see _weighted_lqr_gain).
 _LQR_CACHE_SIZE = 64
 _lqr_cache: collections.OrderedDict = collections.OrderedDict()
-
-
-def _left_half_plane(re, im):
-    return re < 0.0
 
 
 _PUMP_ROWS = np.array([[False], [True]])  # row r is the unit vector of pump r where unit1 == r
@@ -225,13 +220,18 @@ class LinearController:
         TB01PD), so that modes the loop can neither excite nor see (e.g. the LADR's structural
         zero eigenvalues) do not decide stability.
         """
+        return loop_state_matrix(A, B, *self.minimal_realisation())
+
+    def minimal_realisation(self) -> tuple:
+        """``(A, B, C, D)``, reduced first by python-control's ``minreal`` (SLICOT TB01PD) unless
+        the controller is minimal (C-contiguous arrays)."""
         Ac, Bc, Cc, Dc = self.A, self.B, self.C, self.D
         if not self.minimal and Ac.shape[0]:
             import control
 
             red = control.ss(Ac, Bc, Cc, Dc).minreal()
-            Ac, Bc, Cc = np.asarray(red.A), np.asarray(red.B), np.asarray(red.C)
-        return loop_state_matrix(A, B, Ac, Bc, Cc, Dc)
+            Ac, Bc, Cc = (np.ascontiguousarray(red.A), np.ascontiguousarray(red.B), np.ascontiguousarray(red.C))
+        return Ac, Bc, Cc, Dc
 
 
 def loop_state_matrix(A: np.ndarray, B: np.ndarray, Ac: np.ndarray, Bc: np.ndarray, Cc: np.ndarray,
@@ -312,7 +312,9 @@ def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.n
     ``RICCATI_RESIDUAL_TOL`` times the size of its terms (an ill-conditioned ``U11``) is
     rejected. For the 4-state QTP this is several times faster than
     ``scipy.linalg.solve_continuous_are`` (whose balancing and QZ steps matter for larger, badly
-    scaled problems); the tests compare both, and python-control's ``lqr``.
+    scaled problems); the tests compare both, and python-control's ``lqr``. It runs as one
+    compiled call (:func:`~heurtune.objectives.qtp.design_kernels.riccati_gain`, the arithmetic
+    of the numpy code it replaced, bit for bit).
 
     Parameters
     ----------
@@ -333,29 +335,16 @@ def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.n
     """
     n = A.shape[0]
     try:
-        Rinv_Bt = np.linalg.solve(R, B.T)
-        H = np.empty((2 * n, 2 * n))
-        H[:n, :n] = A
-        H[:n, n:] = -B @ Rinv_Bt
-        H[n:, :n] = -Q
-        H[n:, n:] = -A.T
-        # LAPACK dgees with the stable eigenvalues ordered first (scipy.linalg.schur(sort="lhp")
-        # without its wrapper's overhead).
-        _, sdim, _, _, Z, _, info = _DGEES(_left_half_plane, H, compute_v=1, sort_t=1, overwrite_a=1)
-        if info != 0:
-            raise ControllerDesignError("riccati_failed", f"ordered Schur form failed (LAPACK info {info})")
-        if sdim != n:
-            raise ControllerDesignError("riccati_failed", f"{sdim} stable Hamiltonian eigenvalues, need {n}")
-        U11, U21 = Z[:n, :n], Z[n:, :n]
-        P = np.linalg.solve(U11.T, U21.T).T
+        outcome, count, K = _design_kernels.riccati_gain(A, B, Q, R, RICCATI_RESIDUAL_TOL,
+                                                         _design_kernels.SELECT_STABLE)
     except (np.linalg.LinAlgError, ValueError) as exc:
         raise ControllerDesignError("riccati_failed", str(exc)) from None
-    P = 0.5 * (P + P.T)
-    K = Rinv_Bt @ P
-    # An ill-conditioned stable subspace shows as a poor Riccati residual.
-    residual = A.T @ P + P @ A - P @ B @ K + Q
-    scale = np.abs(Q).max() + np.abs(P).max() * (2.0 * np.abs(A).max() + np.abs(B @ K).max())
-    if not (np.abs(residual).max() <= RICCATI_RESIDUAL_TOL * scale):
+    if outcome == _design_kernels.RICCATI_SCHUR_FAILED:
+        raise ControllerDesignError("riccati_failed", f"ordered Schur form failed (LAPACK info {count})")
+    if outcome == _design_kernels.RICCATI_STABLE_COUNT:
+        raise ControllerDesignError("riccati_failed", f"{count} stable Hamiltonian eigenvalues, need {n}")
+    if outcome == _design_kernels.RICCATI_RESIDUAL:
+        # an ill-conditioned stable subspace shows as a poor Riccati residual
         raise ControllerDesignError("riccati_failed", "Riccati residual too large (ill-conditioned problem)")
     return K
 

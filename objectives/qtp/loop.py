@@ -11,12 +11,12 @@ from collections.abc import Mapping
 
 import numpy as np
 import pandas as pd
-import scipy.linalg.lapack
 
 from heurtune.core.errors import ConfigError
 from heurtune.core.problem import RANGE_RTOL
 from heurtune.objectives.qtp import continuous as _continuous
 from heurtune.objectives.qtp import continuous_kernels as _continuous_kernels
+from heurtune.objectives.qtp import design_kernels as _design_kernels
 from heurtune.objectives.qtp import kernels as _kernels
 from heurtune.objectives.qtp import structures as _structures
 from heurtune.objectives.qtp.batch_design import discretise_many
@@ -24,7 +24,6 @@ from heurtune.objectives.qtp.bond_graph import BondGraphElements, pressure_coeff
 from heurtune.objectives.qtp.controllers import LinearController, PlantLinearisation
 from heurtune.objectives.qtp.model import QTPParams, linearise, operating_point
 
-_DGEEV = scipy.linalg.lapack.get_lapack_funcs("geev", dtype=np.float64)
 # Step plans kept per loop (scenario, step); cleared when full.
 _PLAN_CACHE_SIZE = 256
 
@@ -451,14 +450,8 @@ class ClosedLoop:
 
     def stability_margin(self, ctrl: LinearController) -> float:
         """Largest real part of the linearised closed-loop eigenvalues (negative = stable)."""
-        Acl = ctrl.closed_loop_matrix(self.A, self.B)
-        if not np.isfinite(Acl).all():
-            return math.inf
-        # LAPACK dgeev without eigenvectors (numpy's eigvals adds checks and copies)
-        wr, _, _, _, info = _DGEEV(Acl, compute_vl=0, compute_vr=0, overwrite_a=1)
-        if info != 0:
-            return math.inf
-        return float(wr.max())
+        # one compiled call: the loop's matrix (of the minimal realisation) and LAPACK dgeev
+        return float(_design_kernels.loop_margin(self.A, self.B, *ctrl.minimal_realisation()))
 
     # -- simulation -----------------------------------------------------------------------
     def _scenario_arrays(self, scenario: Scenario):
