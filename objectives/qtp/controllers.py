@@ -474,39 +474,35 @@ def _folqi_layout(alphas: tuple, order: int, band: tuple, realisation: str, pair
     """The part of :func:`folqi_design` that depends on the orders alone, kept for repeated
     orders (a finite-difference gradient moves one tuning value at a time)."""
     modal_parts = [_integrator_modal(a, order, band, realisation) for a in alphas]
-    poles = modal_arrays = None
+    errs = [_error_of_pump(pairing, ch) for ch in range(len(alphas))]
     if all(m is not None for m in modal_parts):
         # diagonal form (the discretisation needs no eigen-decomposition): A is the poles,
         # each state reads its error with weight 1, and the output weights are the residues
-        poles = tuple(m[0] for m in modal_parts)
-        parts = [(None, np.ones(p.size), residues, d) for p, residues, d in modal_parts]
-        sizes = [p.size for p in poles]
-        lam = np.concatenate(poles)
-        Ac = np.diag(lam)
-    else:
-        parts = [fractional_integrator(a, order, band, realisation).state_space() if m is None
-                 else (np.diag(m[0]), np.ones(m[0].size), m[1], m[2]) for a, m in zip(alphas, modal_parts)]
-        sizes = [p[0].shape[0] for p in parts]
-        Ac = np.zeros((sum(sizes), sum(sizes)))
+        (p1, c1, d1), (p2, c2, d2) = modal_parts
+        Ac, Bc, lam, b, col, channel = _design_kernels.modal_layout(p1, p2, errs[0], errs[1])
+        n1, nz = p1.size, lam.size
+        modal_arrays = (lam, b, col, channel)
+        for arr in (Ac, Bc) + modal_arrays:
+            arr.flags.writeable = False
+        return _FolqiLayout(Ac, Bc, ((0, n1), (n1, nz)), ((c1, d1, errs[0], 0, n1), (c2, d2, errs[1], n1, nz)),
+                            (p1, p2), modal_arrays)
+    parts = [fractional_integrator(a, order, band, realisation).state_space() if m is None
+             else (np.diag(m[0]), np.ones(m[0].size), m[1], m[2]) for a, m in zip(alphas, modal_parts)]
+    sizes = [p[0].shape[0] for p in parts]
+    Ac = np.zeros((sum(sizes), sum(sizes)))
     Bc = np.zeros((Ac.shape[0], N_MEASURED))
     blocks, outputs = [], []
     start = 0
-    for ch, ((Af, bf, cf, df), size) in enumerate(zip(parts, sizes)):
+    for (Af, bf, cf, df), size, err in zip(parts, sizes, errs):
         stop = start + size
-        err = _error_of_pump(pairing, ch)
-        if Af is not None:  # (diagonal form: Ac holds the poles already)
-            Ac[start:stop, start:stop] = Af
+        Ac[start:stop, start:stop] = Af
         Bc[start:stop, err] = -bf  # e_err = -w_err
         blocks.append((start, stop))
         outputs.append((cf, df, err, start, stop))
         start = stop
-    if poles is not None:
-        modal_arrays = (lam, np.full(lam.size, -1.0),
-                        np.repeat(np.array([o[2] for o in outputs], dtype=np.int64), sizes),
-                        np.repeat(np.arange(len(parts), dtype=np.int64), sizes))
-    for arr in (Ac, Bc) + (modal_arrays or ()):
+    for arr in (Ac, Bc):
         arr.flags.writeable = False
-    return _FolqiLayout(Ac, Bc, tuple(blocks), tuple(outputs), poles, modal_arrays)
+    return _FolqiLayout(Ac, Bc, tuple(blocks), tuple(outputs), None, None)
 
 
 def ladr_design(values: dict, pairing: str = "diagonal") -> LinearController:

@@ -1,7 +1,7 @@
-"""Compiled parts of a candidate's design: the LQR gain from the Riccati equation and the
-closed-loop stability margin, each one numba call instead of some twenty numpy and LAPACK calls
-from Python (orchestration in :mod:`heurtune.objectives.qtp.controllers` and
-:mod:`heurtune.objectives.qtp.loop`).
+"""Compiled parts of a candidate's design: the LQR gain from the Riccati equation, the
+closed-loop stability margin and the FOLQI's modal layout, each one numba call instead of some
+twenty numpy and LAPACK calls from Python (orchestration in
+:mod:`heurtune.objectives.qtp.controllers` and :mod:`heurtune.objectives.qtp.loop`).
 
 Bit for bit the arithmetic of the numpy code they replace:
 
@@ -26,8 +26,8 @@ from numba import cfunc, njit, types
 from numba.core import cgutils
 from numba.extending import get_cython_function_address, intrinsic
 
-__all__ = ["riccati_gain", "loop_margin", "SELECT_STABLE", "RICCATI_OK", "RICCATI_SCHUR_FAILED", "RICCATI_STABLE_COUNT",
-           "RICCATI_RESIDUAL"]
+__all__ = ["riccati_gain", "loop_margin", "modal_layout", "SELECT_STABLE", "RICCATI_OK", "RICCATI_SCHUR_FAILED",
+           "RICCATI_STABLE_COUNT", "RICCATI_RESIDUAL"]
 
 # riccati_gain's outcomes (the first of its returned triple)
 RICCATI_OK = 0
@@ -175,3 +175,35 @@ def loop_margin(A, B, Ac, Bc, Cc, Dc):
     if info[0] != 0:
         return np.inf
     return wr.max()
+
+
+@njit(cache=True)
+def modal_layout(poles1, poles2, err1, err2):
+    """The FOLQI matrices that depend on the orders alone when both fractional integrators are
+    in partial fractions (:func:`~heurtune.objectives.qtp.controllers._folqi_layout`): pump 1's
+    poles, then pump 2's, each state reading its pump's error ``err`` (0 or 1) with weight -1
+    (``e = -w``).
+
+    Returns
+    -------
+    tuple
+        ``(A, B, lam, b, col, channel)``: the diagonal state matrix (nz, nz), the input matrix
+        (nz, 4), the poles, the input weights (-1), the measured signal each state reads and the
+        pump it belongs to (int64).
+    """
+    n1 = poles1.size
+    nz = n1 + poles2.size
+    lam = np.empty(nz)
+    lam[:n1] = poles1
+    lam[n1:] = poles2
+    A = np.zeros((nz, nz))
+    B = np.zeros((nz, 4))
+    b = np.full(nz, -1.0)
+    col = np.empty(nz, dtype=np.int64)
+    channel = np.empty(nz, dtype=np.int64)
+    for i in range(nz):
+        A[i, i] = lam[i]
+        channel[i] = 0 if i < n1 else 1
+        col[i] = err1 if i < n1 else err2
+        B[i, col[i]] = -1.0
+    return A, B, lam, b, col, channel
