@@ -8,9 +8,10 @@ Bit for bit the arithmetic of the numpy code they replace:
 * LAPACK's ``dgees`` (the ordered Schur form) and ``dgeev`` (eigenvalues) are the routines
   ``scipy.linalg.lapack`` wraps, taken from ``scipy.linalg.cython_lapack`` and called with the
   wrapper's arguments (Fortran-ordered copies, the wrapper's default workspace sizes);
-* the small solves and products are numba's ``np.linalg.solve`` and ``np.dot``, which call the
-  same LAPACK ``dgesv`` and BLAS ``dgemm`` as numpy's ``solve`` and ``@`` (OpenBLAS), in the
-  same order of operations;
+* the small solves and products are numba's ``np.linalg.solve`` and ``np.dot``: they call
+  ``dgesv`` and ``dgemm`` from scipy's OpenBLAS, numpy's ``solve`` and ``@`` call the same
+  routines from numpy's OpenBLAS, and the two builds round alike (checked on 2,000 random
+  systems before this module was written, and by the tests below on every run);
 * element-wise arithmetic and the comparisons are IEEE operations in the same order.
 
 ``tests/objectives/qtp/test_design_kernels.py`` checks the equality against the numpy
