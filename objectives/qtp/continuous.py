@@ -67,6 +67,11 @@ MIN_STEP = 1e-4
 MAX_STEPS = 10_000_000
 
 
+# The dense part of a controller without dense blocks: Aq, Bq, Cq with no states, shared (there
+# is nothing to write in them).
+_NO_DENSE = (np.zeros((0, 0)), np.zeros((0, 4)), np.zeros((2, 0)))
+
+
 @dataclasses.dataclass(frozen=True, eq=False)
 class ContinuousController:
     """A controller as the continuous kernel takes it (see ``simulate_continuous``).
@@ -106,9 +111,11 @@ class ContinuousController:
     def _build(cls, ctrl) -> ContinuousController:
         D = np.ascontiguousarray(ctrl.D, dtype=np.float64)
         if ctrl.modal_arrays is not None:  # every block modal, concatenated by the design
-            lam, b, col, channel = (arr.copy() for arr in ctrl.modal_arrays)  # writeable, as the kernels' types are
+            # writeable, as the kernels' types are: the design's own (shared by the controllers
+            # of one layout, never written), else copies
+            lam, b, col, channel = (arr if arr.flags.writeable else arr.copy() for arr in ctrl.modal_arrays)
             return cls(lam=lam, b=b, col=col, Cm=np.ascontiguousarray(ctrl.C), D=D, channel=channel,
-                       **cls._dense_part([]))
+                       Aq=_NO_DENSE[0], Bq=_NO_DENSE[1], Cq=_NO_DENSE[2])
         lam, b, col, Cm, dense, ch_m, ch_q = [], [], [], [], [], [], []
 
         def real(x):
@@ -309,11 +316,37 @@ def feedback_step_and_top(A: np.ndarray, B: np.ndarray, cc: ContinuousController
     -------
     (float, int)
     """
+    A, B = np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(B, dtype=np.float64)
+    return feedback_rule(A, B, cc, float(h_max), feedback_radius(tolerance))
+
+
+def feedback_radius(tolerance: float) -> float:
+    """The largest ``h rho(A + B D_h)`` that :func:`feedback_step` accepts at ``tolerance`` cm:
+    ``FEEDBACK_STEP_RADIUS (tolerance / REFERENCE_TOLERANCE)^(1/4)``.
+
+    Parameters
+    ----------
+    tolerance : float
+
+    Returns
+    -------
+    float
+    """
+    return FEEDBACK_STEP_RADIUS * (tolerance / REFERENCE_TOLERANCE) ** 0.25
+
+
+def feedback_rule(A: np.ndarray, B: np.ndarray, cc: ContinuousController, h_max: float, radius: float) -> tuple:
+    """:func:`feedback_step_and_top` of C-contiguous float ``A``, ``B``, a float ``h_max`` and the
+    radius of its tolerance (:func:`feedback_radius`), as a loop that keeps them per scenario
+    calls it.
+
+    Returns
+    -------
+    (float, int)
+    """
     from heurtune.objectives.qtp import continuous_kernels as ck
 
-    radius = FEEDBACK_STEP_RADIUS * (tolerance / REFERENCE_TOLERANCE) ** 0.25
-    A, B = np.ascontiguousarray(A, dtype=np.float64), np.ascontiguousarray(B, dtype=np.float64)
-    h, top = ck.step_rule(A, B, cc.D, cc.lam, cc.b, cc.col, cc.Cm, float(h_max), radius, MIN_STEP,
+    h, top = ck.step_rule(A, B, cc.D, cc.lam, cc.b, cc.col, cc.Cm, h_max, radius, MIN_STEP,
                           ADAPTIVE_STABILITY_RADIUS, ck.ADAPTIVE_TOP)
     return float(h), int(top)
 

@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit
 from numba.core.cpu import CPUTargetOptions
 
+from heurtune.objectives.qtp.design_kernels import spectral_radius
 from heurtune.objectives.qtp.kernels import (
     LEVEL_LIMIT,
     N_METRICS,
@@ -1437,7 +1438,7 @@ def feedback_radius(A, B, D, lam, bm, mi, Cm, h):
     per-candidate step rule ``continuous.feedback_step``).
 
     A : (4, 4); B : (4, 2); D : (2, 4); lam, bm : (nd,); mi : (nd,) int64; Cm : (2, nd).
-    Returns inf when any entry is not finite.
+    Returns inf when any entry is not finite (or LAPACK fails).
     """
     Dh = D.copy()
     for i in range(lam.size):
@@ -1448,13 +1449,13 @@ def feedback_radius(A, B, D, lam, bm, mi, Cm, h):
             g = bm[i] / lam[i]
             Dh[0, mi[i]] -= Cm[0, i] * g
             Dh[1, mi[i]] -= Cm[1, i] * g
-    M = np.empty((4, 4), dtype=np.complex128)
+    M = np.empty((4, 4))
     for r in range(4):
         for c in range(4):
             M[r, c] = A[r, c] + B[r, 0] * Dh[0, c] + B[r, 1] * Dh[1, c]
-            if not (math.isfinite(M[r, c].real)):
+            if not math.isfinite(M[r, c]):
                 return math.inf
-    return np.max(np.abs(np.linalg.eigvals(M)))
+    return spectral_radius(M)
 
 
 @njit(cache=True)

@@ -97,7 +97,8 @@ class LinearController:
     modal_arrays : tuple or None
         When every block is modal and the design knows it: the blocks' ``lam``, ``b`` (nz,),
         the measured signal each state reads and the pump it belongs to (nz,) int64,
-        concatenated in block order (read-only). None: taken from :meth:`modal_blocks`.
+        concatenated in block order, shared by every controller of one FOLQI layout (never
+        write them). None: taken from :meth:`modal_blocks`.
     """
 
     A: np.ndarray
@@ -333,10 +334,15 @@ def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.n
     ControllerDesignError
         With reason ``riccati_failed`` when there is no stabilising solution.
     """
+    return _riccati_outcome(_design_kernels.riccati_gain, A, B, Q, R)
+
+
+def _riccati_outcome(kernel, A: np.ndarray, B: np.ndarray, *weights) -> np.ndarray:
+    """``kernel(A, B, *weights, ...)`` (:func:`~heurtune.objectives.qtp.design_kernels.riccati_gain`
+    or its form of diagonal weights), its gain K, or its failure raised as ControllerDesignError."""
     n = A.shape[0]
     try:
-        outcome, count, K = _design_kernels.riccati_gain(A, B, Q, R, RICCATI_RESIDUAL_TOL,
-                                                         _design_kernels.SELECT_STABLE)
+        outcome, count, K = kernel(A, B, *weights, RICCATI_RESIDUAL_TOL, _design_kernels.SELECT_STABLE)
     except (np.linalg.LinAlgError, ValueError) as exc:
         raise ControllerDesignError("riccati_failed", str(exc)) from None
     if outcome == _design_kernels.RICCATI_SCHUR_FAILED:
@@ -357,12 +363,12 @@ def _weighted_lqr_gain(A: np.ndarray, B: np.ndarray, q: list, r: list) -> np.nda
     integral gains and orders keep the weights: those designs reuse the Riccati solution. A
     failed design is remembered as its error and raised again.
     """
-    key = (A.tobytes(), B.tobytes(), np.array(q, dtype=np.float64).tobytes(),
-           np.array(r, dtype=np.float64).tobytes())
+    weights = np.array([*q, *r], dtype=np.float64)  # diag(q), then diag(r), built in the kernel
+    key = (A.shape, B.shape, A.tobytes(), B.tobytes(), weights.tobytes())
     hit = _lqr_cache.get(key)
     if hit is None:
         try:
-            hit = lqr_gain(A, B, np.diag(q), np.diag(r))
+            hit = _riccati_outcome(_design_kernels.weighted_riccati_gain, A, B, weights)
             hit.flags.writeable = False
         except ControllerDesignError as exc:
             hit = exc
@@ -441,12 +447,8 @@ def folqi_design(values: dict, A, B, alphas, order, band, realisation, pairing="
     K = _weighted_lqr_gain(A, B, [values["Q11"], values["Q22"], values["Q33"], values["Q44"]],
                            [values["R11"], values["R22"]])
     layout = _folqi_layout(tuple(float(a) for a in alphas), order, tuple(band), realisation, pairing)
-    ki = (values["Ki1"], values["Ki2"])
-    Cc = np.zeros((N_INPUTS, layout.A.shape[0]))
-    Dc = -K
-    for ch, (cf, df, err, start, stop) in enumerate(layout.outputs):
-        Cc[ch, start:stop] = ki[ch] * cf
-        Dc[ch, err] -= ki[ch] * df
+    (c1, d1, err1, _, _), (c2, d2, err2, _, _) = layout.outputs  # pump 1's states first
+    Cc, Dc = _design_kernels.folqi_outputs(K, float(values["Ki1"]), c1, d1, err1, float(values["Ki2"]), c2, d2, err2)
     modal = None
     if layout.poles is not None:
         # Partial fractions are the modal form already: each block is diagonal and reads one
@@ -481,8 +483,10 @@ def _folqi_layout(alphas: tuple, order: int, band: tuple, realisation: str, pair
         (p1, c1, d1), (p2, c2, d2) = modal_parts
         Ac, Bc, lam, b, col, channel = _design_kernels.modal_layout(p1, p2, errs[0], errs[1])
         n1, nz = p1.size, lam.size
+        # The modal arrays stay writeable (the simulation kernels' types; nothing writes them):
+        # every controller of this layout shares them.
         modal_arrays = (lam, b, col, channel)
-        for arr in (Ac, Bc) + modal_arrays:
+        for arr in (Ac, Bc):
             arr.flags.writeable = False
         return _FolqiLayout(Ac, Bc, ((0, n1), (n1, nz)), ((c1, d1, errs[0], 0, n1), (c2, d2, errs[1], n1, nz)),
                             (p1, p2), modal_arrays)

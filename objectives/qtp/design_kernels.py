@@ -1,13 +1,15 @@
 """Compiled parts of a candidate's design: the LQR gain from the Riccati equation, the
-closed-loop stability margin and the FOLQI's modal layout, each one numba call instead of some
-twenty numpy and LAPACK calls from Python (orchestration in
-:mod:`heurtune.objectives.qtp.controllers` and :mod:`heurtune.objectives.qtp.loop`).
+closed-loop stability margin and the FOLQI's modal layout and output matrices, each one numba
+call instead of some twenty numpy and LAPACK calls from Python (orchestration in
+:mod:`heurtune.objectives.qtp.controllers` and :mod:`heurtune.objectives.qtp.loop`); and the
+spectral radius that the continuous loop's step rule takes of small matrices.
 
 Bit for bit the arithmetic of the numpy code they replace:
 
 * LAPACK's ``dgees`` (the ordered Schur form) and ``dgeev`` (eigenvalues) are the routines
   ``scipy.linalg.lapack`` wraps, taken from ``scipy.linalg.cython_lapack`` and called with the
   wrapper's arguments (Fortran-ordered copies, the wrapper's default workspace sizes);
+  ``zgeev`` (the spectral radius) is the routine numba's ``np.linalg.eigvals`` calls;
 * the small solves and products are numba's ``np.linalg.solve`` and ``np.dot``: they call
   ``dgesv`` and ``dgemm`` from scipy's OpenBLAS, numpy's ``solve`` and ``@`` call the same
   routines from numpy's OpenBLAS, and the two builds round alike (checked on 2,000 random
@@ -27,7 +29,7 @@ from numba import cfunc, njit, types
 from numba.core import cgutils
 from numba.extending import get_cython_function_address, intrinsic
 
-__all__ = ["riccati_gain", "loop_margin", "modal_layout", "SELECT_STABLE", "RICCATI_OK", "RICCATI_SCHUR_FAILED",
+__all__ = ["riccati_gain", "weighted_riccati_gain", "loop_margin", "spectral_radius", "modal_layout", "folqi_outputs", "SELECT_STABLE", "RICCATI_OK", "RICCATI_SCHUR_FAILED",
            "RICCATI_STABLE_COUNT", "RICCATI_RESIDUAL"]
 
 # riccati_gain's outcomes (the first of its returned triple)
@@ -38,10 +40,11 @@ RICCATI_RESIDUAL = 3  # the solution's residual is too large
 
 # The LAPACK routines by symbol name, bound to scipy's at import: compiled code that names them
 # can be cached (an address would be baked into it, and differs from process to process).
-for _name in ("dgees", "dgeev"):
+for _name in ("dgees", "dgeev", "zgeev"):
     llvmlite.binding.add_symbol(f"heurtune_{_name}", get_cython_function_address("scipy.linalg.cython_lapack", _name))
 _dgees = types.ExternalFunction("heurtune_dgees", types.void(*([types.voidptr] * 15)))
 _dgeev = types.ExternalFunction("heurtune_dgeev", types.void(*([types.voidptr] * 14)))
+_zgeev = types.ExternalFunction("heurtune_zgeev", types.void(*([types.voidptr] * 14)))
 
 
 @intrinsic
@@ -147,6 +150,15 @@ def riccati_gain(A, B, Q, R, residual_tol, select):
 
 
 @njit(cache=True)
+def weighted_riccati_gain(A, B, weights, residual_tol, select):
+    """:func:`riccati_gain` of diagonal weights, given as one vector: ``Q = diag(weights[:n])``,
+    ``R = diag(weights[n:])`` with ``n`` the states of ``A`` (the same arithmetic: the diagonal
+    matrices hold the same values as numpy's ``np.diag`` of them)."""
+    n = A.shape[0]
+    return riccati_gain(A, B, np.diag(weights[:n]), np.diag(weights[n:]), residual_tol, select)
+
+
+@njit(cache=True)
 def loop_margin(A, B, Ac, Bc, Cc, Dc):
     """Largest real part of the eigenvalues of ``[[A + B Dc, B Cc], [Bc, Ac]]`` (the
     linearised loop of a minimal controller, as
@@ -179,6 +191,33 @@ def loop_margin(A, B, Ac, Bc, Cc, Dc):
 
 
 @njit(cache=True)
+def spectral_radius(M):
+    """Largest modulus of the eigenvalues of a real square matrix (``inf`` when LAPACK fails),
+    as ``np.max(np.abs(np.linalg.eigvals(M.astype(np.complex128))))`` in numba computes it: the
+    same LAPACK ``zgeev`` on the same complex copy, called once with the minimal workspace
+    (numba's ``eigvals`` first asks for the optimal size, which a matrix this small does not
+    use: the unblocked Hessenberg reduction and QR run either way)."""
+    n = M.shape[0]
+    a = np.empty((n, n), dtype=np.complex128).T  # Fortran order
+    for r in range(n):
+        for c in range(n):
+            a[r, c] = M[r, c]
+    w = np.empty(n, dtype=np.complex128)
+    vl, vr = np.empty(1, dtype=np.complex128), np.empty(1, dtype=np.complex128)
+    job = np.array([_N], dtype=np.uint8)
+    size, ld = np.array([n], dtype=np.int32), np.ones(1, dtype=np.int32)
+    lwork, info = np.array([max(2 * n, 1)], dtype=np.int32), np.zeros(1, dtype=np.int32)
+    work = np.empty(max(2 * n, 1), dtype=np.complex128)
+    rwork = np.empty(max(2 * n, 1))
+    _zgeev(_data(job), _data(job), _data(size), _data(a), _data(size), _data(w), _data(vl), _data(ld), _data(vr),
+           _data(ld), _data(work), _data(lwork), _data(rwork), _data(info))
+    _kept(job, size, a, w, vl, ld, vr, work, lwork, rwork, info)
+    if info[0] != 0:
+        return np.inf
+    return np.max(np.abs(w))
+
+
+@njit(cache=True)
 def modal_layout(poles1, poles2, err1, err2):
     """The FOLQI matrices that depend on the orders alone when both fractional integrators are
     in partial fractions (:func:`~heurtune.objectives.qtp.controllers._folqi_layout`): pump 1's
@@ -208,3 +247,22 @@ def modal_layout(poles1, poles2, err1, err2):
         col[i] = err1 if i < n1 else err2
         B[i, col[i]] = -1.0
     return A, B, lam, b, col, channel
+
+
+@njit(cache=True)
+def folqi_outputs(K, ki1, c1, d1, err1, ki2, c2, d2, err2):
+    """The FOLQI's output matrices (:func:`~heurtune.objectives.qtp.controllers.folqi_design`):
+    ``C`` (2, nz) with pump r's fractional integrator (output weights ``c_r``, direct term
+    ``d_r``, reading error ``err_r``) scaled by its gain ``ki_r`` in its own states, pump 1's
+    first; and ``D = -K`` less ``ki_r d_r`` on the error each pump integrates. The products and
+    differences of the numpy code it replaced, in the same order."""
+    n1 = c1.size
+    Cc = np.zeros((2, n1 + c2.size))
+    Dc = -K
+    for i in range(n1):
+        Cc[0, i] = ki1 * c1[i]
+    for i in range(c2.size):
+        Cc[1, n1 + i] = ki2 * c2[i]
+    Dc[0, err1] -= ki1 * d1
+    Dc[1, err2] -= ki2 * d2
+    return Cc, Dc

@@ -26,6 +26,8 @@ from heurtune.objectives.qtp.model import QTPParams, linearise, operating_point
 
 # Step plans kept per loop (scenario, step); cleared when full.
 _PLAN_CACHE_SIZE = 256
+# The records of a run that keeps none (no rows: the kernels write nothing to them).
+_NO_RECORD2, _NO_RECORD4 = np.empty((0, 2)), np.empty((0, 4))
 
 __all__ = ["Scenario", "ClosedLoop", "SimulationResult", "METRIC_NAMES", "LIMITS", "PLANT_MODELS",
            "physical_range_flags"]
@@ -372,6 +374,7 @@ class ClosedLoop:
         self._scenarios = {}
         self._tables = {}
         self._plans = {}
+        self._feedback = {}
         self._limits = None
 
     def __getstate__(self):
@@ -380,12 +383,14 @@ class ClosedLoop:
         state["_plants"] = {}
         state["_scenarios"] = {}
         state["_plans"] = {}
+        state["_feedback"] = {}
         state["_limits"] = None
         return state
 
     def __setstate__(self, state):
         state.setdefault("_limits", None)
         state.setdefault("_plans", {})
+        state.setdefault("_feedback", {})
         # Pickles from before the bond-graph model are level models.
         state.setdefault("plant_model", "qtp")
         state.setdefault("_rho_g", 1.0)
@@ -431,11 +436,10 @@ class ClosedLoop:
         h = None  # the scenario's step for this type
         top = 0
         if scenario.step is None and extras.get("feedback_step"):
-            h_max = scenario.continuous_step_for(self.kind)
+            A, B, h_max, radius = self._feedback_inputs(scenario)
             if cc is None:
                 cc = _continuous.ContinuousController.from_linear(ctrl)
-            B = self.B / scenario.uncertainty
-            h, top = _continuous.feedback_step_and_top(self.A, B, cc, h_max, float(scenario.tolerance))
+            h, top = _continuous.feedback_rule(A, B, cc, h_max, radius)
             if h >= h_max:
                 h = None
         # Plans are read-only for the kernels; a scenario has one per step of the ladder h_max 2^-k
@@ -447,6 +451,21 @@ class ClosedLoop:
                 self._plans.clear()
             plan = self._plans[key] = scenario.step_plan(self.kind, step=h, top=top)
         return plan
+
+    def _feedback_inputs(self, scenario: Scenario) -> tuple:
+        """The scenario's part of the step rule of a ``feedback_step`` structure
+        (:func:`~heurtune.objectives.qtp.continuous.feedback_rule`), the same for every
+        candidate: the linearised plant ``A`` and the scenario's input matrix (the nominal one
+        divided by its uncertainty factor, which scales the tank areas), both C-contiguous; the
+        structure's step for the scenario's tolerance and the radius of that tolerance. Built
+        once per scenario."""
+        inputs = self._feedback.get(scenario)
+        if inputs is None:
+            inputs = self._feedback[scenario] = (
+                np.ascontiguousarray(self.A, dtype=np.float64),
+                np.ascontiguousarray(self.B / scenario.uncertainty, dtype=np.float64),
+                float(scenario.continuous_step_for(self.kind)), _continuous.feedback_radius(float(scenario.tolerance)))
+        return inputs
 
     def stability_margin(self, ctrl: LinearController) -> float:
         """Largest real part of the linearised closed-loop eigenvalues (negative = stable)."""
@@ -586,6 +605,18 @@ class ClosedLoop:
         return SimulationResult(t, y if record else None, u if record else None, h if record_levels else None,
                                 status != _kernels.STATUS_OK, self.op.h.copy(), u_op.copy(), metrics, P, steps)
 
+    def _continuous_metrics(self, ctrl, scenario: Scenario, settling_band: float) -> tuple:
+        """``(diverged, metrics)`` of :meth:`_run_continuous` without records: the same kernel
+        call on the same inputs, without the result object a tuning evaluation does not read."""
+        cc = _continuous.ContinuousController.from_linear(ctrl)
+        plan = self.step_plan(ctrl, scenario, cc)
+        metrics = np.empty(_kernels.N_METRICS)
+        status, _ = _continuous_kernels.simulate_continuous(
+            self._scenario_table(scenario), self._level_per_state, self._state_op(), self.op.h, cc.lam, cc.b, cc.col,
+            cc.Cm, cc.Aq, cc.Bq, cc.Cq, cc.D, cc.channel, plan.table, float(settling_band), metrics,
+            float(scenario.output_dt), _NO_RECORD2, _NO_RECORD2, _NO_RECORD4)
+        return status != _kernels.STATUS_OK, metrics
+
     def _scenario_table(self, scenario: Scenario) -> np.ndarray:
         """The scenario's parameter table of the loop kernels (:func:`scenario_table`): plant
         coefficients, operating voltages, pump limits, level clipping and the heights it clips
@@ -632,8 +663,7 @@ class ClosedLoop:
         discrete, out = {}, [None] * len(scenarios)
         for i, sc in enumerate(scenarios):
             if sc.continuous:
-                sim = self.run(ctrl, sc, settling_band=settling_band, record=False)
-                out[i] = (sim.diverged, sim.metrics)
+                out[i] = self._continuous_metrics(ctrl, sc, settling_band)
                 continue
             groups.setdefault((sc.dt, sc.n_steps, self._scenario_arrays(sc)[2].shape), []).append(i)
         for (dt, n_steps, _), members in groups.items():

@@ -132,6 +132,9 @@ class Problem(TuningProblem):
         self._stability_only = not names_g
         self.constraint_names = (STABILITY_CONSTRAINT,) if self._stability_only else tuple(names_g)
         self._constraint_limit = np.array(self._constraint_limit)
+        # the same indices as arrays, for the bookkeeping of simulated candidates (np.take)
+        self._objective_take = np.array(self._objective_idx, dtype=np.intp)
+        self._constraint_take = np.array(self._constraint_idx, dtype=np.intp)
 
     @property
     def objective_label(self) -> str:
@@ -238,9 +241,9 @@ class Problem(TuningProblem):
             margins = np.zeros(n)
             for i in range(n):
                 reason[:, i], margins[i] = self._evaluate_one(X[i], scs, metrics[:, i])
+        if (reason[0, 0] == "" if reason.size == 1 else (reason == "").all()) and self._plain_bookkeeping():
+            return self._simulated_evaluations(metrics, reason)
         simulated = reason == ""
-        # (the masks below change nothing when every candidate was simulated, the usual case,
-        # whose bookkeeping matters when one candidate is evaluated at a time: line searches)
         failed = not simulated.all()
         if failed:
             metrics[~simulated] = np.nan
@@ -273,6 +276,22 @@ class Problem(TuningProblem):
             out.append(Evaluation(f[s], g[s], feasible[s], metrics[s], METRIC_NAMES, self.constraint_names, reason[s],
                                   F, self.objective_names or ()))
         return out
+
+    def _plain_bookkeeping(self) -> bool:
+        """Whether :meth:`_simulated_evaluations` applies: one objective, a sum of metrics, and
+        performance constraints."""
+        return self._objective_w is None and self.objective_names is None and not self._stability_only
+
+    def _simulated_evaluations(self, metrics: np.ndarray, reason: np.ndarray) -> list:
+        """The evaluations of :meth:`evaluate_scenarios` when every candidate was simulated,
+        the usual case, whose bookkeeping matters when one candidate is evaluated at a time
+        (line searches): the arithmetic of the general path without its masks, which would
+        change nothing (the same sums and quotients of the same values, bit for bit)."""
+        f = np.take(metrics, self._objective_take, axis=2).sum(axis=2)
+        g = np.take(metrics, self._constraint_take, axis=2) / self._constraint_limit - 1.0
+        feasible = (g <= 0.0).all(axis=2)
+        return [Evaluation(f[s], g[s], feasible[s], metrics[s], METRIC_NAMES, self.constraint_names, reason[s])
+                for s in range(len(metrics))]
 
     def set_device(self, device: str) -> None:
         """See :meth:`TuningProblem.set_device`; ``"gpu"`` needs a CUDA GPU (checked here)."""

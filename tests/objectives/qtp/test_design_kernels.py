@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 import pytest
 import scipy.linalg.lapack
@@ -156,5 +157,53 @@ def test_loop_margin_of_a_non_finite_controller_is_infinite():
 
 def test_compiled_design_kernels_are_cached():
     """The LAPACK routines are named by symbol, not address, so the kernels can be cached."""
-    for kernel in (design_kernels.riccati_gain, design_kernels.loop_margin):
+    for kernel in (design_kernels.riccati_gain, design_kernels.weighted_riccati_gain, design_kernels.loop_margin,
+                   design_kernels.spectral_radius, design_kernels.modal_layout, design_kernels.folqi_outputs):
         assert kernel._cache.__class__.__name__ == "FunctionCache"
+
+
+@numba.njit(cache=False)
+def _numba_eigvals_radius(M):
+    """The spectral radius as the step rule computed it before :func:`spectral_radius`."""
+    return np.max(np.abs(np.linalg.eigvals(M.astype(np.complex128))))
+
+
+def test_spectral_radius_equals_numbas_eigvals_bit_for_bit():
+    """The same zgeev on the same complex copy: random 4 x 4 matrices of many scales, with real,
+    complex and repeated eigenvalues, give the same bits; and the radius numpy finds."""
+    rng = np.random.default_rng(5)
+    mats = [rng.standard_normal((4, 4)) * 10.0 ** rng.uniform(-4, 3) for _ in range(1500)]
+    mats += [np.diag([-1.0, -1.0, -2.0, -2.0]), np.eye(4, k=1) - 0.5 * np.eye(4), np.zeros((4, 4)),
+             np.array([[0.0, 1.0, 0, 0], [-1.0, 0.0, 0, 0], [0, 0, 0.0, 2.0], [0, 0, -2.0, 0.0]])]
+    for M in mats:
+        got = design_kernels.spectral_radius(M)
+        assert got == _numba_eigvals_radius(M)
+        assert got == pytest.approx(np.max(np.abs(np.linalg.eigvals(M))), rel=1e-12, abs=1e-300)
+
+
+def _numpy_folqi_outputs(K, ki, outputs):
+    """The FOLQI's output matrices as folqi_design computed them in numpy."""
+    Cc = np.zeros((2, outputs[-1][4]))
+    Dc = -K
+    for ch, (cf, df, err, start, stop) in enumerate(outputs):
+        Cc[ch, start:stop] = ki[ch] * cf
+        Dc[ch, err] -= ki[ch] * df
+    return Cc, Dc
+
+
+@pytest.mark.parametrize("realisation", ["direct", "integer_split"])
+@pytest.mark.parametrize("pairing", ["diagonal", "anti-diagonal"])
+def test_folqi_outputs_equal_the_numpy_arithmetic_bit_for_bit(realisation, pairing):
+    """Orders below, at and above 1 (one Oustaloup block, a pure integrator, integer splits)."""
+    from heurtune.objectives.qtp.controllers import _folqi_layout
+
+    rng = np.random.default_rng(8)
+    for alphas in [(0.9814, 0.8437), (1.0, 1.0), (1.5, 0.3), (1.9, 1.2), (0.1, 2.0)]:
+        layout = _folqi_layout(alphas, 5, (1e-3, 1e3), realisation, pairing)
+        for _ in range(20):
+            K = rng.standard_normal((2, 4)) * 10.0 ** rng.uniform(-3, 2)
+            ki = tuple(10.0 ** rng.uniform(-2, 1, 2))
+            (c1, d1, e1, _, _), (c2, d2, e2, _, _) = layout.outputs
+            got = design_kernels.folqi_outputs(K, ki[0], c1, d1, e1, ki[1], c2, d2, e2)
+            for a, b in zip(got, _numpy_folqi_outputs(K, ki, layout.outputs)):
+                np.testing.assert_array_equal(a, b)

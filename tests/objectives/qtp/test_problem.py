@@ -136,3 +136,28 @@ def test_in_loop_metrics_equal_those_of_the_recorded_trajectory(problem, extra):
     lean = loop.run(ctrl, sc, record=False)
     full = loop.run(ctrl, sc)
     np.testing.assert_allclose(lean.metrics, loop.metrics(full, sc, 3.0), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("objective", ["effort", "iae"])
+def test_bookkeeping_of_simulated_candidates_equals_the_general_path(problem, objective, monkeypatch, tmp_path):
+    """When every candidate was simulated, ``evaluate_scenarios`` skips the masks of failed
+    candidates (``_simulated_evaluations``): the same objective, constraints and feasibility,
+    bit for bit, for one candidate and for batches, under one scenario and several."""
+    if objective != "effort":
+        path = tmp_path / "iae.toml"
+        path.write_text(f'extends = "cs_folqi_qtp"\n[problem]\nobjective = "{objective}"\n')
+        problem = heurtune.load_experiment(str(path)).problem("min")
+    rng = np.random.default_rng(4)
+    x = vector(problem, THESIS_MIN)
+    X = x * (1.0 + 0.05 * rng.standard_normal((4, problem.dim)))
+    calls = [(x, ["nominal"]), (X, ["nominal"]), (X, ["nominal", "-30%", "+30%"])]
+    fast = [problem.evaluate_scenarios(*call) for call in calls]
+    assert all((ev.reason == "").all() for evs in fast for ev in evs)
+    monkeypatch.setattr(problem, "_plain_bookkeeping", lambda: False)
+    for evs, call in zip(fast, calls):
+        for a, b in zip(evs, problem.evaluate_scenarios(*call)):
+            for field in ("f", "g", "feasible", "metrics", "reason"):
+                got, ref = getattr(a, field), getattr(b, field)
+                assert got.dtype == ref.dtype and got.shape == ref.shape
+                np.testing.assert_array_equal(got, ref)
+            assert a.F is b.F is None and a.objective_names == b.objective_names == ()
