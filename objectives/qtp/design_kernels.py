@@ -29,8 +29,19 @@ from numba import cfunc, njit, types
 from numba.core import cgutils
 from numba.extending import get_cython_function_address, intrinsic
 
-__all__ = ["riccati_gain", "weighted_riccati_gain", "loop_margin", "spectral_radius", "modal_layout", "folqi_outputs", "SELECT_STABLE", "RICCATI_OK", "RICCATI_SCHUR_FAILED",
-           "RICCATI_STABLE_COUNT", "RICCATI_RESIDUAL"]
+__all__ = [
+    "riccati_gain",
+    "weighted_riccati_gain",
+    "loop_margin",
+    "spectral_radius",
+    "modal_layout",
+    "folqi_outputs",
+    "SELECT_STABLE",
+    "RICCATI_OK",
+    "RICCATI_SCHUR_FAILED",
+    "RICCATI_STABLE_COUNT",
+    "RICCATI_RESIDUAL",
+]
 
 # riccati_gain's outcomes (the first of its returned triple)
 RICCATI_OK = 0
