@@ -450,11 +450,11 @@ def folqi_design(values: dict, A, B, alphas, order, band, realisation, pairing="
     (c1, d1, err1, _, _), (c2, d2, err2, _, _) = layout.outputs  # pump 1's states first
     Cc, Dc = _design_kernels.folqi_outputs(K, float(values["Ki1"]), c1, d1, err1, float(values["Ki2"]), c2, d2, err2)
     modal = None
-    if layout.poles is not None:
+    if layout.modal_inputs is not None:
         # Partial fractions are the modal form already: each block is diagonal and reads one
         # error (what modal_blocks would derive from the matrices, taken from them as it would).
-        modal = tuple(("modal", poles, layout.B[start:stop, err], Cc[:, start:stop], err, ch)
-                      for ch, (poles, (_, _, err, start, stop)) in enumerate(zip(layout.poles, layout.outputs)))
+        (p1, b1, e1, n1), (p2, b2, e2, _) = layout.modal_inputs
+        modal = (("modal", p1, b1, Cc[:, :n1], e1, 0), ("modal", p2, b2, Cc[:, n1:], e2, 1))
     return LinearController(layout.A, layout.B, Cc, Dc, layout.blocks, (0, 1), modal=modal,
                             modal_arrays=layout.modal_arrays)
 
@@ -467,7 +467,9 @@ class _FolqiLayout(typing.NamedTuple):
     B: np.ndarray  # (nz, 4) each block reads its error
     blocks: tuple  # (start, stop) per pump
     outputs: tuple  # per pump: (output row of the block, direct term, error read, start, stop)
-    poles: tuple | None  # per pump, the modal poles; None unless both blocks are modal
+    # per pump, when both blocks are modal (else None): its poles, the weights its states read
+    # their error with (a view of B), that error, and where pump 2's states start
+    modal_inputs: tuple | None
     modal_arrays: tuple | None  # LinearController.modal_arrays when both blocks are modal
 
 
@@ -488,8 +490,9 @@ def _folqi_layout(alphas: tuple, order: int, band: tuple, realisation: str, pair
         modal_arrays = (lam, b, col, channel)
         for arr in (Ac, Bc):
             arr.flags.writeable = False
+        modal_inputs = ((p1, Bc[:n1, errs[0]], errs[0], n1), (p2, Bc[n1:, errs[1]], errs[1], n1))
         return _FolqiLayout(Ac, Bc, ((0, n1), (n1, nz)), ((c1, d1, errs[0], 0, n1), (c2, d2, errs[1], n1, nz)),
-                            (p1, p2), modal_arrays)
+                            modal_inputs, modal_arrays)
     parts = [fractional_integrator(a, order, band, realisation).state_space() if m is None
              else (np.diag(m[0]), np.ones(m[0].size), m[1], m[2]) for a, m in zip(alphas, modal_parts)]
     sizes = [p[0].shape[0] for p in parts]

@@ -27,6 +27,7 @@ from scipy.optimize import brentq
 from heurtune.core.errors import ConfigError
 from heurtune.objectives.qtp import continuous as cont
 from heurtune.objectives.qtp import continuous_kernels as ck
+from heurtune.objectives.qtp.controllers import ControllerDesignError
 from heurtune.objectives.qtp.loop import METRIC_NAMES, ClosedLoop, Scenario
 from heurtune.objectives.qtp.model import preset
 
@@ -180,32 +181,41 @@ def test_folded_feedback_is_the_static_gain_of_the_fast_modes():
 
 def test_step_rule_computes_each_folded_radius_once_with_the_same_result():
     """``step_rule`` keeps each radius by the number of modes folded (the folded set grows with
-    h, so its size names it); its step and adaptive range equal those of the rule written out
-    with a fresh radius at every step tried, on random candidates of both plants and both
-    tolerances, including ones whose step is halved."""
+    h, so its size names it) and skips it where a norm bound decides; its step and adaptive
+    range equal those of the rule written out with a fresh radius at every step tried, on
+    random candidates of FOLQI, IOLQI and LQI on both plants and at two tolerances, including
+    ones whose step is halved, ones whose range is cut, and ones that the bound decides."""
+    from heurtune.objectives.qtp.structures import decision_names, default_bounds
+
     rng = np.random.default_rng(4)
-    halved = 0
-    for case in ("min", "nmp"):
-        loop = ClosedLoop(preset(case), "folqi")
-        for _ in range(40):
-            values = dict(zip(("Q11", "Q22", "Q33", "Q44"), rng.uniform(0.01, 2.5, 4)),
-                          R11=rng.uniform(0.1, 5), R22=rng.uniform(0.1, 5), Ki1=rng.uniform(0.1, 10),
-                          Ki2=rng.uniform(0.1, 10), alpha1=rng.uniform(0.1, 1.9), alpha2=rng.uniform(0.1, 1.9))
-            cc = cont.ContinuousController.from_linear(loop.controller(values))
-            for tol in (TOL, 16 * TOL):
-                radius = cont.FEEDBACK_STEP_RADIUS * (tol / cont.REFERENCE_TOLERANCE) ** 0.25
+    halved = cut = bounded = 0
+    for kind, count in (("folqi", 120), ("iolqi", 40), ("lqi", 40)):
+        names, bounds = decision_names(kind), default_bounds(kind)
+        for case in ("min", "nmp"):
+            loop = ClosedLoop(preset(case), kind)
+            for _ in range(count):
+                try:
+                    cc = cont.ContinuousController.from_linear(
+                        loop.controller({n: rng.uniform(*bounds[n]) for n in names}))
+                except ControllerDesignError:
+                    continue
+                for tol in (TOL, 16 * TOL):
+                    radius = cont.FEEDBACK_STEP_RADIUS * (tol / cont.REFERENCE_TOLERANCE) ** 0.25
 
-                def rho(h, loop=loop, cc=cc):
-                    return ck.feedback_radius(loop.A, loop.B, cc.D, cc.lam, cc.b, cc.col, cc.Cm, h)
+                    def rho(h, loop=loop, cc=cc):
+                        return ck.feedback_radius(loop.A, loop.B, cc.D, cc.lam, cc.b, cc.col, cc.Cm, h)
 
-                h = 0.25
-                while h > cont.MIN_STEP and h * rho(h) > radius:
-                    h *= 0.5
-                top = next((j + 1 for j in range(ck.ADAPTIVE_TOP - 1, 0, -1)
-                            if h * 2.0 ** j * rho(h * 2.0 ** j) <= cont.ADAPTIVE_STABILITY_RADIUS), 0)
-                halved += h < 0.25
-                assert cont.feedback_step_and_top(loop.A, loop.B, cc, 0.25, tol) == (h, top)
-    assert halved > 0
+                    h = 0.25
+                    while h > cont.MIN_STEP and h * rho(h) > radius:
+                        h *= 0.5
+                    top = next((j + 1 for j in range(ck.ADAPTIVE_TOP - 1, 0, -1)
+                                if h * 2.0 ** j * rho(h * 2.0 ** j) <= cont.ADAPTIVE_STABILITY_RADIUS), 0)
+                    halved += h < 0.25
+                    cut += 0 < top < ck.ADAPTIVE_TOP
+                    M = loop.A + loop.B @ cont.folded_feedback(cc, h)
+                    bounded += h * min(np.abs(M).sum(axis=0).max(), np.abs(M).sum(axis=1).max()) < radius
+                    assert cont.feedback_step_and_top(loop.A, loop.B, cc, 0.25, tol) == (h, top)
+    assert halved > 0 and cut > 0 and bounded > 0
 
 
 def test_feedback_step_keeps_the_step_of_ordinary_candidates_and_halves_it_for_a_fast_plant():
