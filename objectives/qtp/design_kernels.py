@@ -205,9 +205,12 @@ def loop_margin(A, B, Ac, Bc, Cc, Dc):
 def spectral_radius(M):
     """Largest modulus of the eigenvalues of a real square matrix (``inf`` when LAPACK fails),
     as ``np.max(np.abs(np.linalg.eigvals(M.astype(np.complex128))))`` in numba computes it: the
-    same LAPACK ``zgeev`` on the same complex copy, called once with the minimal workspace
-    (numba's ``eigvals`` first asks for the optimal size, which a matrix this small does not
-    use: the unblocked Hessenberg reduction and QR run either way)."""
+    same LAPACK ``zgeev`` on the same complex copy, called once with the minimal workspace.
+    Numba's ``eigvals`` first asks for the optimal size; the step rule's 4 x 4 matrices do not
+    use it (LAPACK runs its unblocked Hessenberg reduction and QR on them whatever the
+    workspace), and the tests check the bits on thousands of them. Meant for such small
+    matrices: on large ones a larger workspace selects blocked algorithms, whose rounding
+    differs."""
     n = M.shape[0]
     a = np.empty((n, n), dtype=np.complex128).T  # Fortran order
     for r in range(n):
