@@ -1,7 +1,8 @@
 """The compiled design (objectives/qtp/design_kernels.py) against the numpy code it replaced.
 
 The references below are that code as it was (commit 210f338): numpy's solve and matmul and
-scipy's wrappers of LAPACK dgees and dgeev. The compiled versions call the same routines in the
+scipy's wrappers of LAPACK dgees and dgeev; for the FOLQI's output matrices and the step rule's
+spectral radius, the numpy and numba code of commit 789c9ae. The compiled versions call the same routines in the
 same order, so the gains, margins and failures must be the same bit for bit; shipped results
 depend on it (tests/runner/test_sampled_release.py pins them). A numpy or scipy whose OpenBLAS
 rounded otherwise than the other's would fail here first.
