@@ -336,9 +336,20 @@ def feedback_radius(tolerance: float) -> float:
 
 
 def feedback_rule(A: np.ndarray, B: np.ndarray, cc: ContinuousController, h_max: float, radius: float) -> tuple:
-    """:func:`feedback_step_and_top` of C-contiguous float ``A``, ``B``, a float ``h_max`` and the
-    radius of its tolerance (:func:`feedback_radius`), as a loop that keeps them per scenario
-    calls it.
+    """:func:`feedback_step_and_top` with the radius of its tolerance given, as a loop that keeps
+    its inputs per scenario calls it.
+
+    Parameters
+    ----------
+    A : (4, 4) ndarray
+        The linearised plant, C-contiguous float64.
+    B : (4, 2) ndarray
+        The scenario's input matrix, C-contiguous float64.
+    cc : ContinuousController
+    h_max : float
+        The structure's step for the tolerance (:func:`step_for_tolerance`).
+    radius : float
+        :func:`feedback_radius` of the tolerance.
 
     Returns
     -------
