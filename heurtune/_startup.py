@@ -31,13 +31,25 @@ def _stop(signum, frame):
 
 
 def guard() -> None:
-    """Install the start-up handlers (once, in the main thread of a heurtune command)."""
+    """Install the start-up handlers (once, in the main thread of a heurtune command).
+
+    A signal the command was started with ignored (a background job of a script: ``cmd &``)
+    stays ignored. A block inherited from the parent (a thread that had SIGINT or SIGTERM
+    blocked when it started the command) is lifted once the handlers are in place: a blocked
+    signal would wait, unseen, until the command ends by itself.
+    """
     if _GUARDED or not _command():
         return
     try:
-        _GUARDED.append((signal.signal(signal.SIGINT, _stop), signal.signal(signal.SIGTERM, _stop)))
+        previous = []
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            ignored = signal.getsignal(signum) == signal.SIG_IGN
+            previous.append(signal.SIG_IGN if ignored else signal.signal(signum, _stop))
+        _GUARDED.append(tuple(previous))
     except ValueError:  # not the main thread
-        pass
+        return
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
 
 
 def release() -> None:

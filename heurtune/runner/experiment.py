@@ -1191,8 +1191,8 @@ def run(argv=None) -> int:
     """Command-line entry point; returns the exit code (130 after Ctrl-C, 143 after SIGTERM)."""
     args = _parser().parse_args(argv)
     previous_handler = None
-    if threading.current_thread() is threading.main_thread():
-        previous_handler = signal.signal(signal.SIGTERM, _raise_terminated)
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) != signal.SIG_IGN:
+        previous_handler = signal.signal(signal.SIGTERM, _raise_terminated)  # one started ignoring it still does
     try:
         for spec in args.plugin:
             load_registering_plugin(spec)

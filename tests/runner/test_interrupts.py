@@ -19,8 +19,20 @@ import pytest
 ARGS = ["cs_folqi_qtp", "--runs", "2", "--max-epochs", "4", "--jobs", "2", "--seed", "5"]
 
 
-def start(out):
-    return subprocess.Popen([sys.executable, "-m", "heurtune.experiment", *ARGS, "--out", str(out)],
+# The command starts as a shell starts a foreground command: SIGINT and SIGTERM at their default
+# and not blocked, whatever this test process inherited; with ``blocked``, both blocked, as a
+# thread that blocks them (loky's while it starts its resource tracker) would pass them on.
+LAUNCH = ("import os, signal, sys\n"
+          "for s in (signal.SIGINT, signal.SIGTERM):\n"
+          "    signal.signal(s, signal.SIG_DFL)\n"
+          "signal.pthread_sigmask(signal.SIG_SETMASK, {signal.SIGINT, signal.SIGTERM} if sys.argv[1] == 'blocked' "
+          "else set())\n"
+          "os.execv(sys.executable, [sys.executable, *sys.argv[2:]])\n")
+
+
+def start(out, *extra, blocked=False):
+    return subprocess.Popen([sys.executable, "-c", LAUNCH, "blocked" if blocked else "default",
+                             "-m", "heurtune.experiment", *ARGS, *extra, "--out", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
 
 
@@ -46,8 +58,20 @@ def session_alive(pgid) -> bool:
     return True
 
 
+def signal_masks(pid) -> str:
+    """The blocked, ignored and caught signal masks of ``pid``'s main thread (Linux /proc), for
+    a failure message: a signal that was lost is blocked or ignored there, or not caught."""
+    with contextlib.suppress(OSError):
+        with open(f"/proc/{pid}/status") as fh:
+            return " ".join(line.strip().replace(":\t", "=") for line in fh
+                            if line.startswith(("SigBlk:", "SigIgn:", "SigCgt:")))
+    return "no /proc"
+
+
 def interrupt(proc, sig):
-    """Send ``sig``; return (exit status, stderr, seconds to exit); check no process is left."""
+    """Send ``sig``; return (exit status, stderr, seconds to exit, the process's signal masks
+    when the signal was sent); check no process is left."""
+    masks = signal_masks(proc.pid)
     t0 = time.monotonic()
     os.kill(proc.pid, sig)
     err = []
@@ -61,7 +85,7 @@ def interrupt(proc, sig):
     while session_alive(proc.pid) and time.monotonic() < deadline:  # workers killed, not waited for
         time.sleep(0.1)
     assert not session_alive(proc.pid), "a process of the experiment is still running"
-    return code, "".join(err), elapsed
+    return code, "".join(err), elapsed, masks
 
 
 def interrupted_line(stderr):
@@ -75,15 +99,15 @@ def test_interrupts_at_start_mid_run_and_at_the_end_then_resume(tmp_path):
     # 1. Ctrl-C while the workers start
     proc = start(out)
     wait_for(proc, "runs to do")
-    code, err, elapsed = interrupt(proc, signal.SIGINT)
-    assert code == 130 and elapsed < 10, (code, elapsed, err)
+    code, err, elapsed, masks = interrupt(proc, signal.SIGINT)
+    assert code == 130 and elapsed < 10, (code, elapsed, err, masks)
     assert interrupted_line(err) == f"interrupted: 0 of 4 runs kept in {out}; run the same command again to resume"
     assert "Traceback" not in err
     # 2. SIGTERM after the first finished run
     proc = start(out)
     wait_for(proc, "] 1/4 runs")
-    code, err, elapsed = interrupt(proc, signal.SIGTERM)
-    assert code == 143 and elapsed < 10, (code, elapsed, err)
+    code, err, elapsed, masks = interrupt(proc, signal.SIGTERM)
+    assert code == 143 and elapsed < 10, (code, elapsed, err, masks)
     kept = int(interrupted_line(err).split()[1])
     assert 1 <= kept <= 4
     assert len(list((out / "parts").glob("*.run.parquet"))) == kept
@@ -91,8 +115,8 @@ def test_interrupts_at_start_mid_run_and_at_the_end_then_resume(tmp_path):
     # every run kept in step 2 there is no progress line, only the summary)
     proc = start(out)
     wait_for(proc, "4/4 runs" if kept < 4 else "best gains")
-    code, err, elapsed = interrupt(proc, signal.SIGINT)
-    assert code in (0, 130) and elapsed < 10, (code, elapsed, err)
+    code, err, elapsed, masks = interrupt(proc, signal.SIGINT)
+    assert code in (0, 130) and elapsed < 10, (code, elapsed, err, masks)
     if code == 130:
         assert interrupted_line(err).startswith("interrupted: 4 of 4 runs kept")
     # 4. the same command finishes from what was kept
@@ -106,12 +130,24 @@ def test_interrupts_at_start_mid_run_and_at_the_end_then_resume(tmp_path):
 @pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_interrupt_in_lockstep(tmp_path, sig, code):
     out = tmp_path / "r"
-    proc = subprocess.Popen([sys.executable, "-m", "heurtune.experiment", *ARGS, "--lockstep", "--out", str(out)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    proc = start(out, "--lockstep")
     wait_for(proc, "runs to do")
     time.sleep(1.0)  # inside the runs' first generations
-    got, err, elapsed = interrupt(proc, sig)
-    assert got == code and elapsed < 10, (got, elapsed, err)
+    got, err, elapsed, masks = interrupt(proc, sig)
+    assert got == code and elapsed < 10, (got, elapsed, err, masks)
+    assert interrupted_line(err).startswith("interrupted: 0 of 4 runs kept")
+
+
+@pytest.mark.skipif(not hasattr(signal, "pthread_sigmask"), reason="needs pthread_sigmask")
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_command_started_with_the_signals_blocked_still_stops(tmp_path, sig, code):
+    """A block inherited from the parent is lifted at start-up: without that the signal waits,
+    pending, and the experiment runs to its end with exit code 0. One worker: with a pool, the
+    start of multiprocessing's resource tracker happens to unblock both signals as well."""
+    proc = start(tmp_path / "r", "--jobs", "1", blocked=True)
+    wait_for(proc, "runs to do")
+    got, err, elapsed, masks = interrupt(proc, sig)
+    assert got == code and elapsed < 10, (got, elapsed, err, masks)
     assert interrupted_line(err).startswith("interrupted: 0 of 4 runs kept")
 
 
@@ -145,8 +181,8 @@ def test_a_signal_during_the_imports_is_one_line(tmp_path, sig, code):
         except (FileNotFoundError, StopIteration):
             pass
         time.sleep(0.001)
-    got, err, _ = interrupt(proc, sig)
-    assert got == code, (got, err)
+    got, err, _, masks = interrupt(proc, sig)
+    assert got == code, (got, err, masks)
     assert len([line for line in err.splitlines() if line.startswith("interrupted")]) == 1, err
     assert "Traceback" not in err and "partially initialized" not in err
 
@@ -180,3 +216,28 @@ def test_workers_of_a_killed_parent_stop(tmp_path):
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, signal.SIGKILL)
+
+
+@pytest.mark.skipif(not hasattr(signal, "pthread_sigmask"), reason="needs pthread_sigmask")
+def test_the_start_up_guard_keeps_an_ignored_signal_ignored(monkeypatch):
+    """A background job of a script (``cmd &``) starts with SIGINT ignored: the guard
+    leaves it so (and restores it so), guards SIGTERM, and lifts an inherited block of both."""
+    from heurtune import _startup
+
+    monkeypatch.setattr(_startup, "_command", lambda: True)
+    monkeypatch.setattr(_startup, "_GUARDED", [])
+    saved = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    try:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        _startup.guard()
+        assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+        assert signal.getsignal(signal.SIGTERM) is _startup._stop
+        assert not {signal.SIGINT, signal.SIGTERM} & signal.pthread_sigmask(signal.SIG_BLOCK, set())
+        _startup.release()
+        assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+        assert signal.getsignal(signal.SIGTERM) == (signal.SIG_DFL if saved[1] is None else saved[1])
+    finally:
+        signal.signal(signal.SIGINT, saved[0])
+        signal.signal(signal.SIGTERM, saved[1])
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
