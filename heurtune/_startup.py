@@ -41,11 +41,8 @@ def guard() -> None:
     if _GUARDED or not _command():
         return
     try:
-        previous = []
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            ignored = signal.getsignal(signum) == signal.SIG_IGN
-            previous.append(signal.SIG_IGN if ignored else signal.signal(signum, _stop))
-        _GUARDED.append(tuple(previous))
+        _GUARDED.append(tuple(signal.SIG_IGN if signal.getsignal(signum) == signal.SIG_IGN
+                              else signal.signal(signum, _stop) for signum in (signal.SIGINT, signal.SIGTERM)))
     except ValueError:  # not the main thread
         return
     if hasattr(signal, "pthread_sigmask"):

@@ -1192,7 +1192,7 @@ def run(argv=None) -> int:
     args = _parser().parse_args(argv)
     previous_handler = None
     if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) != signal.SIG_IGN:
-        previous_handler = signal.signal(signal.SIGTERM, _raise_terminated)  # one started ignoring it still does
+        previous_handler = signal.signal(signal.SIGTERM, _raise_terminated)  # else started ignored: it stays so
     try:
         for spec in args.plugin:
             load_registering_plugin(spec)
