@@ -5,6 +5,7 @@ import copy
 
 import numpy as np
 import pytest
+from numerics import assert_exact, assert_same_bits
 
 import heurtune
 from heurtune.core import registry
@@ -71,9 +72,9 @@ def test_apso_alpha_decays_geometrically_and_best_never_worsens():
     for k in range(1, 15):
         X, f, _ = step(opt, rastrigin)
         assert opt.alpha == pytest.approx(0.3 * 0.9 ** k, rel=1e-12)
-        assert opt.g_f <= seen_best and opt.g_f == min(seen_best, f.min())
+        assert opt.g_f <= seen_best and opt.g_f == min(seen_best, f.min())  # exact: g_f is a told value, copied
         seen_best = opt.g_f
-        np.testing.assert_array_equal(opt.X, X)  # no greedy selection: the swarm is the moved one
+        assert_exact(opt.X, X)  # no greedy selection: the swarm is the moved one (a copy)
 
 
 # ---------------------------------------------------------------- firefly
@@ -105,7 +106,7 @@ def test_move_fireflies_matches_reference_loop():
     brighter = fs[None, :] < fs[:, None]
     got = firefly.move_fireflies(Xs, brighter, U, *args)
     np.testing.assert_allclose(got, reference_firefly_move(Xs, fs, U, *args), rtol=0, atol=1e-14)
-    np.testing.assert_array_equal(got[0], Xs[0])  # nothing is brighter than the best
+    assert_exact(got[0], Xs[0])  # nothing is brighter than the best: its row is copied
 
 
 def test_firefly_ask_sorts_decays_and_moves():
@@ -127,13 +128,13 @@ def test_firefly_moves_only_towards_brighter_ones():
     half = np.full((3, 3, 2), 0.5)  # draws at 0.5: the random term vanishes
     brighter = np.array([[False, False, False], [True, False, False], [False, False, False]])
     got = firefly.move_fireflies(Xs, brighter, half, 0.3, 0.3, 0.2, 1.0, np.array([10.0, 10.0]))
-    np.testing.assert_array_equal(got[[0, 2]], Xs[[0, 2]])  # no brighter neighbour: no move
+    assert_exact(got[[0, 2]], Xs[[0, 2]])  # no brighter neighbour: no move (copied)
     beta = 0.1 * np.exp(-4.0) + 0.2
     np.testing.assert_allclose(got[1], [2.0 * (1 - beta), 0.0])  # straight towards firefly 0
     # random draws alone move nobody who has no brighter neighbour
     noisy = np.random.default_rng(0).random((3, 3, 2))
     none = np.zeros((3, 3), dtype=bool)
-    np.testing.assert_array_equal(firefly.move_fireflies(Xs, none, noisy, 0.3, 0.3, 0.2, 1.0, 10.0), Xs)
+    assert_exact(firefly.move_fireflies(Xs, none, noisy, 0.3, 0.3, 0.2, 1.0, 10.0), Xs)
 
 
 def test_firefly_best_stays_put_and_alpha_reaches_yang_floor():
@@ -142,7 +143,7 @@ def test_firefly_best_stays_put_and_alpha_reaches_yang_floor():
     for _ in range(20):
         best_x = opt.X[np.argmin(opt.f)].copy()
         X, _, _ = step(opt, rastrigin)
-        assert any(np.array_equal(best_x, x) for x in X)  # the brightest firefly is not moved
+        assert any(np.all(best_x == x) for x in X)  # exact: the brightest firefly is copied, not moved
     assert opt.alpha == pytest.approx(0.3 * 1e-4 / 0.9, rel=1e-9)
 
 
@@ -172,7 +173,8 @@ def test_pso_initialisation_and_first_move():
     X0 = opt.ask()
     x0 = lo + twin.random((3, 2)) * (hi - lo)
     v0 = (lo + twin.random((3, 2)) * (hi - lo) - x0) / 2  # SPSO-2006 initial velocity
-    np.testing.assert_array_equal(X0, x0)
+    # lo + u (hi - lo): the same numpy operations in the same order (element-wise, each correctly rounded)
+    assert_same_bits(X0, x0, because="same code")
     np.testing.assert_allclose(opt.V, v0)
     f0 = shifted_sphere(X0)
     opt.tell(X0, f0, np.zeros(3))
@@ -191,9 +193,10 @@ def test_pso_personal_bests_never_get_worse():
         X, f, _ = step(opt, rastrigin)
         assert np.all(opt.pf <= prev_f)
         improved = f < prev_f
-        np.testing.assert_array_equal(opt.P[improved], X[improved])
-        np.testing.assert_array_equal(opt.P[~improved], prev_P[~improved])  # ties keep the old best
-        np.testing.assert_array_equal(opt.pf, rastrigin(opt.P))
+        assert_exact(opt.P[improved], X[improved])  # copied
+        assert_exact(opt.P[~improved], prev_P[~improved])  # ties keep the old best
+        # rastrigin on the same (10, 4) array layout: each stored value at the row it was computed at
+        assert_same_bits(opt.pf, rastrigin(opt.P), because="same code")
         prev_f, prev_P = opt.pf.copy(), opt.P.copy()
 
 
@@ -207,8 +210,8 @@ def test_pso_keeps_velocity_after_clipping():
         X = opt.space.repair(raw)
         clipped += int(np.any(X != raw))
         opt.tell(X, shifted_sphere(X), np.zeros(2))
-        np.testing.assert_array_equal(opt.V, V)
-        np.testing.assert_array_equal(opt.X, X)
+        assert_exact(opt.V, V)  # clipping leaves the velocity as it was
+        assert_exact(opt.X, X)  # a copy of the told positions
     assert clipped > 0
 
 
@@ -240,11 +243,12 @@ def test_pso_bound_rules_reflect_and_redraw_what_leaves_the_box():
     Xr, Vr = pso.handle_bounds(X, V, lower, upper, "reflect")
     # 1.25 -> 0.75 (mirrored at 1), -0.5 -> 0.5, 2.5 -> 1.5, -4.5 -> folded twice: 0.5
     np.testing.assert_allclose(Xr, [[0.75, 0.5], [0.5, 1.5], [0.5, 0.5], [0.5, 1.0]], rtol=0, atol=1e-15)
-    np.testing.assert_array_equal(Vr, [[-0.3, 0.1], [0.7, -0.6], [0.2, 5.0], [0.1, 0.1]])
+    assert_exact(Vr, [[-0.3, 0.1], [0.7, -0.6], [0.2, 5.0], [0.1, 0.1]])  # sign flips of literals
     uniform = np.full((4, 2), 0.25)
     Xn, Vn = pso.handle_bounds(X, V, lower, upper, "random", uniform)
-    np.testing.assert_array_equal(Xn, [[0.25, 0.5], [0.25, 0.5], [0.5, 0.5], [0.5, 1.0]])
-    np.testing.assert_array_equal(Vn, [[0.0, 0.1], [0.0, 0.0], [0.2, 0.0], [0.1, 0.1]])
+    # 0 + 0.25 * 1 and 0 + 0.25 * 2 are exact in binary; the rest are copies or zeros
+    assert_exact(Xn, [[0.25, 0.5], [0.25, 0.5], [0.5, 0.5], [0.5, 1.0]])
+    assert_exact(Vn, [[0.0, 0.1], [0.0, 0.0], [0.2, 0.0], [0.1, 0.1]])
 
 
 @pytest.mark.parametrize("rule", ["reflect", "random"])
@@ -267,4 +271,5 @@ def test_pso_default_bound_rule_draws_nothing_more():
 
     a = heurtune.minimize(sphere, [-5.0] * 4, [5.0] * 4, "pso", max_evals=800, seed=7)
     b = heurtune.minimize(sphere, [-5.0] * 4, [5.0] * 4, "pso", settings={"bounds": "engine"}, max_evals=800, seed=7)
-    assert a.f == b.f and np.array_equal(a.x, b.x)
+    assert_same_bits(a.f, b.f, because="same seed")
+    assert_same_bits(a.x, b.x, because="same seed")

