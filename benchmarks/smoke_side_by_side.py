@@ -1,5 +1,5 @@
 """The shipped experiments' smoke runs at another revision and in this working tree, compared
-file by file: the check that a change keeps the shipped numbers.
+file by file within the tolerances of shipped numbers: the check that a change keeps them.
 
     python benchmarks/smoke_side_by_side.py --rev c02129f                 # every shipped experiment
     python benchmarks/smoke_side_by_side.py --rev HEAD~1 cs_folqi_qtp thesis_ch5
@@ -13,9 +13,15 @@ this tree's optimisers and plants on both sides, and the comparison would prove 
 
 Each run is ``python -m heurtune.experiment NAME --smoke --seed 7 --jobs 1 --no-figures`` (one
 process, BLAS on one thread; numba compiles each tree into that tree's ``__pycache__``), the two
-sides side by side. Parquet frames are compared exactly, wall-time columns aside, and every other
-result file byte for byte but the run records that hold times and hosts (``meta.json``,
-``plan.json``, ``planned.json``). Exit 1 when anything differs or a run fails.
+sides side by side. Parquet frames are compared column by column, wall-time columns aside, by
+:mod:`heurtune.analysis.agreement` (docs/testing.md): floats within their field's tolerance
+(1e-9 relative on objectives, integral metrics and gains; absolute on levels, overshoots, ess,
+times and voltages), everything else exactly. Written tables and other text files must have the
+same text, their numbers within 1e-9 relative or one unit in the last printed place; other
+files (figures are off) the same bytes. The run records that hold times and hosts
+(``meta.json``, ``plan.json``, ``planned.json``) are left out. Each experiment's line says
+``same bits``, ``within tolerance`` or ``differs``; exit 1 when anything differs beyond its
+tolerance or a run fails.
 """
 
 from __future__ import annotations
@@ -73,26 +79,38 @@ def _smoke(tree: Path, name: str, out: Path) -> bool:
         return subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT, env=env).returncode == 0
 
 
-def compare(a: Path, b: Path) -> list[str]:
-    """Lines naming each result file that differs between two result folders (or is missing)."""
+TEXT_SUFFIXES = (".md", ".csv", ".tex", ".txt", ".json", ".toml")
+
+
+def compare(a: Path, b: Path) -> tuple[list[str], bool]:
+    """Lines naming each result file that differs beyond its tolerance between two result
+    folders (or is missing), and whether every file is the same bit for bit."""
     import pandas as pd
 
-    out = []
+    from heurtune.analysis.agreement import frame_differences, text_differences
+
+    out, same_bits = [], True
     for f in sorted(p for p in a.rglob("*") if p.is_file() and p.name not in RUN_RECORDS):
         g = b / f.relative_to(a)
         if not g.is_file():
             out.append(f"{f.relative_to(a)}: missing on the other side")
-        elif f.suffix == ".parquet":
+            continue
+        if f.read_bytes() == g.read_bytes():
+            continue
+        if f.suffix == ".parquet":
             x, y = pd.read_parquet(f), pd.read_parquet(g)
             x = x.drop(columns=[c for c in x.columns if any(w in c for w in WALL_COLUMNS)])
             y = y.drop(columns=[c for c in y.columns if any(w in c for w in WALL_COLUMNS)])
-            try:
-                pd.testing.assert_frame_equal(x, y, check_exact=True)
-            except AssertionError as exc:
-                out.append(f"{f.relative_to(a)}: " + " ".join(str(exc).split())[:200])
-        elif f.read_bytes() != g.read_bytes():
-            out.append(f"{f.relative_to(a)}: the bytes differ")
-    return out
+            if x.equals(y):  # the same values in files written at other times
+                continue
+            lines = frame_differences(x, y)
+        elif f.suffix in TEXT_SUFFIXES:
+            lines = text_differences(f.read_text(), g.read_text())
+        else:
+            lines = ["the bytes differ"]
+        same_bits = False
+        out += [f"{f.relative_to(a)}: {line[:200]}" for line in lines]
+    return out, same_bits
 
 
 def main(argv=None) -> int:
@@ -122,9 +140,9 @@ def main(argv=None) -> int:
                 runs = {side: pool.submit(_smoke, tree, name, folder) for side, (tree, folder) in sides.items()}
                 ok = {side: run.result() for side, run in runs.items()}
                 if all(ok.values()):
-                    lines = [f"{name}/{line}" for line in compare(out / "rev" / name, out / "tree" / name)]
-                    differ += lines
-                    status = "differs" if lines else "same"
+                    lines, same_bits = compare(out / "rev" / name, out / "tree" / name)
+                    differ += [f"{name}/{line}" for line in lines]
+                    status = "differs" if lines else "same bits" if same_bits else "within tolerance"
                 else:
                     failed += [f"{name} ({side}; see {sides[side][1] / name}.log)" for side in ok if not ok[side]]
                     status = "failed"
@@ -132,7 +150,7 @@ def main(argv=None) -> int:
     finally:
         subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(worktree)], check=False)
     print(f"{len(names)} experiments at {args.rev} and in this tree: {len(failed)} failed, "
-          f"{len(differ)} result files differ (results in {out})")
+          f"{len(differ)} result files differ beyond their tolerances (results in {out})")
     for line in failed + differ:
         print("  " + line)
     return 1 if failed or differ else 0

@@ -31,6 +31,12 @@ def _violations(path, root=TESTS):
         for kw in node.keywords:
             if kw.arg == "check_exact" and isinstance(kw.value, ast.Constant) and kw.value.value is True:
                 found.append(f"{path.relative_to(root)}:{node.lineno}: check_exact=True")
+        # a tolerance of nothing is an exact comparison in disguise
+        zero = {kw.arg for kw in node.keywords if kw.arg in ("rtol", "atol", "rel", "abs")
+                and isinstance(kw.value, ast.Constant) and kw.value.value == 0}
+        if name in ("allclose", "assert_allclose", "isclose", "approx") and (
+                zero >= {"rtol", "atol"} or zero >= {"rel", "abs"}):
+            found.append(f"{path.relative_to(root)}:{node.lineno}: {name} with no tolerance")
     return found
 
 
@@ -46,9 +52,11 @@ def test_the_checker_finds_a_bare_equality(tmp_path):
     bad = tmp_path / "test_bad.py"
     bad.write_text("import numpy as np\nnp.testing.assert_array_equal([1.0], [1.0])\n"
                    "assert not np.array_equal([1.0], [2.0])\nimport pandas as pd\n"
-                   "pd.testing.assert_frame_equal(a, b, check_exact=True)\n")
+                   "pd.testing.assert_frame_equal(a, b, check_exact=True)\n"
+                   "np.testing.assert_allclose(a, b, rtol=0, atol=0)\nnp.testing.assert_allclose(a, b, rtol=0, atol=1)\n")
     found = _violations(bad, root=tmp_path)
-    assert [f.split(": ")[1] for f in found] == ["assert_array_equal", "assert_frame_equal", "check_exact=True"]
+    assert [f.split(": ")[1] for f in found] == ["assert_array_equal", "assert_frame_equal", "check_exact=True",
+                                                   "assert_allclose with no tolerance"]
 
 
 def test_same_bits_names_its_design_and_is_strict():

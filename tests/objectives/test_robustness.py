@@ -4,6 +4,7 @@ import math
 
 import numpy as np
 import pytest
+from numerics import assert_exact
 from scipy.interpolate import pade as scipy_pade
 
 from heurtune.core.errors import ConfigError
@@ -153,7 +154,7 @@ def test_spectral_radius_validation(kwargs):
 
 def test_hurwitz_matrix_and_determinants_of_known_cubic():
     c = [1.0, 6.0, 11.0, 6.0]  # (s+1)(s+2)(s+3)
-    np.testing.assert_array_equal(hurwitz_matrix(c), [[6, 6, 0], [1, 11, 0], [0, 6, 6]])
+    assert_exact(hurwitz_matrix(c), [[6, 6, 0], [1, 11, 0], [0, 6, 6]])  # the coefficients, placed
     # Delta1 = a1, Delta2 = a1 a2 - a0 a3, Delta3 = a3 Delta2
     np.testing.assert_allclose(hurwitz_determinants(c), [6.0, 60.0, 360.0])
     assert is_hurwitz(c)
@@ -198,11 +199,11 @@ def test_kharitonov_sign_patterns():
     lo = [10.0, 20.0, 30.0, 40.0, 50.0]  # c4 c3 c2 c1 c0
     hi = [11.0, 21.0, 31.0, 41.0, 51.0]
     K1, K2, K3, K4 = kharitonov_polynomials(lo, hi)
-    # increasing powers c0..c4: K1 l l u u l, K2 u u l l u, K3 l u u l l, K4 u l l u u
-    np.testing.assert_array_equal(K1[::-1], [50, 40, 31, 21, 10])
-    np.testing.assert_array_equal(K2[::-1], [51, 41, 30, 20, 11])
-    np.testing.assert_array_equal(K3[::-1], [50, 41, 31, 20, 10])
-    np.testing.assert_array_equal(K4[::-1], [51, 40, 30, 21, 11])
+    # increasing powers c0..c4: K1 l l u u l, K2 u u l l u, K3 l u u l l, K4 u l l u u (picked, not computed)
+    assert_exact(K1[::-1], [50, 40, 31, 21, 10])
+    assert_exact(K2[::-1], [51, 41, 30, 20, 11])
+    assert_exact(K3[::-1], [50, 41, 31, 20, 10])
+    assert_exact(K4[::-1], [51, 40, 30, 21, 11])
 
 
 def test_kharitonov_stable_textbook_cubic():
@@ -219,7 +220,7 @@ def test_kharitonov_unstable_textbook_cubic():
     assert not res.robustly_stable
     # K1 = s^3 + 2 s^2 + 0.5 s + 1 (a2 a1 = a0: boundary), K2 = s^3 + s^2 + s + 3,
     # K3 = s^3 + 2 s^2 + s + 1 (stable), K4 = s^3 + s^2 + 0.5 s + 3
-    np.testing.assert_array_equal(res.polynomials[1], [1, 1, 1, 3])
+    assert_exact(res.polynomials[1], [1, 1, 1, 3])  # picked from the bounds
     assert res.hurwitz[1:] == (False, True, False)
     assert res.determinants[0][1] == pytest.approx(0.0, abs=1e-12)  # K1 sits on the boundary
     assert not is_hurwitz(res.polynomials[0], tol=1e-9)
@@ -305,8 +306,9 @@ def test_interval_characteristic_polynomial_bounds_are_exact_for_multilinear():
 
 def test_interval_characteristic_polynomial_fixed_params_and_validation():
     lo, hi = interval_characteristic_polynomial(lambda P: [1.0, P["a"], P["b"]], {"a": (1, 2), "b": (3, 3)})
-    np.testing.assert_array_equal(lo, [1, 1, 3])
-    np.testing.assert_array_equal(hi, [1, 2, 3])
+    # the polynomial returns the box's corners as they are: the bounds are copies of them
+    assert_exact(lo, [1, 1, 3])
+    assert_exact(hi, [1, 2, 3])
     for box in [{}, {"a": (2, 1)}, {"a": (1,)}, {f"p{i}": (0, 1) for i in range(17)}]:
         with pytest.raises(ConfigError):
             interval_characteristic_polynomial(lambda P: [1.0, 1.0], box)

@@ -57,6 +57,7 @@ def test_mistakes_are_one_line_errors(tmp_path, capsys):
 
 def test_load_plugin_returns_the_module_it_loaded_for_unit_tests_of_its_update(tmp_path):
     import numpy as np
+    from numerics import assert_exact
 
     from heurtune.core import registry
     from heurtune.core.engine import Comparator, SearchSpace
@@ -67,7 +68,8 @@ def test_load_plugin_returns_the_module_it_loaded_for_unit_tests_of_its_update(t
     module = load_plugin(str(path))
     assert load_plugin(str(path)) is module  # loaded once
     X, z, width = np.zeros((3, 2)), np.ones((3, 2)), np.array([2.0, 4.0])
-    assert np.array_equal(module.walk(X, z, 0.5, width), np.tile([1.0, 2.0], (3, 1)))  # the update step, pinned
+    # the update step, pinned: 0 + 0.5 * 1 * [2, 4], dyadic numbers with no rounding
+    assert_exact(module.walk(X, z, 0.5, width), np.tile([1.0, 2.0], (3, 1)))
     opt = module.RandomWalk(SearchSpace(np.zeros(2), np.ones(2)), registry.make_settings("guide_walk_unit", None),
                             np.random.default_rng(0), Comparator())
     assert opt.X.shape == (0, 2) and opt.ask().shape == (20, 2)  # empty population, then the initial one

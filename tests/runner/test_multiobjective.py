@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
+from numerics import assert_exact, assert_same_bits
 
 import heurtune
 from heurtune.core.errors import ConfigError
@@ -24,9 +25,11 @@ def test_qtp_objectives_are_the_named_metric_sums():
     X = np.vstack([x, x * 1.03, np.full(prob.dim, np.nan)])
     ev = prob.evaluate(X)
     m = pd.DataFrame(ev.metrics, columns=ev.metric_names)
-    np.testing.assert_allclose(ev.F[:2, 0], (m["J1"] + m["J2"])[:2], rtol=0, atol=0)
-    np.testing.assert_allclose(ev.F[:2, 1], (m["IAE1"] + m["IAE2"])[:2], rtol=0, atol=0)
-    assert ev.objective_names == ("effort", "iae") and np.array_equal(ev.f, ev.F[:, 0])
+    # each objective is one addition of two metrics, the same correctly rounded sum either way
+    assert_same_bits(ev.F[:2, 0], (m["J1"] + m["J2"])[:2].to_numpy(), because="same code")
+    assert_same_bits(ev.F[:2, 1], (m["IAE1"] + m["IAE2"])[:2].to_numpy(), because="same code")
+    assert ev.objective_names == ("effort", "iae")
+    assert_exact(ev.f, ev.F[:, 0])  # a copy
     assert ev.F[2].tolist() == [1e10, 1e10] and ev.reason[2] == "invalid_parameter"
     f, g = prob(X)
     assert f.shape == (3, 2)
@@ -40,9 +43,10 @@ def test_tito_objectives_bandwidth_and_peak():
     ev, ref = prob.evaluate(X), single.evaluate(X)
     ok = ev.reason == ""
     assert ok.any()
-    np.testing.assert_array_equal(ev.F[ok, 0], ref.f[ok])  # -(w_b1 + w_b2), as the bandwidth problem's f
+    # -(w_b1 + w_b2), as the bandwidth problem's f: the same design evaluation on the same candidates
+    assert_same_bits(ev.F[ok, 0], ref.f[ok], because="same code")
     m = pd.DataFrame(ev.metrics, columns=ev.metric_names)
-    np.testing.assert_array_equal(ev.F[ok, 1], np.maximum(m["Mt1"], m["Mt2"])[ok])
+    assert_exact(ev.F[ok, 1], np.maximum(m["Mt1"], m["Mt2"])[ok].to_numpy())  # the larger peak, picked
 
 
 def test_robust_and_several_objectives_aggregate_each_objective():
@@ -52,7 +56,9 @@ def test_robust_and_several_objectives_aggregate_each_objective():
     x = prob.parse(THESIS_MIN)
     ev = prob.evaluate(x)
     per = [prob.evaluate(x, s) for s in ("nominal", "+30%")]
-    np.testing.assert_array_equal(ev.F, np.maximum(per[0].F, per[1].F))
+    # each scenario's objectives as evaluate gives them alone (evaluate_scenarios shares only the
+    # design), the larger picked
+    assert_same_bits(ev.F, np.maximum(per[0].F, per[1].F), because="same code")
 
 
 @pytest.mark.parametrize("problem, message", [
@@ -93,13 +99,13 @@ def test_nsga2_run_writes_the_front_and_reports_the_chosen_controller(tmp_path):
         assert len(chosen) == 1
         prob = exp.problem(r["case"])
         x = np.array([r[n] for n in prob.names])
-        np.testing.assert_array_equal(chosen[list(prob.names)].to_numpy()[0], x)
-        assert r["hypervolume"] == -r["best_f"] + 0.0
+        assert_exact(chosen[list(prob.names)].to_numpy()[0], x)  # the chosen row's gains, copied
+        assert r["hypervolume"] == -r["best_f"] + 0.0  # exact: a negation
         if r["feasible"]:
             assert r["hypervolume"] == pytest.approx(hypervolume(front[["f_effort", "f_iae"]].to_numpy(),
                                                                  prob.reference_point))
-            ev = prob.evaluate(x)  # the chosen controller, re-evaluated
-            assert [r["f_effort"], r["f_iae"]] == ev.F[0].tolist()
+            ev = prob.evaluate(x)  # the chosen controller, re-evaluated alone (the run had it in a population)
+            assert_same_bits([r["f_effort"], r["f_iae"]], ev.F[0], because="shared kernel")
         h = history[(history["case"] == r["case"]) & (history["algorithm"] == r["algorithm"])
                     & (history["run"] == r["run"])]["hypervolume"].to_numpy()
         assert np.all(np.diff(h) >= 0)

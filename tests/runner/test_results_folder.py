@@ -14,6 +14,7 @@ import sys
 
 import pandas as pd
 import pytest
+from numerics import assert_same_bits
 
 from heurtune.runner.experiment import run, status_table
 from heurtune.runner.resultdir import LOCK_FILE
@@ -149,7 +150,7 @@ def test_a_damaged_part_is_set_aside_and_its_run_computed_again(clean, copy, cap
     warnings = [line for line in err.splitlines() if "set aside" in line]
     assert len(warnings) == 1 and name in warnings[0] and "set aside" in warnings[0], err
     assert (parts / "corrupt" / victim.name).exists() or (parts / "corrupt" / history.name).exists()
-    pd.testing.assert_frame_equal(results(out), results(expected))
+    assert_same_bits(results(out), results(expected), because="resume")
 
 
 def test_a_damaged_plan_file_is_rewritten(clean, copy, capsys):
@@ -159,7 +160,7 @@ def test_a_damaged_plan_file_is_rewritten(clean, copy, capsys):
     (out / "planned.json").write_text("[")
     assert run(["--status", "--out", str(out)]) == 0
     assert run([str(cfg), "--out", str(out), "--no-figures"]) == 0
-    pd.testing.assert_frame_equal(results(out), results(expected))
+    assert_same_bits(results(out), results(expected), because="resume")
     assert json.loads((out / "planned.json").read_text())["experiment"] == "exp"
 
 
@@ -187,7 +188,7 @@ def test_a_stale_lock_is_taken_over_with_a_warning(clean, copy, capsys):
     assert run([str(cfg), "--out", str(out), "--no-figures"]) == 0
     assert "taking over" in capsys.readouterr().err
     assert not (out / LOCK_FILE).exists()
-    pd.testing.assert_frame_equal(results(out), results(expected))
+    assert_same_bits(results(out), results(expected), because="resume")
 
 
 def test_two_processes_at_once_one_refused(clean, tmp_path):
@@ -205,7 +206,7 @@ def test_two_processes_at_once_one_refused(clean, tmp_path):
         assert err.startswith("error: ") and "is being written by pid" in err and err.count("\n") == 1
     else:  # the first had finished before the second looked: both complete
         assert codes == (0, 0)
-    pd.testing.assert_frame_equal(results(out), results(expected))
+    assert_same_bits(results(out), results(expected), because="resume")
 
 
 def test_an_unwritable_output_is_one_line(tmp_path, capsys):
@@ -329,7 +330,7 @@ def test_a_full_disk_is_one_line_and_the_finished_runs_are_kept(clean, tmp_path,
     assert len(list((out / "parts").glob("*.run.parquet"))) == 2
     monkeypatch.setattr(experiment, "write_parquet", real)
     assert run([str(cfg), "--out", str(out), "--no-figures"]) == 0
-    pd.testing.assert_frame_equal(results(out), results(expected))
+    assert_same_bits(results(out), results(expected), because="resume")
 
 
 def test_a_killed_worker_names_the_run_and_the_folder_resumes(tmp_path, capsys):
@@ -362,7 +363,7 @@ def test_a_killed_worker_names_the_run_and_the_folder_resumes(tmp_path, capsys):
     whole = subprocess.run(cmd[:cmd.index("--out") + 1] + [str(tmp_path / "whole")] + cmd[cmd.index("--out") + 2:],
                            capture_output=True, text=True, timeout=600)
     assert whole.returncode == 0, whole.stderr
-    pd.testing.assert_frame_equal(results(tmp_path / "out"), results(tmp_path / "whole"))
+    assert_same_bits(results(tmp_path / "out"), results(tmp_path / "whole"), because="resume")
 
 
 def test_a_worker_killed_under_a_spread_run_names_that_run(tmp_path):

@@ -5,7 +5,8 @@ became the default, on every shipped QTP experiment's smoke run.
 commit e1bb82f (where the QTP configs said ``[scenario] dt = 0.01``, the sampled loop) as
 ``python -m heurtune.experiment NAME --smoke --seed 7 --jobs 1 --no-figures``; everything but
 the wall time. The test reruns each with ``sample_time = 0.01`` and compares field by field
-within the tolerances of the shipped numbers (docs/testing.md, :func:`tolerance`): the problem
+within the tolerances of the shipped numbers (docs/testing.md,
+:mod:`heurtune.analysis.agreement`): the problem
 ids, statuses, evaluation counts, seeds and texts exactly (the resolved settings may hold
 settings added since, such as PSO's ``bounds``, at their defaults); objectives, integral metrics
 and gains to 1e-9 relative; levels, overshoots and steady-state errors absolute (ess, a
@@ -44,19 +45,11 @@ import pandas as pd
 import pytest
 from qtp_cases import sampled_experiment
 
+from heurtune.analysis.agreement import field_tolerance, values_agree
+
 REFERENCE = Path(__file__).with_name("sampled_release_smoke.json")
 SKIPPED_COLUMNS = ("wall_time_s",)
 KEY = ["case", "algorithm", "run"]
-# (relative, absolute) tolerance of a float field by the metric it holds (its name without the
-# scenario and the loop number); the module docstring says why each.
-RTOL = 1e-9
-ABSOLUTE = {
-    "ess": 1e-10,   # % of the operating level: a difference of nearly equal levels
-    "hmin": 1e-9, "hmax": 1e-9,   # cm
-    "Mp": 1e-9,     # % of the step
-    "ts": 1e-8,     # s: a crossing of the band, interpolated where the level may be flat
-    "umin": 1e-8, "umax": 1e-8,   # V: follow the gains of poorly conditioned Riccati designs
-}
 # Optimisers whose steps follow finite-difference gradients (see the module docstring).
 FINITE_DIFFERENCE = frozenset({"sqp_multistart", "newton_raphson", "dfp", "steepest_descent", "bfgs"})
 # The fields of a run that its optimiser's path decides (the best candidate, its value, the counts).
@@ -84,16 +77,6 @@ def _same_settings(expected: str, got: str) -> bool:
     return all(k in g and g[k] == v for k, v in e.items())
 
 
-def tolerance(key: str) -> tuple[float, float]:
-    """The (relative, absolute) tolerance of a float field of runs.parquet: absolute for the
-    metrics in :data:`ABSOLUTE` (levels, overshoot, steady-state error, times, voltages),
-    1e-9 relative for the rest (objectives, integral metrics, violations, gains)."""
-    metric = key.split("@")[0].rstrip("0123456789")
-    if metric in ABSOLUTE:
-        return 0.0, ABSOLUTE[metric]
-    return RTOL, 0.0
-
-
 def _same(a, b, exact: bool, key: str = "") -> bool:
     if isinstance(a, float) or isinstance(b, float):
         if a is None or b is None:
@@ -102,8 +85,7 @@ def _same(a, b, exact: bool, key: str = "") -> bool:
             return math.isnan(a) and math.isnan(b)
         if exact:  # same bits: two records of one release, one machine, one seed
             return a == b
-        rtol, atol = tolerance(key)
-        return math.isclose(a, b, rel_tol=rtol, abs_tol=atol)
+        return values_agree(a, b, key)
     return a == b
 
 
@@ -185,8 +167,8 @@ def test_the_comparison_holds_each_field_to_its_tolerance():
     are named."""
     base = {"case": "min", "algorithm": "cs", "run": 0, "optimiser_index": 0, "problem_id": "abc", "n_evals": 30,
             "J@nominal": 4283.77, "ess1@nominal": 2.4, "ts2@nominal": 55.5, "umin@nominal": -3.0, "Q11": 1.5}
-    assert tolerance("J@nominal") == (1e-9, 0.0) and tolerance("ess1@+30%") == (0.0, 1e-10)
-    assert tolerance("ts2@nominal") == (0.0, 1e-8) and tolerance("umax") == (0.0, 1e-8)
+    assert field_tolerance("J@nominal") == (1e-9, 0.0) and field_tolerance("ess1@+30%") == (0.0, 1e-10)
+    assert field_tolerance("ts2@nominal") == (0.0, 1e-8) and field_tolerance("umax") == (0.0, 1e-8)
     inside = dict(base, **{"J@nominal": 4283.77 * (1 + 5e-10), "ess1@nominal": 2.4 + 5e-11,
                            "ts2@nominal": 55.5 + 5e-9, "umin@nominal": -3.0 + 5e-9, "Q11": 1.5 * (1 - 5e-10)})
     assert not differences([base], [inside])
@@ -244,7 +226,7 @@ def _write(root: Path) -> None:
 
 
 def _compare(root: Path) -> int:
-    """The result folders under ``root`` against the reference, within :func:`tolerance`; each
+    """The result folders under ``root`` against the reference, within the tolerances; each
     experiment's line says whether it is within them and whether it is bit for bit. 0 when all
     are within."""
     failed = 0

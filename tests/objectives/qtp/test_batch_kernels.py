@@ -23,6 +23,7 @@ import sys
 
 import numpy as np
 import pytest
+from numerics import assert_close, assert_exact, assert_same_bits
 from qtp_cases import RTOL, assert_metrics_close, stable_controllers
 
 from heurtune.core.errors import ConfigError
@@ -31,6 +32,19 @@ from heurtune.objectives.qtp.controllers import LinearController
 from heurtune.objectives.qtp.kernels import METRIC_NAMES
 from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
 from heurtune.objectives.qtp.model import preset
+
+# An unstable candidate's margin, the largest real part of its closed-loop eigenvalues, from
+# numpy's stacked eigvals and from LAPACK dgeev called directly: two routes whose difference is
+# bounded to first order by kappa eps |M| / |margin| (kappa the eigenvalue's condition number,
+# |M| the norm of the balanced closed-loop matrix). On the candidates drawn here that is below
+# 1e-8 (kappa < 1.5e3, |M| up to about 1e3 from the Oustaloup band, margins down to about 1e-3).
+MARGIN_RTOL = 1e-7
+MARGIN_BECAUSE = "eigenvalue margins by two LAPACK routes: kappa eps |M| / |margin| < 1e-8 on these candidates"
+# The Riccati gains of the stacked eigenvectors and of the ordered Schur form: the Hamiltonians'
+# eigenvector bases have condition numbers below 60 on the thesis bounds, so the two stable
+# subspaces, and the gains, agree to about 2n eps cond^2 < 1e-11.
+GAIN_RTOL = 1e-10
+GAIN_BECAUSE = "Riccati gains by eigenvectors and by the Schur form: 2n eps cond(V)^2 < 1e-11 with cond(V) < 60"
 
 SCENARIOS = {
     "nominal": Scenario(dt=0.01, horizon=120.0, disturbance_time=20.0),
@@ -58,10 +72,10 @@ def test_batch_equals_the_one_candidate_kernel(folqi):
         ref = [loop.run(c, sc, record=False) for c in ctrls]
         assert list(diverged[:, s]) == [r.diverged for r in ref]
         # the lanes run the one-candidate kernel's own compiled loop: bit for bit
-        np.testing.assert_array_equal(metrics[:, s], [r.metrics for r in ref])
+        assert_same_bits(metrics[:, s], [r.metrics for r in ref], because="shared kernel")
     # the physical-limits scenario reaches the limits (else it would test nothing)
     limited = metrics[:, list(SCENARIOS).index("physical_limits")]
-    assert np.nanmin(limited[:, METRIC_NAMES.index("umin")]) == 0.0
+    assert np.nanmin(limited[:, METRIC_NAMES.index("umin")]) == 0.0  # exact: clamped to the literal limit
 
 
 @pytest.mark.parametrize("kind, plant_model", [("lqi", "qtp"), ("ladr", "qtp"), ("folqi", "qtp_bond_graph")])
@@ -72,7 +86,7 @@ def test_other_structures_and_the_pressure_model(kind, plant_model):
     diverged, metrics = loop.run_batch(ctrls, [sc])
     ref = [loop.run(c, sc, record=False) for c in ctrls]
     assert list(diverged[:, 0]) == [r.diverged for r in ref]
-    np.testing.assert_array_equal(metrics[:, 0], [r.metrics for r in ref])
+    assert_same_bits(metrics[:, 0], [r.metrics for r in ref], because="shared kernel")
 
 
 def test_a_lane_does_not_depend_on_its_neighbours(folqi):
@@ -83,9 +97,9 @@ def test_a_lane_does_not_depend_on_its_neighbours(folqi):
     _, together = loop.run_batch(ctrls, [sc])
     order = np.random.default_rng(0).permutation(len(ctrls))
     _, shuffled = loop.run_batch([ctrls[i] for i in order], [sc])
-    np.testing.assert_array_equal(shuffled[:, 0], together[order, 0])
+    assert_same_bits(shuffled[:, 0], together[order, 0], because="shared kernel")
     _, alone = loop.run_batch(ctrls[3:4], [sc])
-    np.testing.assert_array_equal(alone[0, 0], together[3, 0])
+    assert_same_bits(alone[0, 0], together[3, 0], because="shared kernel")
 
 
 def test_a_diverging_lane_is_flagged_and_leaves_the_others_alone(folqi):
@@ -98,7 +112,7 @@ def test_a_diverging_lane_is_flagged_and_leaves_the_others_alone(folqi):
     assert list(diverged[:, 0]) == [False, True, False]
     assert np.isnan(metrics[1, 0]).all()
     ref = [loop.run(c, sc, record=False).metrics for c in ctrls[:2]]
-    np.testing.assert_array_equal(metrics[[0, 2], 0], ref)
+    assert_same_bits(metrics[[0, 2], 0], ref, because="shared kernel")
 
 
 def test_problem_on_the_batched_device_equals_cpu():
@@ -115,13 +129,14 @@ def test_problem_on_the_batched_device_equals_cpu():
         assert list(a.reason) == list(b.reason)
         assert set(a.reason) >= {"", "unstable"}  # both kinds of candidate in the batch
         assert_metrics_close(b.metrics, a.metrics)
-        np.testing.assert_array_equal(a.feasible, b.feasible)
-        np.testing.assert_allclose(b.f, a.f, rtol=RTOL)
+        assert_exact(a.feasible, b.feasible)
+        assert_close(b.f, a.f, rtol=RTOL, because="objectives of the metrics, within the metrics' RTOL (qtp_cases)")
         # an unstable candidate's violation grows with its eigenvalue margin, which the batched
-        # design takes from numpy's stacked eigvals (agreeing to about 1e-11 relative)
+        # design takes from numpy's stacked eigvals, another LAPACK route than dgeev called directly
         unstable = a.reason == "unstable"
-        np.testing.assert_allclose(b.g[~unstable], a.g[~unstable], rtol=RTOL, atol=1e-12)
-        np.testing.assert_allclose(b.g[unstable], a.g[unstable], rtol=1e-9)
+        assert_close(b.g[~unstable], a.g[~unstable], rtol=RTOL, atol=1e-12,
+                     because="constraints of the metrics, within the metrics' RTOL (qtp_cases)")
+        assert_close(b.g[unstable], a.g[unstable], rtol=MARGIN_RTOL, because=MARGIN_BECAUSE)
 
 
 def test_device_errors(monkeypatch):
@@ -208,18 +223,20 @@ def test_a_candidate_gets_the_same_result_alone_and_in_any_batch(experiment, cas
     together = prob.evaluate_scenarios(X, scs)[0]
     reversed_ = prob.evaluate_scenarios(X[::-1], scs)[0]
     for name in ("reason", "metrics", "f", "g"):
-        np.testing.assert_array_equal(getattr(reversed_, name)[::-1], getattr(together, name))
+        assert_same_bits(getattr(reversed_, name)[::-1], getattr(together, name), because="shared kernel")
     for i in range(len(X)):
         alone = prob.evaluate_scenarios(X[i:i + 1], scs)[0]
         for name in ("reason", "metrics", "f", "g"):
-            np.testing.assert_array_equal(getattr(alone, name)[0], getattr(together, name)[i], err_msg=f"{name}, {i}")
+            assert_same_bits(getattr(alone, name)[0], getattr(together, name)[i], because="shared kernel",
+                             err_msg=f"{name}, {i}")
 
 
 @pytest.mark.parametrize("experiment", ["cs_folqi_qtp", "cs_iolqi_qtp"])
 def test_stacked_closed_loop_matrices_are_each_controllers_own(experiment):
     """The stability check of a batch assembles the closed-loop matrices of one size together;
-    each must be the controller's ``closed_loop_matrix`` (the same blocks and products: equal to
-    the last bit here, to 1e-15 relative wherever numpy's stacked matmul rounds differently)."""
+    each must be the controller's ``closed_loop_matrix``: the same blocks, copied, and the same
+    products ``B D`` and ``B C`` by numpy's stacked matmul instead of single ones (another BLAS
+    call, which may round otherwise: two terms per entry, a few eps of ``|B| |D|``)."""
     import heurtune
     from heurtune.objectives.qtp.batch_design import _closed_loop_matrices
 
@@ -235,9 +252,11 @@ def test_stacked_closed_loop_matrices_are_each_controllers_own(experiment):
         M = _closed_loop_matrices(loop.A, loop.B, ctrls)
         for Mi, ctrl in zip(M, ctrls):
             ref = ctrl.closed_loop_matrix(loop.A, loop.B)
-            np.testing.assert_allclose(Mi, ref, rtol=1e-15, atol=1e-15 * np.abs(ref).max())
-            np.testing.assert_array_equal(Mi[4:, 4:], ctrl.A)  # the blocks where they belong
-            np.testing.assert_array_equal(Mi[4:, :4], ctrl.B)
+            scale = np.abs(loop.A).max() + (np.abs(loop.B) @ np.abs(np.hstack([ctrl.D, ctrl.C]))).max()
+            assert_close(Mi, ref, rtol=1e-13, atol=1e-13 * scale,
+                         because="stacked and single matmul, inner dimension 2: a few eps of |A| + |B| |D, C|")
+            assert_exact(Mi[4:, 4:], ctrl.A)  # the blocks where they belong, copied
+            assert_exact(Mi[4:, :4], ctrl.B)
 
 
 @pytest.mark.parametrize("experiment, case, options", [
@@ -245,10 +264,11 @@ def test_stacked_closed_loop_matrices_are_each_controllers_own(experiment):
     ("cs_folqi_qtp", "min", {"realisation": "integer_split"}), ("cs_folqi_qtp", "nmp", {"pairing": "anti-diagonal"}),
 ])
 def test_batch_design_equals_the_one_candidate_design(experiment, case, options):
-    """Same reasons for every candidate; gains to 1e-12 relative (the stacked Riccati solution
-    is another algorithm than the ordered Schur form, measured 2e-14); unstable margins to 1e-9
-    (numpy's stacked eigvals against LAPACK dgeev called directly, measured 4e-11); the
-    discretisation bit for bit."""
+    """Same reasons for every candidate; gains to GAIN_RTOL (the stacked Riccati solution is
+    another algorithm than the ordered Schur form); unstable margins to MARGIN_RTOL (numpy's
+    stacked eigvals against LAPACK dgeev called directly); the integrators' poles, and the
+    discretisation of the same controllers, bit for bit: the same numpy element-wise operations
+    in the same order, on a stack instead of one candidate (no BLAS, no reduction)."""
     import heurtune
     from heurtune.objectives.qtp.batch_design import design_batch, discretise_many
 
@@ -268,22 +288,25 @@ def test_batch_design_equals_the_one_candidate_design(experiment, case, options)
         assert reasons[i] == reason
         if ctrl is not None:
             designed += 1
-            np.testing.assert_allclose(ctrls[i].D, ctrl.D, rtol=1e-12, atol=1e-12 * np.abs(ctrl.D).max())
-            np.testing.assert_allclose(ctrls[i].C, ctrl.C, rtol=1e-12, atol=0.0)
-            np.testing.assert_array_equal(ctrls[i].A, ctrl.A)
-            np.testing.assert_array_equal(ctrls[i].B, ctrl.B)
+            assert_close(ctrls[i].D, ctrl.D, rtol=GAIN_RTOL, atol=GAIN_RTOL * np.abs(ctrl.D).max(),
+                         because=GAIN_BECAUSE)
+            assert_close(ctrls[i].C, ctrl.C, rtol=GAIN_RTOL, because=GAIN_BECAUSE)
+            # the poles: batch_design._modal_integrators is oustaloup_zpk's formula on a stack
+            assert_same_bits(ctrls[i].A, ctrl.A, because="same code")
+            assert_exact(ctrls[i].B, ctrl.B)  # 0 and -1
             # the modal form the design hands the continuous loop: the same, where it has one
             assert (ctrls[i].modal_arrays is None) == (ctrl.modal_arrays is None)
             for got, ref in zip(ctrls[i].modal_arrays or (), ctrl.modal_arrays or ()):
-                np.testing.assert_array_equal(got, ref)
+                assert_same_bits(got, ref, because="same code")  # poles as A's, constants, indices
             for got, ref in zip(ctrls[i].modal_blocks(), ctrl.modal_blocks()):
                 assert len(got) == len(ref) and got[0] == ref[0]
-                for a, b in zip(got[1:], ref[1:]):  # arrays (C's from the gains: 1e-12), signal, pump
-                    np.testing.assert_allclose(a, b, rtol=1e-12, atol=0.0)
+                for a, b in zip(got[1:], ref[1:]):  # arrays (C's with the gains), signal, pump
+                    assert_close(a, b, rtol=GAIN_RTOL, because=GAIN_BECAUSE)
         if reason == "unstable":
-            assert margins[i] == pytest.approx(margin, rel=1e-9)
+            assert margins[i] == pytest.approx(margin, rel=MARGIN_RTOL)  # MARGIN_BECAUSE
     assert designed >= (1 if case == "nmp" else 5)
     good = [c for c in ctrls if c is not None]
     for fast, one in zip(discretise_many(good, 0.01), [c.discretise(0.01) for c in good]):
         for name in ("ad", "bd", "state_input", "Ad", "Bd", "Cc", "Dc", "state_channel", "segments"):
-            np.testing.assert_array_equal(getattr(fast, name), getattr(one, name))
+            # same bits: discretise_many is discretise's element-wise arithmetic on a stack
+            assert_same_bits(getattr(fast, name), getattr(one, name), because="same code", err_msg=name)

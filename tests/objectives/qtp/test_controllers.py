@@ -4,6 +4,7 @@ import control
 import numpy as np
 import pytest
 import scipy.linalg
+from numerics import assert_exact, assert_same_bits
 
 from heurtune.objectives.qtp.controllers import ControllerDesignError, lqr_gain
 from heurtune.objectives.qtp.model import linearise, preset
@@ -69,8 +70,8 @@ def test_iolqi_is_folqi_with_alpha_one():
     vals = {k: v for k, v in THESIS_CS_FOLQI_MIN.items() if not k.startswith("alpha")}
     io = build_controller("iolqi", vals, A, B)
     fo = build_controller("folqi", dict(vals, alpha1=1.0, alpha2=1.0), A, B)
-    for name in ("A", "B", "C", "D"):
-        np.testing.assert_array_equal(getattr(io, name), getattr(fo, name))
+    for name in ("A", "B", "C", "D"):  # both are folqi_design with alphas (1, 1)
+        assert_same_bits(getattr(io, name), getattr(fo, name), because="same code")
     assert io.n_states == 2  # two exact integrators
 
 
@@ -146,20 +147,21 @@ def test_folqi_modal_form_is_what_the_matrices_give(alphas, realisation, pairing
     expected_B = np.zeros((ctrl.n_states, 4))
     expected_C = np.zeros((2, ctrl.n_states))
     for ch, ((start, stop), poles) in enumerate(zip(ctrl.blocks, (g[1] for g in given))):
-        np.testing.assert_array_equal(np.diag(ctrl.A)[start:stop], poles)
+        assert_exact(np.diag(ctrl.A)[start:stop], poles)  # the poles, copied
         expected_B[start:stop, errors[ch]] = -1.0
         expected_C[ch, start:stop] = values[f"Ki{ch + 1}"] * fractional_integrator(
             alphas[ch], 5, (1e-3, 1e3), realisation).modal()[1]
-    np.testing.assert_array_equal(ctrl.A, np.diag(np.diag(ctrl.A)))
-    np.testing.assert_array_equal(ctrl.B, expected_B)
-    np.testing.assert_array_equal(ctrl.C, expected_C)
+    assert_exact(ctrl.A, np.diag(np.diag(ctrl.A)))
+    assert_exact(ctrl.B, expected_B)
+    # the same residues (modal() of the same integrator) times Ki: one product each, compiled or not
+    assert_same_bits(ctrl.C, expected_C, because="same code")
     for g, d in zip(given, derived):
         assert g[0] == d[0] == "modal" and g[4:] == d[4:]
-        for a, b in zip(g[1:4], d[1:4]):
-            np.testing.assert_array_equal(a, b)
+        for a, b in zip(g[1:4], d[1:4]):  # modal_blocks reads a diagonal block's arrays: copies
+            assert_exact(a, b)
     again = build_controller("folqi", values, A, B, realisation=realisation, pairing=pairing)
     for name in ("A", "B", "C", "D"):
-        np.testing.assert_array_equal(getattr(again, name), getattr(ctrl, name))
+        assert_same_bits(getattr(again, name), getattr(ctrl, name), because="same code")
     # the kernels' form built from the design's concatenated modal arrays is the one built
     # from the blocks, array for array, and writeable (as the kernels were compiled for)
     from heurtune.objectives.qtp.continuous import ContinuousController
@@ -170,7 +172,7 @@ def test_folqi_modal_form_is_what_the_matrices_give(alphas, realisation, pairing
     for field in dataclasses.fields(ContinuousController):
         a, b = getattr(fast, field.name), getattr(slow, field.name)
         assert a.dtype == b.dtype and a.flags.c_contiguous and a.flags.writeable, field.name
-        np.testing.assert_array_equal(a, b)
+        assert_exact(a, b)  # the same arrays, concatenated once or block by block
 
 
 def test_weighted_lqr_gains_are_remembered_exactly():
@@ -181,7 +183,8 @@ def test_weighted_lqr_gains_are_remembered_exactly():
     A, B, _ = linearise(preset("nmp"))
     q, r = [0.4431, 0.3027, 0.4434, 1.5722], [4.2253, 2.5994]
     K = controllers._weighted_lqr_gain(A, B, q, r)
-    np.testing.assert_array_equal(K, lqr_gain(A, B, np.diag(q), np.diag(r)))
+    # weighted_riccati_gain is riccati_gain on np.diag of the same weights
+    assert_same_bits(K, lqr_gain(A, B, np.diag(q), np.diag(r)), because="same code")
     assert controllers._weighted_lqr_gain(A, B, list(q), list(r)) is K and not K.flags.writeable
     assert controllers._weighted_lqr_gain(A, B, q[:3] + [1.5723], r) is not K
     A_bad = np.array([[1.0, 0.0], [0.0, -1.0]])

@@ -28,6 +28,7 @@ import math
 
 import numpy as np
 import pytest
+from numerics import assert_exact, assert_same_bits
 from scipy.integrate import solve_ivp
 
 from heurtune.objectives.qtp.controllers import ControllerDesignError
@@ -205,7 +206,7 @@ def test_names_and_plant_agree_with_heurtune():
     for mode, P in PLANT.items():
         q = preset(mode)
         for key in ("A", "a", "k", "gamma", "levels"):
-            assert np.allclose(getattr(q, key), P[key], rtol=0, atol=0)
+            assert_exact(getattr(q, key), P[key])  # the preset's constants, as written
         h0, u0 = equilibrium(P)
         assert np.allclose(plant_rhs(h0, u0, P), 0.0, atol=1e-12)
         loop = ClosedLoop(q, "ladr")
@@ -345,7 +346,7 @@ def test_open_loop_matches_appendix(mode, values):
                       jac=Az, **tol)
     assert sol_a.success
     du_a = np.array([ladr_output(Z, values) for Z in sol_a.y.T]).T
-    # The TD states are integrated and stay at exactly zero with x_id = 0.
+    # exact: the TD states are integrated and stay at exactly zero with x_id = 0 (products of zeros).
     assert np.all(sol_a.y[8:] == 0.0)
 
     scale = np.abs(du_a).max(axis=1, keepdims=True)
@@ -392,7 +393,7 @@ def appendix_closed_loop(P, values):
     sol = solve_ivp(rhs, (T_DIST, HORIZON), v0, method="Radau", rtol=1e-10, atol=1e-10,
                     dense_output=True)
     assert sol.success
-    assert np.all(sol.y[12:] == 0.0)  # TD states Z11..Z14 integrated, and they stay at zero
+    assert np.all(sol.y[12:] == 0.0)  # exact: TD states Z11..Z14 integrated, and they stay at zero
 
     def measured(t):
         V = sol.sol(t)
@@ -472,15 +473,17 @@ def test_r_does_not_change_the_response(mode):
     base = TABLE_4_7[mode]
     other = dict(base, r1=0.0, r2=10.0, r3=3.3, r4=7.0)
     c0, c1 = loop.controller(base), loop.controller(other)
+    # same bits: the same design and loop on the same numbers, r read by none of them
     for key in ("A", "B", "C", "D"):
-        np.testing.assert_array_equal(getattr(c0, key), getattr(c1, key))
+        assert_same_bits(getattr(c0, key), getattr(c1, key), because="same code")
     sc = Scenario(horizon=100.0, dt=0.01)
     s0, s1 = loop.run(c0, sc), loop.run(c1, sc)
-    np.testing.assert_array_equal(s0.y, s1.y)
-    np.testing.assert_array_equal(s0.u, s1.u)
+    assert_same_bits(s0.y, s1.y, because="same code")
+    assert_same_bits(s0.u, s1.u, because="same code")
     # ... and in the appendix equations: with x_id = 0 the TD never moves, so r is inert.
     Z = np.random.default_rng(3).normal(size=N_Z)
     Z[8:] = 0.0
     x = np.array([0.3, -0.2, 0.1, 0.4])
-    np.testing.assert_array_equal(ladr_rhs(Z, x, base), ladr_rhs(Z, x, other))
-    np.testing.assert_array_equal(ladr_output(Z, base), ladr_output(Z, other))
+    # same bits: r multiplies exact zeros only
+    assert_same_bits(ladr_rhs(Z, x, base), ladr_rhs(Z, x, other), because="same code")
+    assert_same_bits(ladr_output(Z, base), ladr_output(Z, other), because="same code")

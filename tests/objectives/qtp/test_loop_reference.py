@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 import reference_qtp as ref
+from numerics import assert_same_bits
 
 from heurtune.objectives.qtp.controllers import LinearController
 from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
@@ -81,7 +82,7 @@ def test_noise_is_seeded_and_enters_the_measurement():
     a = jitted("min", "folqi", gains, Scenario(dt=0.01, noise_sd=0.05, noise_seed=7))
     b = jitted("min", "folqi", gains, Scenario(dt=0.01, noise_sd=0.05, noise_seed=7))
     c = jitted("min", "folqi", gains, Scenario(dt=0.01, noise_sd=0.05, noise_seed=8))
-    np.testing.assert_array_equal(a.y, b.y)
+    assert_same_bits(a.y, b.y, because="same seed")
     assert np.max(np.abs(a.y - c.y)) > 0.01
     assert abs(np.std(a.y[:100, 0] - 16.47) - 0.05) < 0.02  # before the loop reacts much
 

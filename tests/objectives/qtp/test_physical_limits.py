@@ -5,6 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 import reference_qtp as ref
+from numerics import assert_exact, assert_same_bits
 from scipy.integrate import solve_ivp
 
 import heurtune
@@ -38,7 +39,7 @@ def test_presets_carry_limits(name, height):
     assert p.has_limits
     assert p.height == (height,) * 4 and p.u_range == (0.0, 10.0)
     h, u = p.physical_limits()
-    np.testing.assert_array_equal(h, [height] * 4)
+    assert_exact(h, [height] * 4)
     assert u == (0.0, 10.0)
     # uncertainty keeps the limits; the kernels' plant vector is unchanged
     assert p.scaled(1.3).height == p.height and p.scaled(0.7).u_range == p.u_range
@@ -138,17 +139,17 @@ def test_loop_metrics_range_on_synthetic_trajectories(n):
     h = 10.0 + rng.normal(0, 8, (n + 1, 4))
     out = np.empty(_kernels.N_METRICS)
     _kernels.loop_metrics(y, u, np.array([15.0, 15.0]), np.array([3.0, 3.0]), 0.01, n // 2, 3.0, out, h)
-    assert out[IDX].tolist() == [h.min(), h.max(), u.min(), u.max()]
+    assert out[IDX].tolist() == [h.min(), h.max(), u.min(), u.max()]  # exact: minima and maxima pick samples
     # without levels: NaN for the level range, the rest unchanged
     bare = np.empty(_kernels.N_METRICS)
     _kernels.loop_metrics(y, u, np.array([15.0, 15.0]), np.array([3.0, 3.0]), 0.01, n // 2, 3.0, bare)
     assert np.isnan(bare[IDX[:2]]).all()
-    np.testing.assert_array_equal(bare[:18], out[:18])
-    np.testing.assert_array_equal(bare[IDX[2:]], out[IDX[2:]])
+    assert_same_bits(bare[:18], out[:18], because="same code")  # the same kernel, the levels' range aside
+    assert_same_bits(bare[IDX[2:]], out[IDX[2:]], because="same code")
     empty = np.empty(_kernels.N_METRICS)
     _kernels.loop_metrics(y, u, np.array([15.0, 15.0]), np.array([3.0, 3.0]), 0.01, n // 2, 3.0, empty,
                           np.empty((0, 4)))
-    np.testing.assert_array_equal(empty, bare)
+    assert_same_bits(empty, bare, because="same code")
     with pytest.raises(ValueError, match="h must have shape"):
         _kernels.loop_metrics(y, u, np.array([15.0, 15.0]), np.array([3.0, 3.0]), 0.01, 0, 3.0, out, h[:, :2])
 
@@ -232,12 +233,12 @@ def test_saturation_and_overflow_match_an_independent_model():
     sim = ClosedLoop(plant, "iolqi").run(ctrl, sc, record_levels=True)
     assert not sim.diverged
     h_ref, u_ref = reference_limited(P, K, H, U, sc.n_steps, sc.dt, sc.disturbance_index, d)
-    # the limits are active: both pump limits, two rims and an empty tank
+    # the limits are active: both pump limits, two rims and an empty tank (exact: clamped to the limits)
     assert (u_ref[:, 0] == 10.0).any() and (u_ref[:, 1] == 0.0).sum() > 100
     assert (h_ref[:, 0] == 18.0).sum() > 100 and (h_ref[:, 3] == 9.0).sum() > 100
     assert (h_ref[:, 2] == 0.0).sum() > 100
     # the kernel keeps every level and voltage in range, and its range metrics show the limits
-    assert sim.metrics[IDX].tolist() == [0.0, 18.0, 0.0, 10.0]
+    assert sim.metrics[IDX].tolist() == [0.0, 18.0, 0.0, 10.0]  # exact: clamped to the limits
     assert (sim.h >= 0.0).all() and (sim.h <= np.array(H)).all()
     # Away from the instants where a level reaches a limit, RK4 on the projected slopes is as
     # accurate as ever (~1e-6 cm here at dt = 0.05 s). Over the step in which a level reaches a
@@ -269,12 +270,12 @@ def test_unlimited_run_leaves_the_range_that_a_physical_run_keeps():
     held = loop.run(ctrl, Scenario(dt=0.01, limits="physical"), record_levels=True)
     m = dict(zip(METRIC_NAMES, held.metrics))
     assert not held.diverged
-    assert m["umin"] == 0.0 and m["umax"] <= 10.0
+    assert m["umin"] == 0.0 and m["umax"] <= 10.0  # exact: clamped to the limit
     assert m["hmin"] >= 0.0 and m["hmax"] <= 50.0
-    assert held.u.min() == 0.0 and held.h.min() >= 0.0 and held.h.max() <= 50.0
+    assert held.u.min() == 0.0 and held.h.min() >= 0.0 and held.h.max() <= 50.0  # exact: clamped
     assert physical_range_flags(m, plant) == []
     # the default stays the thesis' model: same numbers as an explicit limits = "none"
-    np.testing.assert_array_equal(free.metrics, loop.run(ctrl, Scenario(dt=0.01, limits="none")).metrics)
+    assert_same_bits(free.metrics, loop.run(ctrl, Scenario(dt=0.01, limits="none")).metrics, because="same code")
 
 
 def test_physical_range_flags():

@@ -65,7 +65,7 @@ def test_pid_transfer_function_is_kp_ki_kd_with_a_filtered_derivative():
             K = c.C @ np.linalg.solve(s * np.eye(c.A.shape[0]) - c.A, c.B) + c.D
             # du = K w with w = -e: the element from the error is -K
             assert -K[pump, err] == pytest.approx(kp + ki / s + kd * s / (1 + s / 7.0), rel=1e-12)
-            assert K[pump, 1 - err] == 0.0
+            assert K[pump, 1 - err] == 0.0  # exact: a structural zero (zero columns of B and D)
 
 
 def test_inverse_dc_decoupler_makes_the_dc_gain_diagonal_in_the_pairing():

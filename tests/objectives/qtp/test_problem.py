@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from numerics import assert_exact, assert_same_bits
 
 import heurtune
 from heurtune.core.problem import FAILED_OBJECTIVE, FAILED_VIOLATION
@@ -21,8 +22,8 @@ def vector(problem, values):
 
 def test_problem_shape(problem):
     assert problem.names == ("Q11", "Q22", "Q33", "Q44", "R11", "R22", "Ki1", "Ki2", "alpha1", "alpha2")
-    np.testing.assert_array_equal(problem.lower, [0.01] * 4 + [0.1] * 2 + [0.1] * 2 + [0.1] * 2)
-    np.testing.assert_array_equal(problem.upper, [2.5] * 4 + [5.0] * 2 + [10.0] * 2 + [2.0] * 2)
+    assert_exact(problem.lower, [0.01] * 4 + [0.1] * 2 + [0.1] * 2 + [0.1] * 2)  # the bounds' literals
+    assert_exact(problem.upper, [2.5] * 4 + [5.0] * 2 + [10.0] * 2 + [2.0] * 2)
     assert problem.constraint_names == ("Mp1", "Mp2", "ts1", "ts2", "ess1", "ess2")
     assert set(problem.scenarios) == {"nominal", "-30%", "+30%"}
 
@@ -53,10 +54,10 @@ def test_batch_evaluation_is_deterministic_and_row_independent(problem):
     X = problem.lower + rng.random((6, problem.dim)) * (problem.upper - problem.lower)
     a = problem.evaluate(X)
     b = problem.evaluate(X[::-1])
-    np.testing.assert_array_equal(a.f, b.f[::-1])
-    np.testing.assert_array_equal(a.g, b.g[::-1])
+    assert_same_bits(a.f, b.f[::-1], because="shared kernel")
+    assert_same_bits(a.g, b.g[::-1], because="shared kernel")
     single = problem.evaluate(X[2])
-    assert single.f[0] == a.f[2]
+    assert_same_bits(single.f[0], a.f[2], because="shared kernel")
 
 
 @pytest.mark.parametrize("change, reason", [
@@ -68,7 +69,7 @@ def test_batch_evaluation_is_deterministic_and_row_independent(problem):
 def test_failed_candidates_are_flagged_not_raised(problem, change, reason):
     ev = problem.evaluate(vector(problem, dict(THESIS_MIN, **change)))
     assert ev.reason[0] == reason
-    assert ev.f[0] == FAILED_OBJECTIVE and np.isfinite(ev.f[0])
+    assert ev.f[0] == FAILED_OBJECTIVE and np.isfinite(ev.f[0])  # exact: the constant, stored
     assert np.all(ev.g[0] > 0) and np.all(np.isfinite(ev.g[0]))
     assert not ev.feasible[0]
 
@@ -77,7 +78,7 @@ def test_diverging_simulation_is_flagged(problem, monkeypatch):
     """Even if the linear check passed, a run that blows up is a flagged failure."""
     monkeypatch.setattr(problem.loop, "stability_margin", lambda ctrl: -1.0)
     ev = problem.evaluate(vector(problem, dict(THESIS_MIN, alpha1=2.0, alpha2=2.0, Ki1=10.0, Ki2=10.0)))
-    assert ev.reason[0] == "diverged" and ev.f[0] == FAILED_OBJECTIVE
+    assert ev.reason[0] == "diverged" and ev.f[0] == FAILED_OBJECTIVE  # exact: the constant
 
 
 def test_simulate_returns_trajectories(problem):
@@ -96,7 +97,7 @@ def test_evaluate_rejects_wrong_shapes(problem):
 
 def test_values_parse_and_bounds(problem):
     x = problem.parse(",".join(f"{k}={v}" for k, v in THESIS_MIN.items()))
-    np.testing.assert_array_equal(x, vector(problem, THESIS_MIN))
+    assert_exact(x, vector(problem, THESIS_MIN))  # the literals, printed and parsed back
     with pytest.raises(heurtune.ConfigError, match="outside its bounds"):
         problem.parse(",".join(f"{k}={v}" for k, v in dict(THESIS_MIN, Ki1=11).items()))
     with pytest.raises(heurtune.ConfigError, match="unknown variable 'Q55'"):
@@ -159,5 +160,5 @@ def test_bookkeeping_of_simulated_candidates_equals_the_general_path(problem, ob
             for field in ("f", "g", "feasible", "metrics", "reason"):
                 got, ref = getattr(a, field), getattr(b, field)
                 assert got.dtype == ref.dtype and got.shape == ref.shape
-                np.testing.assert_array_equal(got, ref)
+                assert_same_bits(got, ref, because="same code", err_msg=field)  # the same numbers, other masks
             assert a.F is b.F is None and a.objective_names == b.objective_names == ()

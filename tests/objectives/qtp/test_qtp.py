@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 import pytest
+from numerics import assert_exact
 
 from heurtune.core.errors import ConfigError
 from heurtune.objectives.qtp import kernels as _kernels
@@ -67,7 +68,7 @@ def test_linearisation_matches_finite_differences(name):
     # Central differences: truncation O(eps^2) ~ 1e-10, round-off ~ 1e-16 / eps ~ 1e-11.
     np.testing.assert_allclose(A, A_fd, atol=1e-8)
     np.testing.assert_allclose(B, B_fd, atol=1e-8)
-    np.testing.assert_array_equal(C, [[1, 0, 0, 0], [0, 1, 0, 0]])
+    assert_exact(C, [[1, 0, 0, 0], [0, 1, 0, 0]])
 
 
 @pytest.mark.parametrize("name", list(PRESETS))

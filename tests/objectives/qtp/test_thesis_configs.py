@@ -54,6 +54,7 @@ def test_chapter_4_plan_tunes_lqi_cases_and_evaluates_the_printed_ladr():
     prob = exp.problem("min-ladr")
     x = prob.baseline("table_4_7")
     assert x[prob.names.index("beta11")] == TABLE_4_7_MIN_BETA11
+    # exact: the config's literals, parsed
     assert exp.scenarios["+5%"].uncertainty == 1.05 and prob.constraints == {"Mp": 15.0, "ts": 70.0, "ess": 3.0}
 
 

@@ -5,6 +5,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from numerics import assert_exact, assert_same_bits
 
 import heurtune
 from heurtune.core.errors import ConfigError
@@ -57,7 +58,7 @@ def _old_arrays(sim: TITOSimulator, controllers):
 
 
 # --------------------------------------------------------------------------------------------
-# Without input noise: bit for bit what it was
+# Without input noise: bit for bit what it was (the same kernel on the same inputs)
 # --------------------------------------------------------------------------------------------
 
 
@@ -73,12 +74,13 @@ def test_without_input_noise_the_simulation_is_bit_for_bit_the_old_one(extra):
     old = _old_arrays(TITOSimulator(p, dec, sc), ctrl)
     assert status == "ok"
     for new, ref in zip((y, ym, u, v), old):
-        assert new.tobytes() == ref.tobytes()  # bit for bit, signed zeros included
+        # the same compiled kernel on the same inputs (d_in is left as it was without input noise)
+        assert_same_bits(new, ref, because="same code", signed_zeros=True)
     assert not np.any(sim.input_noise) and sim.input_noise.shape == (sc.n_steps + 1, 2)
     # the DataFrame of simulate_tito too, against the scenario without the keys at all
     a = simulate_tito(p, ctrl, dec, sc)
     b = simulate_tito(p, ctrl, dec, TITOScenario(**base))
-    assert a.to_numpy().tobytes() == b.to_numpy().tobytes()
+    assert_same_bits(a.to_numpy(), b.to_numpy(), because="same code", signed_zeros=True)
     assert sc.identity() == TITOScenario(**base).identity()
     assert tuple(sc.identity()) == OLD_FIELDS
 
@@ -90,18 +92,19 @@ def test_adding_input_noise_keeps_the_measurement_noise_draws():
     derived = TITOSimulator(p, dec, TITOScenario(**kw, input_noise_power=1e-3))
     own = TITOSimulator(p, dec, TITOScenario(**kw, input_noise_power=1e-3, input_noise_seed=11))
     for sim in (derived, own):
-        assert sim.noise.tobytes() == plain.noise.tobytes()
-    # the derived stream is documented: SeedSequence(noise_seed, spawn_key=(1,))
+        assert_same_bits(sim.noise, plain.noise, because="same seed", signed_zeros=True)
+    # the derived stream is documented: SeedSequence(noise_seed, spawn_key=(1,)); the draws are
+    # the same generator on the same seed, scaled by the same correctly rounded sqrt and product
     n1 = plain.t.size
     rng = np.random.default_rng(np.random.SeedSequence(11, spawn_key=(1,)))
-    np.testing.assert_array_equal(derived.input_noise, rng.standard_normal((n1, 2)) * np.sqrt(1e-3 / 0.1))
+    assert_same_bits(derived.input_noise, rng.standard_normal((n1, 2)) * np.sqrt(1e-3 / 0.1), because="same seed")
     # an explicit seed is default_rng(seed); equal to noise_seed it repeats the measurement draws
     draws = np.random.default_rng(11).standard_normal((n1, 2))
-    np.testing.assert_array_equal(own.input_noise, draws * np.sqrt(1e-3 / 0.1))
-    np.testing.assert_array_equal(plain.noise, draws * np.sqrt(1e-4 / 0.1))
+    assert_same_bits(own.input_noise, draws * np.sqrt(1e-3 / 0.1), because="same seed")
+    assert_same_bits(plain.noise, draws * np.sqrt(1e-4 / 0.1), because="same seed")
     assert abs(np.corrcoef(derived.input_noise[:, 0], plain.noise[:, 0])[0, 1]) < 0.1
     # input noise enters where d_in does
-    np.testing.assert_array_equal(derived.d_in, plain.d_in + derived.input_noise)
+    assert_same_bits(derived.d_in, plain.d_in + derived.input_noise, because="same code")  # one addition
     assert not np.array_equal(derived.run(ctrl)["y1"], plain.run(ctrl)["y1"])
 
 
@@ -147,7 +150,7 @@ def test_no_delay_loop_with_input_noise_matches_a_hand_written_recursion():
     # measured: 1.5e-15
     np.testing.assert_allclose(df[["y1", "y2"]].to_numpy(), y, rtol=0, atol=1e-10)
     np.testing.assert_allclose(df[["u1", "u2"]].to_numpy(), u, rtol=0, atol=1e-10)
-    np.testing.assert_array_equal(sim.input_noise, n_in)
+    assert_same_bits(sim.input_noise, n_in, because="same seed")  # the documented draws, scaled alike
 
 
 def test_coupled_loop_with_delays_and_input_noise_matches_python_control():
@@ -228,7 +231,7 @@ def test_input_noise_variance_is_power_over_dt_and_its_power_is_dt_free():
             y = df[f"y{i}"].to_numpy()[int(10 * T / dt):]
             # exact discrete value K^2 (P/dt) (1 - a) / (1 + a) is within 0.1 % of K^2 P / (2 T)
             assert np.var(y) == pytest.approx(K * K * P[i - 1] / (2 * T), rel=0.08), (dt, i)
-        np.testing.assert_array_equal(df["ym1"], df["y1"])  # no measurement noise asked for
+        assert_exact(df["ym1"].to_numpy(), df["y1"].to_numpy())  # no measurement noise: y plus zeros
 
 
 # --------------------------------------------------------------------------------------------

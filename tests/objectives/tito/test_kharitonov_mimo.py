@@ -10,6 +10,7 @@ import math
 import control
 import numpy as np
 import pytest
+from numerics import assert_exact
 from scipy.optimize import linear_sum_assignment
 
 from heurtune.core.errors import ConfigError
@@ -99,13 +100,12 @@ def test_hand_box_kharitonov_hurwitz():
     expected = ([2, 12, 24, 22, 5], [2, 10, 20, 24, 7], [2, 10, 24, 24, 5], [2, 12, 20, 22, 7])
     dets = ([12, 244, 4648, 23240], [10, 152, 2948, 20636], [10, 192, 4108, 20540], [12, 196, 3304, 23128])
     for k in range(4):
-        np.testing.assert_array_equal(res.polynomials[k], expected[k])
+        assert_exact(res.polynomials[k], expected[k])  # the bounds' coefficients, picked
         np.testing.assert_allclose(res.determinants[k], dets[k], rtol=1e-12)
         np.testing.assert_allclose(np.diag(res.reduced_matrices[k]), np.array(dets[k]) / np.r_[1, dets[k][:-1]],
                                    rtol=1e-12)
     # Hurwitz matrix of K1 by hand: rows a1 a3 0 0 / a0 a2 a4 0 / 0 a1 a3 0 / 0 a0 a2 a4
-    np.testing.assert_array_equal(res.hurwitz_matrices[0],
-                                  [[12, 22, 0, 0], [2, 24, 5, 0], [0, 12, 22, 0], [0, 2, 24, 5]])
+    assert_exact(res.hurwitz_matrices[0], [[12, 22, 0, 0], [2, 24, 5, 0], [0, 12, 22, 0], [0, 2, 24, 5]])  # placed
     assert res.hurwitz == (True, True, True, True)
     assert res.robustly_stable and res.failing == () and res.nominal_hurwitz
     assert res.summary().startswith("Kharitonov, degree 4: robustly stable")
@@ -118,7 +118,7 @@ def test_box_containing_an_unstable_polynomial_fails_and_names_it():
     #   D = 4, 96 - 52 = 44, 26*44 - 16*5 = 1064, 5320; K4 = 2 s^4 + 12 s^3 + 12 s^2 + 22 s + 7:
     #   D = 12, 144 - 44 = 100, 22*100 - 144*7 = 1192, 8344.
     res = kh.kharitonov_hurwitz([2, 4, 12, 22, 5], [2, 12, 24, 26, 7])
-    np.testing.assert_array_equal(res.polynomials[1], [2, 4, 12, 26, 7])
+    assert_exact(res.polynomials[1], [2, 4, 12, 26, 7])  # picked from the bounds
     np.testing.assert_allclose(res.determinants[1], [4, -4, -216, -1512], rtol=1e-12)
     np.testing.assert_allclose(res.determinants[2], [4, 44, 1064, 5320], rtol=1e-12)
     np.testing.assert_allclose(res.determinants[3], [12, 100, 1192, 8344], rtol=1e-12)

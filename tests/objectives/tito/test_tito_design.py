@@ -11,6 +11,7 @@ import warnings
 import control
 import numpy as np
 import pytest
+from numerics import assert_exact
 from scipy.optimize import brentq, minimize_scalar
 
 from heurtune.core.errors import ConfigError
@@ -259,13 +260,13 @@ def test_siso_nyquist_matches_pade_closed_loop_poles(name, loop):
     w = _grid(z, 16 * abs(base.Kc))
     m = td.loop_metrics_batch(z(w), w, ks[:, None] * base.freqresp(w)[None, :])
     pade = np.array([_rhp_count(L_ss, k) for k in ks])
-    np.testing.assert_array_equal(m.stable, pade == 0)
+    assert_exact(m.stable, pade == 0)  # verdicts
     # Where the grid resolves the loop, the winding number is the number of unstable poles.
-    np.testing.assert_array_equal(m.n_rhp[m.resolved], pade[m.resolved])
+    assert_exact(m.n_rhp[m.resolved], pade[m.resolved])
     assert m.stable[-3] and not m.stable[-2] and not m.stable[-1]  # flips within 1 % of k*; wrong sign
     # The Pade boundary is where the exact loop's gain margin says it is (bisection rtol 1e-4).
     assert m.gain_margin[2] == pytest.approx(k_star, rel=3e-4)
-    np.testing.assert_array_equal(td.nyquist_stable(z(w), ks[:, None] * base.freqresp(w)[None, :], w), m.stable)
+    assert_exact(td.nyquist_stable(z(w), ks[:, None] * base.freqresp(w)[None, :], w), m.stable)
 
 
 def test_siso_nyquist_pid_and_proportional_only_match_pade():
@@ -280,13 +281,13 @@ def test_siso_nyquist_pid_and_proportional_only_match_pade():
     w = _grid(dec.z11, 10 * abs(pid.Kc) * ks.max())
     gains = np.array(pid.parallel())[None, :] * ks[:, None]
     m = td.loop_metrics_batch(dec.z11(w), w, td.pid_freqresp(*gains.T, 10.0, w), Ki=gains[:, 1])
-    np.testing.assert_array_equal(m.stable, [_rhp_count(L_ss, k) == 0 for k in ks])
+    assert_exact(m.stable, [_rhp_count(L_ss, k) == 0 for k in ks])  # verdicts
     # No integrator (Ki = 0): 1 + Kp P(0) < 0 gives a real unstable pole, large Kp an oscillatory one.
     K0 = dec.z11(np.array([0.0]))[0].real
     kps = np.array([-2.0 / K0, -0.5 / K0, 1.0 / K0, 10.0 / K0, 40.0 / K0])
     w = _grid(dec.z11, kps.max())
     stable = td.nyquist_stable(dec.z11(w), kps[:, None] * np.ones(w.size), w, Ki=np.zeros(kps.size))
-    np.testing.assert_array_equal(stable, [_rhp_count(P_ss, kp) == 0 for kp in kps])
+    assert_exact(stable, [_rhp_count(P_ss, kp) == 0 for kp in kps])
     assert list(stable[:3]) == [False, True, True]
 
 
@@ -360,7 +361,7 @@ def test_bandwidth_design_eval_objective_and_feasibility():
         _, g, _ = td.bandwidth_design_eval(f.freqresp(w), w, X, "pi", 10.0, Am_min, phim_min, Mt_max)
         m = td.loop_metrics_batch(f.freqresp(w), w, td.pid_freqresp(X[:, 0], X[:, 1], 0.0, 10.0, w))
         spec_ok = (m.gain_margin >= Am_min) & (m.phase_margin_deg >= phim_min) & (m.Mt <= Mt_max)
-        np.testing.assert_array_equal((g <= 0).all(axis=1), spec_ok)
+        assert_exact((g <= 0).all(axis=1), spec_ok)  # verdicts
         for j in np.nonzero(spec_ok)[0]:  # and the exact (brentq) margins agree that they are feasible
             ref = exact_margins(f.freqresp, PIController(X[j, 0], X[j, 0] / X[j, 1]).freqresp)
             assert ref.gain_margin >= Am_min - 1e-4 and ref.phase_margin_deg >= phim_min - 1e-3
@@ -429,4 +430,4 @@ def test_batch_metrics_treat_each_row_on_its_own():
             if a.dtype.kind == "f":
                 np.testing.assert_allclose(a, b, rtol=1e-12, atol=0.0, err_msg=field.name)
             else:
-                np.testing.assert_array_equal(a, b, err_msg=field.name)
+                assert_exact(a, b, err_msg=field.name)  # verdicts and counts

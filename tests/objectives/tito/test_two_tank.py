@@ -9,6 +9,7 @@ import math
 
 import numpy as np
 import pytest
+from numerics import assert_exact, assert_same_bits
 from scipy.integrate import solve_ivp
 
 from heurtune.core.errors import ConfigError
@@ -96,7 +97,7 @@ def test_linearisation_matches_central_differences(p):
     # central differences: truncation O(eps^2 f''') ~ 1e-11 relative here, round-off ~1e-11 / eps
     np.testing.assert_allclose(A, Afd, rtol=1e-6, atol=1e-6 * np.max(np.abs(A)))
     np.testing.assert_allclose(B, Bfd, rtol=1e-9, atol=0)
-    np.testing.assert_array_equal(C, np.eye(2))
+    assert_exact(C, np.eye(2))  # literals
     assert np.all(np.linalg.eigvalsh(A) < 0)
 
 
@@ -110,7 +111,7 @@ def test_linear_tito_plant_is_the_state_space_model(p):
     np.testing.assert_allclose(G.freqresp(w), ref, rtol=1e-10, atol=0)
     for e in (G.g11, G.g12, G.g21, G.g22):
         assert len(e.lags) == 2 and all(t > 0 for t in e.lags)
-    assert G.g12.L == p.sensor_delays[0] + p.pump_delays[1]
+    assert G.g12.L == p.sensor_delays[0] + p.pump_delays[1]  # same bits: same code (the one addition)
 
 
 def test_default_calibration_reproduces_identified_dc_gains():
@@ -118,7 +119,9 @@ def test_default_calibration_reproduces_identified_dc_gains():
     G = linear_tito_plant(DEFAULT)
     # rounding the defaults to 5 significant digits costs < 1e-5 relative
     np.testing.assert_allclose(G.dc_gain(), ident.dc_gain(), rtol=1e-5)
-    assert G.g11.K == G.g21.K  # a2 = 0: pump 1 raises both levels alike, as identified
+    # a2 = 0: pump 1 raises both levels alike, as identified (same bits: same code; the two gains
+    # are one expression on operands that a2 = 0 leaves equal)
+    assert G.g11.K == G.g21.K
     t_slow = np.mean([e.lags[0] for e in (ident.g11, ident.g12, ident.g21, ident.g22)])
     assert G.g11.lags[0] == pytest.approx(t_slow, rel=1e-5)  # 608.21 s
     assert G.g11.lags[1] == pytest.approx(30.61, abs=0.01)  # the fast mode, absent from eq. 28
@@ -185,7 +188,7 @@ def test_small_signal_agrees_with_simulate_tito_quadratically():
         nl = simulate_two_tank(DEFAULT, ctrl, dec, sc)
         lin = simulate_tito(G, ctrl, dec, sc)
         assert nl.attrs["status"] == lin.attrs["status"] == "ok"
-        np.testing.assert_array_equal(nl[["t", "r1", "r2"]], lin[["t", "r1", "r2"]])
+        assert_same_bits(nl[["t", "r1", "r2"]].to_numpy(), lin[["t", "r1", "r2"]].to_numpy(), because="same code")
         assert np.max(np.abs(lin[["y1", "y2"]].to_numpy())) > a  # the responses are of size a (u: 14 a)
         err_y.append(np.max(np.abs(nl[["y1", "y2"]].to_numpy() - lin[["y1", "y2"]].to_numpy())))
         err_u.append(np.max(np.abs(nl[["u1", "u2", "v1", "v2"]].to_numpy() - lin[["u1", "u2", "v1", "v2"]].to_numpy())))
