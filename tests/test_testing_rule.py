@@ -53,7 +53,8 @@ def test_the_checker_finds_a_bare_equality(tmp_path):
     bad.write_text("import numpy as np\nnp.testing.assert_array_equal([1.0], [1.0])\n"
                    "assert not np.array_equal([1.0], [2.0])\nimport pandas as pd\n"
                    "pd.testing.assert_frame_equal(a, b, check_exact=True)\n"
-                   "np.testing.assert_allclose(a, b, rtol=0, atol=0)\nnp.testing.assert_allclose(a, b, rtol=0, atol=1)\n")
+                   "np.testing.assert_allclose(a, b, rtol=0, atol=0)\n"
+                   "np.testing.assert_allclose(a, b, rtol=0, atol=1)\n")
     found = _violations(bad, root=tmp_path)
     assert [f.split(": ")[1] for f in found] == ["assert_array_equal", "assert_frame_equal", "check_exact=True",
                                                    "assert_allclose with no tolerance"]
