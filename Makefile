@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: setup run test lint bench clean
+.PHONY: setup run test portability lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -12,7 +12,12 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
+# numba's cache filled once with the shipped experiments' kernels (seconds when it is full), so
+# that runs, tests and worker processes load them instead of each compiling its own.
+PRECOMPILE := $(BIN)/python -m heurtune.precompile --quiet
+
 setup: $(STAMP)
+	$(PRECOMPILE)
 
 # Main job: the thesis' CS/FOLQI experiment on the QTP (8 seeded runs per case), results and
 # figures in results/cs_folqi_qtp/; re-running resumes.
@@ -24,7 +29,17 @@ run: $(STAMP)
 # file's module-level caches and compiled kernels in one process). TEST_WORKERS=0 runs in-process.
 TEST_WORKERS ?= 2
 test: $(STAMP)
+	$(PRECOMPILE)
 	$(BIN)/pytest -n $(TEST_WORKERS) --dist loadfile
+
+# The numerical tests with numba's generic x86-64 target (no AVX, no FMA) and a cache of their
+# own, in a fresh process: a test that holds only on this CPU's instruction set fails here
+# (docs/testing.md). The first call compiles every kernel into .numba-generic/.
+PORTABLE_CACHE ?= $(CURDIR)/.numba-generic
+portability: $(STAMP)
+	NUMBA_CPU_NAME=generic NUMBA_CACHE_DIR=$(PORTABLE_CACHE) $(BIN)/python -m heurtune.precompile --quiet
+	NUMBA_CPU_NAME=generic NUMBA_CACHE_DIR=$(PORTABLE_CACHE) $(BIN)/pytest -n $(TEST_WORKERS) --dist loadfile \
+		-p no:cacheprovider tests/objectives tests/core tests/algorithms tests/plugins tests/runner/test_sampled_release.py
 
 # ruff with the rule set of pyproject.toml ([tool.ruff]); .ci/run lints before it tests.
 lint: $(STAMP)
@@ -43,4 +58,4 @@ bench: $(STAMP)
 	else echo "bench_sms_emoa: skipped (pymoo not installed: pip install 'heurtune[pymoo]')"; fi
 
 clean:
-	rm -rf $(VENV) results build *.egg-info
+	rm -rf $(VENV) results build *.egg-info .numba-generic

@@ -352,6 +352,10 @@ class ExperimentBase:
     hooks the runner calls have defaults here.
     """
 
+    # Set by the runner for a --smoke run, so that work a family adds to its outputs (a design
+    # sweep, say) keeps to smoke budgets as the runs do.
+    smoke = False
+
     def problem(self, case: str) -> TuningProblem:
         """The tuning problem of one case."""
         raise NotImplementedError

@@ -704,6 +704,7 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
         config["plugins"] = list(config.get("plugins", [])) + [str(Path(p).resolve()) if p.endswith(".py") else p
                                                               for p in plugins]
     exp = make_experiment(config)
+    exp.smoke = bool(smoke)
     if device != "cpu":  # an unknown device, or a GPU this machine lacks, fails here
         for case in exp.cases:
             _problem(config, case)

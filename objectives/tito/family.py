@@ -158,6 +158,7 @@ class TITOExperiment(ExperimentBase):
         if not self.optimisers and not self.baselines:
             raise ConfigError(f"{self.name}: give [[optimisers]] or controller.baselines (e.g. [\"gpm\"])")
         self._chains = {}
+        self._grid_cache = {}  # the problems' frequency grids (TITOProblem._shared_design_grid)
         for case in cases:
             self._chain(case)  # validate plants and decouplers early
 
@@ -269,7 +270,7 @@ class TITOExperiment(ExperimentBase):
         prob = TITOProblem(case, kind, chain, bounds, objective=self.objective, constraints=self.constraints,
                            scenarios=self.scenarios, tuning_scenario=self.tuning_scenario, N=self.N,
                            windows=self.windows, settling_band=self.settling_band, nonlinear=params,
-                           robustness=self.robustness, gpm_spec=self.gpm)
+                           robustness=self.robustness, gpm_spec=self.gpm, grid_cache=self._grid_cache)
         prob.robust = self.robust
         if self.objective_names is not None:
             prob.set_objectives(self.objective_names, self.reference_point, self.decision_weights)
@@ -283,12 +284,14 @@ class TITOExperiment(ExperimentBase):
         report.write_outputs(self, runs, best, out_dir, figures=figures)
         rep = self.config.get("report", {})
         if "sweep" in rep:  # the response family of a design parameter
-            from heurtune.objectives.tito.sweep import DEFAULT_MAX_EVALS, run_sweep
+            from heurtune.objectives.tito.sweep import DEFAULT_MAX_EVALS, SMOKE_BUDGET, run_sweep
 
             sw = rep["sweep"]
+            budget = dict(max_evals=sw.get("max_evals", DEFAULT_MAX_EVALS))
+            if self.smoke:  # a --smoke run's sweep is a check of the code, as its runs are
+                budget = dict(SMOKE_BUDGET, max_evals=min(budget["max_evals"], SMOKE_BUDGET["max_evals"]))
             run_sweep(self, sw.get("param", ""), sw.get("values", ()), out_dir, figures=figures,
-                      max_evals=sw.get("max_evals", DEFAULT_MAX_EVALS),
-                      implied_margins=sw.get("implied_margins", False))
+                      implied_margins=sw.get("implied_margins", False), **budget)
         if rep.get("paper") is not None:  # the paper's tables next to the printed values
             from heurtune.objectives.tito.papers.tables import write_paper
 

@@ -228,7 +228,7 @@ class TITOProblem(TuningProblem):
     def __init__(self, case: str, kind: str, chain: DesignChain, bounds: dict, *, objective: str,
                  constraints: dict, scenarios: dict, tuning_scenario: str, N: float, windows: dict,
                  settling_band: float, nonlinear: two_tank.TwoTankParams | None, robustness: dict,
-                 gpm_spec: dict | None = None):
+                 gpm_spec: dict | None = None, grid_cache: dict | None = None):
         self.case = case
         self.kind = kind
         self.controller = kind
@@ -250,8 +250,25 @@ class TITOProblem(TuningProblem):
         self.metric_names = tuple(f"{m}{i}" for m in LOOP_METRICS for i in (1, 2)) + tuple(
             f"{m}_{w}{i}" for w in self.windows for m in ("IAE", "ISE", "ITAE", "ts") for i in (1, 2))
         self._midx = {n: k for k, n in enumerate(self.metric_names)}
-        self._grids = [self._design_grid(i) for i in (1, 2)]  # (w, q(jw), bound of |q| beyond w)
+        # (w, q(jw), bound of |q| beyond w) of each loop
+        self._grids = [self._shared_design_grid(i, grid_cache) for i in (1, 2)]
         self._simulators = {}
+
+    def _shared_design_grid(self, i: int, cache: dict | None):
+        """:meth:`_design_grid` of loop ``i``, from ``cache`` where a problem of the same chain,
+        structure, bounds, filter and tuning step made it (the family keeps one cache per
+        experiment, whose problems are built many times over a run); its arrays read-only."""
+        if cache is None:
+            return self._design_grid(i)
+        key = (id(self.chain), self.kind, i, self.lower.tobytes(), self.upper.tobytes(), self.N,
+               self.scenario(self.tuning_scenario).dt)
+        hit = cache.get(key)
+        if hit is None or hit[0] is not self.chain:  # the chain is kept with its grids: its id stays its own
+            grid = self._design_grid(i)
+            for array in grid:
+                array.flags.writeable = False
+            cache[key] = hit = (self.chain, grid)
+        return hit[1]
 
     def _design_grid(self, i: int, n_max: int = 48000):
         """Frequency grid of loop ``i``: from well below the slowest plant time scale up to where

@@ -61,6 +61,8 @@ ALIASES = {"gamma_m": "Mt"}
 LABELS = {"Am": "Am", "phim": "phim (deg)", "Mt": "Mt", "gamma_m": "gamma_m* (= Mt)"}
 DEFAULT_OPTIMISER = "sqp_multistart"
 DEFAULT_MAX_EVALS = 2000
+# The budget of a --smoke run's sweep (``[report] sweep`` of a config): two starts, 60 evaluations.
+SMOKE_BUDGET = {"max_evals": 60, "settings": {"starts": 2}}
 
 
 def _allowed() -> str:

@@ -1,0 +1,150 @@
+"""Fill numba's on-disk cache with the kernels the shipped experiments run.
+
+``python -m heurtune.precompile`` (this module's :func:`main`) evaluates a few random candidates of every case of every
+shipped experiment on each CPU device (``cpu``, ``cpu-batch``), and of the QTP experiments also
+with the sampled loop (``[controller] sample_time``) and under all their scenarios at once. Every
+kernel those evaluations call is compiled and written to numba's cache (``__pycache__`` beside
+the sources, or ``NUMBA_CACHE_DIR``), so a later run, test or worker process loads it instead of
+compiling. ``make setup`` and ``make test`` call it; with a filled cache it takes seconds.
+
+The work is split over ``--jobs`` processes (default: the number of CPUs, at most 2) so that
+no two processes compile the same kernel: the QTP experiments' one-candidate kernels in one,
+their batched kernels and the other families' kernels in the other (about equal shares). The
+cache is for this CPU: numba compiles for the host's instruction set and keys its cache by it,
+so another machine (or ``NUMBA_CPU_NAME``) compiles anew.
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import contextlib
+import io
+import os
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+# QTP experiments whose sampled loop (sample_time = 0.01) is compiled too: one with a single
+# scenario and one with several (the robust one), which call different kernels.
+SAMPLED = ("cs_lqi_qtp", "robust_cs_folqi_qtp")
+
+
+DEVICES = ("cpu", "cpu-batch")
+
+
+def _warm_problem(prob, rng, devices=DEVICES) -> None:
+    import numpy as np
+
+    lo, hi = np.asarray(prob.lower, float), np.asarray(prob.upper, float)
+    X = lo + (hi - lo) * rng.random((3, prob.dim))
+    for device in devices:
+        try:
+            prob.set_device(device)
+        except Exception:  # a family without that device
+            continue
+        prob.evaluate(X)
+        prob.evaluate(X[:1])
+        scenarios = list(getattr(prob, "scenarios", None) or [])
+        if len(scenarios) > 1:
+            prob.evaluate_scenarios(X, scenarios)
+    with contextlib.suppress(Exception):
+        prob.set_device("cpu")
+
+
+def warm(names: list[str]) -> list[str]:
+    """Evaluate candidates of each named experiment (see the module docstring).
+
+    Parameters
+    ----------
+    names : list of str
+        Shipped experiment names; ``"NAME:sampled"`` for a QTP experiment's sampled loop;
+        ``"NAME@DEVICE"`` (``cpu`` or ``cpu-batch``) for one device only (default: both).
+
+    Returns
+    -------
+    list of str
+        One line per experiment: its name and seconds taken, or the error it raised.
+    """
+    import numpy as np
+
+    from heurtune.runner.config import load_experiment
+
+    lines = []
+    rng = np.random.default_rng(0)
+    with tempfile.TemporaryDirectory(prefix="heurtune-precompile-") as tmp:
+        for name in names:
+            start = time.perf_counter()
+            name, _, device = name.partition("@")
+            try:
+                with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()), \
+                        contextlib.redirect_stderr(io.StringIO()):
+                    warnings.simplefilter("ignore")
+                    devices = (device,) if device else DEVICES
+                    if name.endswith(":sampled"):
+                        base = name.split(":")[0]
+                        cfg = Path(tmp) / f"{base}_sampled.toml"
+                        cfg.write_text(f'extends = "{base}"\n[controller]\nsample_time = 0.01\n')
+                        experiment = load_experiment(str(cfg))
+                    else:
+                        experiment = load_experiment(name)
+                    for case in experiment.cases:
+                        _warm_problem(experiment.problem(case), rng, devices)
+                lines.append(f"{name}{'@' + device if device else ''}: {time.perf_counter() - start:.1f} s")
+            except Exception as exc:  # a broken experiment is the tests' business, not set-up's
+                lines.append(f"{name}: not compiled ({type(exc).__name__}: {str(exc)[:120]})")
+    return lines
+
+
+def _groups(jobs: int) -> list[list[str]]:
+    """The shipped experiments in ``jobs`` groups, one family's kernels in one group."""
+    from heurtune.runner.config import list_experiments, load_config
+
+    by_family: dict[str, list[str]] = {}
+    for name in list_experiments():
+        try:
+            model = load_config(name).get("plant", {}).get("model", "qtp")
+        except Exception:
+            model = "?"
+        family = "qtp" if str(model).startswith("qtp") else str(model)
+        by_family.setdefault(family, []).append(name)
+    qtp = by_family.pop("qtp", []) + [f"{name}:sampled" for name in SAMPLED]
+    rest = [name for family in sorted(by_family) for name in by_family[family]]
+    if jobs <= 1:
+        return [qtp + rest]
+    return [[f"{name}@cpu" for name in qtp], [f"{name}@cpu-batch" for name in qtp] + rest]
+
+
+def main(argv=None) -> int:
+    """Command line of ``python -m heurtune.precompile``."""
+    ap = argparse.ArgumentParser(
+        prog="python -m heurtune.precompile",
+        description="Fill numba's cache with the kernels of the shipped experiments.",
+        epilog="example: python -m heurtune.precompile --jobs 2")
+    ap.add_argument("names", nargs="*", help="experiments to warm (default: every shipped one)")
+    ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
+                    help="processes (default: the CPUs, at most 2)")
+    ap.add_argument("--quiet", action="store_true", help="print only the total")
+    args = ap.parse_args(argv)
+    if args.jobs < 1:
+        ap.error(f"--jobs = {args.jobs}: give 1 or more")
+    start = time.perf_counter()
+    groups = [args.names] if args.names else _groups(args.jobs)
+    if len(groups) == 1:
+        lines = warm(groups[0])
+    else:
+        with concurrent.futures.ProcessPoolExecutor(len(groups)) as pool:
+            lines = [line for result in pool.map(warm, groups) for line in result]
+    if not args.quiet:
+        print("\n".join(lines))
+    failed = [line for line in lines if "not compiled" in line]
+    print(f"precompile: {len(lines) - len(failed)} experiments' kernels in numba's cache "
+          f"({time.perf_counter() - start:.0f} s){'; ' + str(len(failed)) + ' not compiled' if failed else ''}",
+          file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
