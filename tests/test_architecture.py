@@ -113,7 +113,7 @@ def test_commands_run_from_their_documented_names():
     commands = {"experiment": "heurtune.runner.experiment", "evaluate": "heurtune.runner.evaluate",
                 "compare": "heurtune.analysis.compare", "anytime": "heurtune.analysis.anytime",
                 "export": "heurtune.analysis.export", "report": "heurtune.analysis.report",
-                "check_plugin": "heurtune.runner.check_plugin"}
+                "check_plugin": "heurtune.runner.check_plugin", "precompile": "heurtune.runner.precompile"}
     for command, module in commands.items():
         shim = importlib.import_module(f"heurtune.{command}")
         assert shim.main is importlib.import_module(module).main, command

@@ -17,6 +17,7 @@ import pytest
 
 MODULES = [
     "heurtune",
+    "heurtune.analysis.agreement",
     "heurtune.analysis.runs",
     "heurtune.analysis.stats",
     "heurtune.analysis.render",
@@ -48,6 +49,7 @@ MODULES = [
     "heurtune.runner.progress",
     "heurtune.runner.evaluate",
     "heurtune.runner.check_plugin",
+    "heurtune.runner.precompile",
     "heurtune.objectives.qtp",
     "heurtune.objectives.qtp.batch_design",
     "heurtune.objectives.qtp.bond_graph",

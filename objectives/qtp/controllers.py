@@ -315,7 +315,7 @@ def lqr_gain(A: np.ndarray, B: np.ndarray, Q: np.ndarray, R: np.ndarray) -> np.n
     ``scipy.linalg.solve_continuous_are`` (whose balancing and QZ steps matter for larger, badly
     scaled problems); the tests compare both, and python-control's ``lqr``. It runs as one
     compiled call (:func:`~heurtune.objectives.qtp.design_kernels.riccati_gain`, the arithmetic
-    of the numpy code it replaced, bit for bit).
+    of the numpy code it replaced, within the rounding its conditioning allows).
 
     Parameters
     ----------
