@@ -26,11 +26,13 @@ run: $(STAMP)
 	$(BIN)/python -m heurtune.experiment cs_folqi_qtp --jobs $(JOBS)
 
 # Two worker processes, each test file on one of them (pytest-xdist; `--dist loadfile` keeps a
-# file's module-level caches and compiled kernels in one process). TEST_WORKERS=0 runs in-process.
+# file's module-level caches and compiled kernels in one process), the longest files first
+# (tests/conftest.py). TEST_WORKERS=0 runs in-process; PYTEST_ARGS adds options (--durations=20).
 TEST_WORKERS ?= 2
+PYTEST_ARGS ?=
 test: $(STAMP)
 	$(PRECOMPILE)
-	$(BIN)/pytest -n $(TEST_WORKERS) --dist loadfile
+	$(BIN)/pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder $(PYTEST_ARGS)
 
 # The numerical tests with numba's generic x86-64 target (no AVX, no FMA) and a cache of their
 # own, in a fresh process: a test that holds only on this CPU's instruction set fails here
@@ -39,6 +41,7 @@ PORTABLE_CACHE ?= $(CURDIR)/.numba-generic
 portability: $(STAMP)
 	NUMBA_CPU_NAME=generic NUMBA_CACHE_DIR=$(PORTABLE_CACHE) $(BIN)/python -m heurtune.precompile --quiet
 	NUMBA_CPU_NAME=generic NUMBA_CACHE_DIR=$(PORTABLE_CACHE) $(BIN)/pytest -n $(TEST_WORKERS) --dist loadfile \
+		--no-loadscope-reorder \
 		-p no:cacheprovider tests/objectives tests/core tests/algorithms tests/plugins tests/runner/test_sampled_release.py
 
 # ruff with the rule set of pyproject.toml ([tool.ruff]); .ci/run lints before it tests.
