@@ -279,9 +279,11 @@ def test_bond_graph_loop_equals_level_loop(case, kind, scenario):
 def test_divergence_is_judged_on_levels():
     # An unstable design diverges in both models at about the same sample: the limit on
     # |h1| + ... + |h4| (1e6 cm) applies to the levels, not to the pressures (981 times larger).
-    # The exponential growth (about 6 % per 0.01 s sample here) amplifies the rounding
-    # difference, so the samples may differ by a few; a limit on the pressures would come about
-    # log(981) / 0.06 = 115 samples later. The last finite levels are below the limit in both.
+    # The growth (about 6 % per 0.01 s sample here) starts from rounding differences between
+    # the two models' arithmetic, whose sizes differ from CPU to CPU (measured 21 samples apart
+    # on numba's generic target, fewer on AVX-512); a limit on the pressures would come
+    # log(981) / 0.06 = 115 samples later. The test asks for less than half that gap, which
+    # tells the two apart whatever the rounding. The last finite levels are below the limit.
     lev, bg = loops("nmp", "folqi")
     gains = dict(FOLQI, Ki1=10.0, Ki2=10.0, alpha1=1.9, alpha2=1.9)
     sc = Scenario(dt=0.01, horizon=2000.0)
@@ -290,7 +292,8 @@ def test_divergence_is_judged_on_levels():
     assert a.diverged and b.diverged
     assert np.isnan(b.metrics).all()
     ka, kb = (int(np.argmax(np.isnan(s.y[:, 0]))) for s in (a, b))
-    assert abs(ka - kb) <= 20
+    pressure_gap = math.log(981.0) / 0.06  # samples
+    assert abs(ka - kb) < pressure_gap / 2
     assert 1e5 < np.abs(b.h[kb - 1]).sum() < _kernels.LEVEL_LIMIT
     assert np.isnan(b.P[kb:]).all() and np.isnan(b.h[kb:]).all()
 
