@@ -48,6 +48,17 @@ def _values(x):
     return np.asarray(x)
 
 
+def _equal_tables(a, b, label) -> bool:
+    """Compare two frames or series exactly (check_exact=True); False when they are arrays."""
+    if isinstance(a, pd.DataFrame):
+        pd.testing.assert_frame_equal(a, b, check_exact=True, obj=f"frame {label}")
+    elif isinstance(a, pd.Series):
+        pd.testing.assert_series_equal(a, b, check_exact=True, obj=f"series {label}")
+    else:
+        return False
+    return True
+
+
 def assert_same_bits(actual, expected, *, because, signed_zeros=False, err_msg=""):
     """Assert two results are equal bit for bit, as the same instruction stream must give.
 
@@ -66,11 +77,7 @@ def assert_same_bits(actual, expected, *, because, signed_zeros=False, err_msg="
         raise ValueError(f"assert_same_bits: because={because!r} is not a same-stream design; allowed: "
                          f"{', '.join(sorted(SAME_STREAM))} (otherwise use assert_close with a stated tolerance)")
     a, b = _values(actual), _values(expected)
-    if isinstance(a, pd.DataFrame):
-        pd.testing.assert_frame_equal(a, b, check_exact=True, obj=f"frame ({because}) {err_msg}")
-        return
-    if isinstance(a, pd.Series):
-        pd.testing.assert_series_equal(a, b, check_exact=True, obj=f"series ({because}) {err_msg}")
+    if _equal_tables(a, b, f"({because}) {err_msg}"):
         return
     np.testing.assert_array_equal(a, b, err_msg=f"not bit for bit ({because}) {err_msg}", strict=False)
     if signed_zeros:
@@ -92,13 +99,8 @@ def assert_exact(actual, expected, *, err_msg=""):
         Added to the failure message.
     """
     a, b = _values(actual), _values(expected)
-    if isinstance(a, pd.DataFrame):
-        pd.testing.assert_frame_equal(a, b, check_exact=True, obj=f"frame {err_msg}")
-        return
-    if isinstance(a, pd.Series):
-        pd.testing.assert_series_equal(a, b, check_exact=True, obj=f"series {err_msg}")
-        return
-    np.testing.assert_array_equal(a, b, err_msg=err_msg)
+    if not _equal_tables(a, b, err_msg):
+        np.testing.assert_array_equal(a, b, err_msg=err_msg)
 
 
 def assert_close(actual, expected, *, rtol, atol=0.0, because, err_msg=""):
