@@ -237,3 +237,24 @@ def test_responses_are_sized_from_the_signals(tmp_path, monkeypatch):
     assert figs[0]._suptitle.get_text() == f"T\n{figures.OUTSIDE}: a"
     figures.plot_responses(traj.assign(u1=t), tmp_path / "s.png", limits={"y": [(0, 10)] * 3, "u": (0, 4)})
     assert figs[1].axes[3].get_title() == "input 1"
+
+
+def test_a_long_response_is_drawn_from_its_extremes():
+    """A trajectory of 50,000 rows is drawn from a few thousand: each bucket's first and last
+    rows and the rows where a signal is smallest or largest, so a one-sample spike and the NaN
+    of a diverged tail stay in the figure."""
+    from heurtune.analysis.figures import DRAWN_BUCKETS, _drawn_rows
+
+    n = 50_000
+    t = np.arange(n) * 0.02
+    y = np.sin(t / 30.0)
+    y[12_345] = 7.0  # a spike inside a bucket
+    u = np.cos(t / 10.0)
+    u[-100:] = np.nan
+    df = pd.DataFrame({"scenario": "s", "t": t, "y1": y, "u1": u})
+    drawn = _drawn_rows(df, ["y1", "u1"])
+    assert len(drawn) <= 6 * DRAWN_BUCKETS and drawn.index.is_monotonic_increasing
+    assert 12_345 in drawn.index and drawn.index[0] == 0 and drawn.index[-1] == n - 1
+    assert drawn["y1"].max() == 7.0 and drawn["y1"].min() == y.min() and np.isnan(drawn["u1"].iloc[-1])
+    short = df.iloc[:1000]
+    assert _drawn_rows(short, ["y1"]) is short
