@@ -3,10 +3,11 @@
 A population optimiser draws a new order ``alpha`` for nearly every FOLQI candidate, so each
 candidate builds two filters. Their residues are products of differences, which numpy forms
 with a dozen small array operations (about 10 us); here they are one compiled loop that takes
-each product in index order, as ``numpy.prod`` along a row does (``tests/objectives/qtp/
-test_oustaloup.py`` compares them on every order the configs allow, within the rounding of
-the products' factors: 1e-13 relative). The zeros and poles themselves stay numpy's: its ``power`` is not libm's
-``pow`` in the last bit for about one argument in twenty, and a compiled ``**`` is libm's.
+each product in index order, as ``numpy.prod`` along a row does
+(``tests/objectives/qtp/test_oustaloup.py`` compares them on every order the configs allow,
+within the rounding of the products' factors: 1e-13 relative). The zeros and poles themselves
+stay numpy's: its ``power`` is not libm's ``pow`` in the last bit for about one argument in
+twenty, and a compiled ``**`` is libm's.
 """
 
 from numba import njit
