@@ -52,6 +52,7 @@ __all__ = [
     "LoopMetrics",
     "NyquistVerdict",
     "bandwidth_design_eval",
+    "bandwidth_design_values",
     "design_grid",
     "loop_metrics_batch",
     "mimo_nyquist",
@@ -62,6 +63,7 @@ __all__ = [
     "pid_freqresp",
     "pid_from_parallel",
     "tito_closed_loop_stable",
+    "unwrapped_phase",
 ]
 
 TAIL_LEVEL = 0.9
@@ -451,7 +453,8 @@ def _integral_gains(Ki, Cw: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(Ki), Ki, 0.0)
 
 
-def _ambiguous(F: np.ndarray, absF: np.ndarray, dF: np.ndarray, absdF: np.ndarray) -> np.ndarray:
+def _ambiguous(F: np.ndarray, absF: np.ndarray, dF: np.ndarray, absdF: np.ndarray,
+               skip: np.ndarray | None = None) -> np.ndarray:
     """Rows with a step whose chord passes the origin closer than the curve may deviate from it.
 
     Between samples the path of ``F`` deviates from its chord by about ``|F''| du^2 / 8``, estimated
@@ -460,6 +463,8 @@ def _ambiguous(F: np.ndarray, absF: np.ndarray, dF: np.ndarray, absdF: np.ndarra
     """
     n, ms = dF.shape
     near = np.minimum(absF[:, :-1], absF[:, 1:]) <= 2.0 * absdF
+    if skip is not None:  # steps on which 1 + L is known to stay in the disc |F - 1| < 0.9
+        near &= ~skip
     r, k = np.nonzero(near)
     out = np.zeros(n, dtype=bool)
     if r.size == 0:
@@ -497,9 +502,11 @@ def _unresolved(L: np.ndarray, absL: np.ndarray, dphase: np.ndarray, F: np.ndarr
                 safe: np.ndarray | None = None) -> np.ndarray:
     """Rows whose samples do not decide the winding number of ``F = 1 + L`` (see :func:`nyquist_stable`).
 
-    ``safe`` (same shape as ``L``) marks samples from which on ``|L| < TAIL_LEVEL`` is known to
-    hold for all higher frequencies: steps starting there need no resolution, and a grid ending there
-    needs no roll-off below 1/8.
+    ``safe`` (same shape as ``L``) marks samples whose step to the next sample keeps
+    ``|L| < TAIL_LEVEL`` (so ``1 + L`` stays in the disc ``|F - 1| < 0.9``, away from the origin):
+    those steps need no resolution and cannot be ambiguous. The last sample is safe when
+    ``|L| < TAIL_LEVEL`` holds for all higher frequencies; a grid ending there needs no roll-off
+    below 1/8.
     """
     mx = np.maximum(absL[:, :-1], absL[:, 1:])
     bad = (np.abs(dphase) > MAX_ANGLE_STEP) & (mx >= RESOLVE_LEVEL)
@@ -509,7 +516,7 @@ def _unresolved(L: np.ndarray, absL: np.ndarray, dphase: np.ndarray, F: np.ndarr
         end_ok |= safe[:, -1]
     out = bad.any(axis=1) | ~end_ok | ~np.isfinite(absL.sum(axis=1))
     dF = np.diff(F, axis=1)
-    return out | _ambiguous(F, absF, dF, np.abs(dF))
+    return out | _ambiguous(F, absF, dF, np.abs(dF), None if safe is None else safe[:, :-1])
 
 
 def _nyquist_core(L: np.ndarray, absL: np.ndarray, dphase: np.ndarray, F: np.ndarray, absF: np.ndarray,
@@ -587,8 +594,9 @@ def nyquist_stable(Pw, Cw, w, *, Ki=None, tail=None) -> np.ndarray:
         Integral gains (only their sign and whether they are 0 are used). Default: read from the
         lowest frequency as ``Re(j w[0] C(j w[0]))``, exact up to ``O(w[0]^2)`` for PI/PID.
     tail : array_like, shape (n, m), optional
-        ``tail[r, k] >= sup over w >= w[k] of |L_r(jw)|`` (non-increasing in ``k``), e.g. from the
-        element's and the controller's high-frequency magnitude bounds.
+        ``tail[r, k] >= sup of |L_r(jw)|`` over the step ``[w[k], w[k+1]]`` (over ``w >= w[-1]``
+        for the last sample), e.g. ``sup over w >= w[k]`` from the element's and the
+        controller's high-frequency magnitude bounds.
 
     Returns
     -------
@@ -650,6 +658,18 @@ class _Triple:
         pk = y0 + d1 * (xs - U[:, 0]) + a * (xs - U[:, 0]) * (xs - U[:, 1])
         ok = (k == self.j0 + 1) & (a < 0) & np.isfinite(pk)
         return np.where(ok, np.maximum(pk, yk), yk)
+
+
+def unwrapped_phase(L: np.ndarray, *, with_steps: bool = False):
+    """Phase of each row of ``L`` unwrapped along the grid: the principal value at the first
+    sample plus the principal increments ``arg(L_{k+1} / L_k)`` (also returned with
+    ``with_steps=True``)."""
+    phase = np.empty(L.shape)
+    phase[:, 0] = 0.0
+    dphase = np.angle(L[:, 1:] * np.conj(L[:, :-1]))
+    np.cumsum(dphase, axis=1, out=phase[:, 1:])
+    phase += np.angle(L[:, :1])
+    return (phase, dphase) if with_steps else phase
 
 
 def _triple(u: np.ndarray, k: np.ndarray) -> _Triple:
@@ -729,11 +749,7 @@ def loop_metrics_batch(Pw, w, Cw, *, Ki=None, tail=None) -> LoopMetrics:
         absF = np.abs(F)
         absT = absL / absF
 
-        phase = np.empty(L.shape)
-        phase[:, 0] = 0.0
-        dphase = np.angle(L[:, 1:] * np.conj(L[:, :-1]))
-        np.cumsum(dphase, axis=1, out=phase[:, 1:])
-        phase += np.angle(L[:, :1])
+        phase, dphase = unwrapped_phase(L, with_steps=True)
 
         # Phase crossover: first sample at or below -pi, bracketed by the previous one.
         has_pc, kb = _first(phase <= -math.pi)
@@ -986,14 +1002,37 @@ def bandwidth_design_eval(Pw, w, X, kind, N, Am_min, phim_min_deg, Mt_max, *, re
     Kd = Xs[:, 2] if d == 3 else np.zeros(X.shape[0])
     Cw = pid_freqresp(Xs[:, 0], Xs[:, 1], Kd, N if d == 3 else 1.0, w)
     m = loop_metrics_batch(Pw, w, Cw, Ki=Xs[:, 1], tail=tail)
+    f, g, stable = bandwidth_design_values(m, finite, **spec)
+    if return_metrics:
+        return f, g, stable, m
+    return f, g, stable
+
+
+def bandwidth_design_values(m: LoopMetrics, finite: np.ndarray, Am_min: float, phim_min_deg: float,
+                            Mt_max: float):
+    """``(f, g, stable)`` of :func:`bandwidth_design_eval` from loop metrics already computed.
+
+    Parameters
+    ----------
+    m : LoopMetrics
+        Metrics of ``n`` candidates (for instance exact ones from
+        :func:`heurtune.objectives.tito.margins.candidate_loop_metrics`).
+    finite : numpy.ndarray of bool, shape (n,)
+        Whether each candidate's gains are finite.
+    Am_min, phim_min_deg, Mt_max : float
+        Specifications, > 0 (see :func:`bandwidth_design_eval`).
+
+    Returns
+    -------
+    f, g, stable
+        As :func:`bandwidth_design_eval`.
+    """
     with np.errstate(all="ignore"):
-        g = np.stack([1.0 - m.gain_margin / spec["Am_min"],
-                      1.0 - m.phase_margin_deg / spec["phim_min_deg"],
-                      m.Mt / spec["Mt_max"] - 1.0], axis=1)
+        g = np.stack([1.0 - m.gain_margin / Am_min,
+                      1.0 - m.phase_margin_deg / phim_min_deg,
+                      m.Mt / Mt_max - 1.0], axis=1)
     g = np.clip(np.nan_to_num(g, nan=G_CLIP, posinf=G_CLIP, neginf=-G_CLIP), -G_CLIP, G_CLIP)
     stable = m.stable & finite
     g = np.where(stable[:, None], g, np.minimum(np.maximum(g, 0.0) + UNSTABLE_VIOLATION, G_CLIP))
     f = np.where(stable, -np.nan_to_num(m.w_b, nan=0.0, posinf=0.0), 0.0) + 0.0  # no -0.0
-    if return_metrics:
-        return f, g, stable, m
     return f, g, stable

@@ -48,6 +48,7 @@ from heurtune.objectives.robustness import (
     spectral_radius_test,
 )
 from heurtune.objectives.tito import design as tito_design
+from heurtune.objectives.tito import margins as tito_margins
 from heurtune.objectives.tito import model as tito
 from heurtune.objectives.tito import two_tank
 from heurtune.objectives.tito.sim import TITOScenario, TITOSimulator
@@ -163,6 +164,14 @@ def _element_terms(chain: DesignChain, i: int) -> list:
     return [((p.element(i, j),), ()), ((p.element(i, i), p.element(j, j)), (p.element(j, i),))]
 
 
+def _loop_terms(chain: DesignChain, i: int) -> tuple:
+    """Loop element ``q_ii`` as signed :class:`~heurtune.objectives.tito.margins.LoopTerm` (with
+    the decoupler's column delay), for the candidate grids of :mod:`.margins`."""
+    extra = 0.0 if chain.decoupler is None else float(chain.decoupler.column_delays[i - 1])
+    return tuple(tito_margins.LoopTerm(tuple(num), tuple(den), sign=-1.0 if k else 1.0, extra_delay=extra)
+                 for k, (num, den) in enumerate(_element_terms(chain, i)))
+
+
 def _magnitude_tail(terms: list, w: np.ndarray) -> np.ndarray:
     """``B[k] >= sup over w' >= w[k] of |q(j w')|`` for ``q`` a sum of ``terms`` (triangle inequality).
 
@@ -252,6 +261,7 @@ class TITOProblem(TuningProblem):
         self._midx = {n: k for k, n in enumerate(self.metric_names)}
         # (w, q(jw), bound of |q| beyond w) of each loop
         self._grids = [self._shared_design_grid(i, grid_cache) for i in (1, 2)]
+        self._terms = [_loop_terms(chain, i) for i in (1, 2)]
         self._simulators = {}
 
     def _shared_design_grid(self, i: int, cache: dict | None):
@@ -328,18 +338,55 @@ class TITOProblem(TuningProblem):
 
     # -- evaluation -------------------------------------------------------------------------
     def _frequency(self, X: np.ndarray):
-        """Per loop (f, g, stable, LoopMetrics) of the bandwidth design for the batch ``X``."""
+        """Per loop (f, g, stable, LoopMetrics) of the bandwidth design for the batch ``X``.
+
+        Each candidate is evaluated on a grid of its own with its crossings refined on the exact
+        response (:mod:`heurtune.objectives.tito.margins`). A candidate whose loop would need more
+        than ``margins.N_MAX`` points is not resolved, hence not stable; its metrics stay those of
+        the problem's shared grid, which grade how far it is from the specification."""
         per = 2 if self.kind == "pi" else 3
         c = self.constraints
+        spec = dict(Am_min=c.get("Am", 1.0 + 1e-9), phim_min_deg=c.get("phim", 1e-9), Mt_max=c.get("Mt", 1e9))
         out = []
         for i, (w, Pw, Pt) in enumerate(self._grids):
             Xi = X[:, i * per:(i + 1) * per]
-            with np.errstate(all="ignore"):
-                tail = Pt[None, :] * _controller_tail(Xi, self.kind, self.N, w)
-            out.append(tito_design.bandwidth_design_eval(
-                Pw, w, Xi, self.kind, self.N, c.get("Am", 1.0 + 1e-9), c.get("phim", 1e-9), c.get("Mt", 1e9),
-                return_metrics=True, tail=np.nan_to_num(tail, nan=np.inf)))
+            finite = np.isfinite(Xi).all(axis=1)
+            exact = [self._exact_loop_metrics(i + 1, Xi[k]) if finite[k] else None for k in range(len(Xi))]
+            wide = np.array([m is None for m in exact], dtype=bool)
+            fields = {f.name: np.array([np.nan if m is None else getattr(m, f.name)[0] for m in exact])
+                      for f in dataclasses.fields(tito_design.LoopMetrics)}
+            if wide.any():  # the shared grid's metrics grade how far these are from the specification
+                Xw = np.where(finite[wide, None], Xi[wide], 0.0)
+                with np.errstate(all="ignore"):
+                    tail = Pt[None, :] * _controller_tail(Xw, self.kind, self.N, w)
+                _, _, _, shared = tito_design.bandwidth_design_eval(
+                    Pw, w, Xw, self.kind, self.N, return_metrics=True, tail=np.nan_to_num(tail, nan=np.inf), **spec)
+                for name, arr in fields.items():
+                    arr[wide] = getattr(shared, name)
+            fields["stable"] = fields["stable"].astype(bool) & ~wide
+            fields["resolved"] = fields["resolved"].astype(bool) & ~wide
+            fields["n_rhp"] = np.nan_to_num(fields["n_rhp"]).astype(np.int64)
+            metrics = tito_design.LoopMetrics(**fields)
+            f, g, stable = tito_design.bandwidth_design_values(metrics, finite, **spec)
+            out.append((f, g, stable, metrics))
         return out
+
+    def _exact_loop_metrics(self, i: int, gains: np.ndarray):
+        """Exact loop metrics of loop ``i`` (1-based) for one candidate's gains, or None where its
+        grid would need more than ``margins.N_MAX`` points."""
+        terms = self._terms[i - 1]
+        w = self._grids[i - 1][0]
+        kd = float(gains[2]) if self.kind == "pid" else 0.0
+        row = np.array([[gains[0], gains[1], kd]])
+
+        def tail(ww):
+            with np.errstate(all="ignore"):
+                bound = _magnitude_tail(_element_terms(self.chain, i), ww) * _controller_tail(
+                    row[:, :2] if self.kind == "pi" else row, self.kind, self.N, ww)[0]
+            return np.nan_to_num(bound, nan=np.inf)
+
+        return tito_margins.candidate_loop_metrics(terms, (gains[0], gains[1], kd), self.N, float(w[0]),
+                                                   float(w[-1]), tail=tail)
 
     def _simulator(self, sc: TITOScenario):
         if sc not in self._simulators:
@@ -575,6 +622,8 @@ class TITOProblem(TuningProblem):
             controller=self.kind, N=self.N, objective=self.objective, constraints=self.constraints,
             scenario=self.scenario(self.tuning_scenario).identity(), windows=self.windows,
             bounds=dict(zip(self.names, zip(self.lower.tolist(), self.upper.tolist()))),
+            # loop metrics on each candidate's own grid, crossings exact (since issue 49)
+            frequency="candidate grid",
         )
         payload.update(self.tuning_identity())
         return payload
@@ -594,12 +643,20 @@ class TITOProblem(TuningProblem):
         return pd.DataFrame(rows)
 
     def margins(self, x) -> pd.DataFrame:
-        """Exact loop margins of a design, one row per loop (brentq-refined)."""
+        """Exact loop margins of a design, one row per loop: the candidate's own grid and brentq on
+        the exact response (:mod:`heurtune.objectives.tito.margins`); a loop too wide for that grid
+        falls back to :func:`~heurtune.objectives.tito.model.exact_margins`."""
+        x = np.asarray(x, float)
+        per = 2 if self.kind == "pi" else 3
         rows = []
-        for i, c in enumerate(self.controllers(np.asarray(x, float)), start=1):
-            m = tito.exact_margins(self.chain.element(i), c.freqresp)
-            rows.append(dict(loop=i, gain_margin=m.gain_margin, phase_margin_deg=m.phase_margin_deg,
-                             w_pc=m.w_pc, w_gc=m.w_gc))
+        for i, c in enumerate(self.controllers(x), start=1):
+            m = self._exact_loop_metrics(i, x[(i - 1) * per:i * per])
+            if m is None:
+                m = tito.exact_margins(self.chain.element(i), c.freqresp)
+                vals = (m.gain_margin, m.phase_margin_deg, m.w_pc, m.w_gc)
+            else:
+                vals = (m.gain_margin[0], m.phase_margin_deg[0], m.w_pc[0], m.w_gc[0])
+            rows.append(dict(zip(("loop", "gain_margin", "phase_margin_deg", "w_pc", "w_gc"), (i, *map(float, vals)))))
         return pd.DataFrame(rows)
 
     def robustness(self, x) -> tuple[dict, object]:
