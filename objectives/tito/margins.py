@@ -27,10 +27,11 @@ cancel) and ``rho_C`` the controller's bound (2 for a PI, 4 for a filtered PID).
 ``R`` is a magnitude without delays, smooth in ``u``, so a probe of 200 points per decade
 integrates it; the delays enter only through their analytic rates. The grid has two parts:
 
-* from ``w_min`` to the first phase crossover, points uniform in ``dLambda = (1 + R) du`` with a
-  step of ``STEP = 0.1`` in ``Lambda``: ``ln L`` turns by at most 0.1 rad per step, so the
-  unwrapped phase, and with it the first phase crossover and the gain margin (however large), is
-  never aliased. The grid is laid out in chunks until the phase reaches -180 deg;
+* from ``w_min`` to the first phase crossover, points uniform in
+  ``dLambda = (1 + min(1, E |C| / 1e-6)^4 R) du`` with a step of ``STEP = 0.1`` in ``Lambda``:
+  ``ln L`` turns by at most 0.1 rad per step wherever ``|L|`` may exceed 1e-6, so the unwrapped
+  phase, and with it the first phase crossover and every gain margin below 1e6, is never
+  aliased. The grid is laid out in chunks until the phase reaches -180 deg;
 * beyond it, ``dLambda = (1 + min(1, E |C| / 0.4)^4 R) du``: resolved where ``|L|`` may reach
   0.4 (gain crossover, bandwidth, peaks above ``Mt = 1`` or ``Ms = 2`` and the Nyquist count,
   for which ``1 + L`` cannot reach the origin where ``|L| < 1``); the fourth power switches the
@@ -70,12 +71,15 @@ from scipy.optimize import brentq, minimize_scalar
 from . import design as tito_design
 from .model import TFElement
 
-__all__ = ["N_MAX", "STEP", "TAIL_RESOLVE_LEVEL", "LoopTerm", "candidate_grid", "candidate_loop_metrics"]
+__all__ = ["MARGIN_LEVEL", "N_MAX", "STEP", "TAIL_RESOLVE_LEVEL", "LoopTerm", "candidate_grid", "candidate_loop_metrics"]
 
 STEP = 0.1
 """Largest turn of ``ln L`` (rad) between consecutive samples where the grid resolves ``L``."""
 N_MAX = 1 << 16
 """A candidate whose grid would need more points is not resolved (reported not stable)."""
+MARGIN_LEVEL = 1e-6
+"""Up to the first phase crossover the grid resolves ``L`` where ``|L| >= 1e-6``: every gain margin
+below 1e6 is exact (a loop with no controller, ``C = 0``, needs no points)."""
 TAIL_RESOLVE_LEVEL = 0.4
 """Beyond the first phase crossover the grid resolves ``L`` where ``|L| >= 0.4``: enough for the gain
 crossover, the bandwidth (``|T| = 1/sqrt 2`` needs ``|L| >= 0.41``), peaks above ``Mt = 1`` and
@@ -163,10 +167,9 @@ class _Probe:
     c_mag: np.ndarray
 
     def measure(self, level: float) -> np.ndarray:
-        """Cumulative ``Lambda(u)`` of the grid measure that resolves ``L`` where ``|L| >= level``
-        (everywhere for ``level = 0``)."""
+        """Cumulative ``Lambda(u)`` of the grid measure that resolves ``L`` where ``|L| >= level``."""
         with np.errstate(all="ignore"):
-            weight = self.rate if level == 0 else np.minimum(1.0, self.env * self.c_mag / level) ** 4 * self.rate
+            weight = np.minimum(1.0, self.env * self.c_mag / level) ** 4 * self.rate
         dens = 1.0 + np.nan_to_num(weight, nan=0.0, posinf=1e300)
         return np.concatenate(([0.0], np.cumsum(0.5 * (dens[1:] + dens[:-1]) * np.diff(self.u))))
 
@@ -212,8 +215,8 @@ def candidate_grid(terms, gains, N: float, w_min: float, w_max: float, *, step: 
                    n_max: int | None = None):
     """The frequency grid of one controller on the element ``sum(terms)`` (see the module docstring).
 
-    From ``w_min`` up to the first phase crossover the grid resolves ``L`` everywhere (the gain
-    margin is decided there, however large); beyond it, wherever
+    From ``w_min`` up to the first phase crossover the grid resolves ``L`` wherever
+    ``|L| >= MARGIN_LEVEL`` (the gain margin is decided there); beyond it, wherever
     ``|L| >= TAIL_RESOLVE_LEVEL`` (gain crossover, bandwidth, peaks above ``Mt = 1`` and ``Ms = 2``,
     and the Nyquist count, which needs no resolution where ``|L| < 0.9``).
 
@@ -238,7 +241,7 @@ def candidate_grid(terms, gains, N: float, w_min: float, w_max: float, *, step: 
     kp, ki, kd = (float(v) for v in gains)
     n_max = N_MAX if n_max is None else int(n_max)
     probe = _probe(terms, (kp, ki, kd), N, w_min, w_max)
-    lam1 = probe.measure(0.0)
+    lam1 = probe.measure(MARGIN_LEVEL)
     if not np.isfinite(lam1[-1]):
         return None
     pieces_u, pieces_q, pieces_c = [], [], []

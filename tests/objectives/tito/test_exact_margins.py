@@ -204,3 +204,16 @@ def test_a_loop_too_wide_for_its_grid_is_not_resolved(problems, monkeypatch):
     monkeypatch.setattr(tito_margins, "N_MAX", 1 << 18)
     full = prob._exact_loop_metrics(1, x[:3])
     assert full is not None and not full.stable[0] and full.n_rhp[0] > 100
+
+
+def test_a_loop_without_controller_is_stable_with_infinite_margins(problems):
+    """C = 0 (an optimiser switching a loop off): no crossing, nothing to resolve, a few hundred
+    points, and the other loop's verdict decides (paper 001's QTS PSO found such a design)."""
+    prob = problems[("paper_001", "qts")]
+    x = np.array([-0.5199, 0.0, 0.0, 0.0, 0.0, 0.0])
+    off = prob._exact_loop_metrics(2, x[3:])
+    assert off.stable[0] and off.gain_margin[0] == math.inf and off.phase_margin_deg[0] == math.inf
+    w = prob._grids[1][0]
+    assert tito_margins.candidate_grid(prob._terms[1], x[3:], prob.N, w[0], w[-1])[0].size < 2000
+    ev = prob.evaluate(x[None, :])
+    assert ev.reason[0] == "" and ev.feasible[0]
