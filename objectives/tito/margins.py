@@ -71,7 +71,8 @@ from scipy.optimize import brentq, minimize_scalar
 from . import design as tito_design
 from .model import TFElement
 
-__all__ = ["MARGIN_LEVEL", "N_MAX", "STEP", "TAIL_RESOLVE_LEVEL", "LoopTerm", "candidate_grid", "candidate_loop_metrics"]
+__all__ = ["MARGIN_LEVEL", "N_MAX", "STEP", "TAIL_RESOLVE_LEVEL", "LoopTerm", "candidate_grid",
+           "candidate_loop_metrics"]
 
 STEP = 0.1
 """Largest turn of ``ln L`` (rad) between consecutive samples where the grid resolves ``L``."""
