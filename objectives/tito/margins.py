@@ -243,7 +243,10 @@ def candidate_grid(terms, gains, N: float, w_min: float, w_max: float, *, step: 
     n_max = N_MAX if n_max is None else int(n_max)
     probe = _probe(terms, (kp, ki, kd), N, w_min, w_max)
     lam1 = probe.measure(MARGIN_LEVEL)
-    if not np.isfinite(lam1[-1]):
+    lam2 = probe.measure(TAIL_RESOLVE_LEVEL)
+    # the first measure is at least the second everywhere, so whatever the cut the grid has at
+    # least lam2[-1] / step points: a loop wider than n_max is known before any is laid out
+    if not (np.isfinite(lam1[-1]) and lam2[-1] / step < n_max):
         return None
     pieces_u, pieces_q, pieces_c = [], [], []
     count, pos, phase_end, L_end = 0, 0.0, None, None
@@ -279,7 +282,6 @@ def candidate_grid(terms, gains, N: float, w_min: float, w_max: float, *, step: 
             break
         pos, phase_end, L_end = end, phase[-1], Lc[-1]
     if cut is not None and cut < probe.u[-1]:
-        lam2 = probe.measure(TAIL_RESOLVE_LEVEL)
         a = float(np.interp(cut, probe.u, lam2))
         if int(math.ceil((lam2[-1] - a) / step)) + count > n_max:
             return None
