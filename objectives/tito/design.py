@@ -662,8 +662,21 @@ class _Triple:
 
 def unwrapped_phase(L: np.ndarray, *, with_steps: bool = False):
     """Phase of each row of ``L`` unwrapped along the grid: the principal value at the first
-    sample plus the principal increments ``arg(L_{k+1} / L_k)`` (also returned with
-    ``with_steps=True``)."""
+    sample plus the principal increments ``arg(L_{k+1} / L_k)``.
+
+    Parameters
+    ----------
+    L : numpy.ndarray, shape (n, m), complex
+        Loop responses of ``n`` candidates on ``m`` frequencies.
+    with_steps : bool
+        Also return the increments.
+
+    Returns
+    -------
+    phase : numpy.ndarray, shape (n, m)
+    steps : numpy.ndarray, shape (n, m - 1)
+        Only with ``with_steps=True``.
+    """
     phase = np.empty(L.shape)
     phase[:, 0] = 0.0
     dphase = np.angle(L[:, 1:] * np.conj(L[:, :-1]))
