@@ -19,8 +19,13 @@ errors follow from the outputs at its nodes. The only approximation is the cubic
 integrated exactly. The decoupler outputs ``u`` and controller outputs ``v`` are recorded the
 same way, from paths ``D_kj c_j`` and ``c_j`` driven by the stored errors.
 
-Limits of this version: delays and breakpoints commensurate with the step (a one-line error
-otherwise); no measurement or input noise; linear plants only. Checked against the method of
+A dead time that is not a multiple of the step (it must not be shorter than the step) puts a
+stored step boundary at the same fraction ``theta`` of every step; the path is advanced over the
+two sub-steps, each with its own stored cubic as input, so it stays exact (the errors' jumps and
+kinks included). The input
+disturbance's jump is integrated exactly wherever its delayed image falls. Set-point and
+disturbance times must be multiples of the step; no measurement or input noise; linear plants
+only. Checked against the method of
 steps with ``solve_ivp`` (``tests/tito_dde_reference.py``).
 """
 
@@ -93,29 +98,82 @@ def _controller(kp, ki, kd, N):
     return _ss([kd, kp, ki], [tf, 1.0, 0.0])
 
 
+def _lagrange_matrix(points) -> np.ndarray:
+    """``P`` with ``P @ values`` the cubic through ``values`` at the nodes, evaluated at ``points``."""
+    P = np.empty((len(points), NODES.size))
+    for r, tau in enumerate(points):
+        for c in range(NODES.size):
+            others = [b for i, b in enumerate(NODES) if i != c]
+            P[r, c] = np.prod([(tau - b) / (NODES[c] - b) for b in others])
+    return P
+
+
 class _Path:
     """A state space advanced exactly over a step for an input given at the nodes."""
 
-    def __init__(self, system, h: float):
+    def __init__(self, system, h: float, shift=0):
         A, B, C, D = system
         self.C, self.D = C.reshape(-1), float(D)
-        n = A.shape[0]
-        self.n = n
-        q = NODES.size
+        self._A, self._B, self._h = A, B[:, 0], h
+        self.n = A.shape[0]
+        self.E, self.H = self._transitions(h, NODES)
+        self.split = None
+        if not isinstance(shift, int):
+            # the delayed window crosses a stored step boundary at theta of every step: two
+            # sub-steps, each with one stored cubic as its input (exact, jumps included)
+            theta = shift - math.floor(shift)  # where, in every step, the window crosses a stored boundary
+            first = [tau / theta for tau in NODES if tau < theta] + [1.0]
+            second = [(tau - theta) / (1.0 - theta) for tau in NODES if tau >= theta]
+            self.split = dict(
+                theta=theta, lag=int(math.ceil(shift)), n_first=len(first) - 1,
+                A=self._transitions(theta * h, first), B=self._transitions((1.0 - theta) * h, second),
+                # the stored cubic of each sub-step, at that sub-step's nodes
+                PA=_lagrange_matrix((1.0 - theta) + theta * NODES), PB=_lagrange_matrix((1.0 - theta) * NODES),
+            )
+
+    def _transitions(self, length: float, offsets):
+        """``E[i]``, ``H[i]``: the state at ``offsets[i]`` (fractions of a sub-step of ``length``
+        seconds) is ``E[i] x + H[i] w`` for a cubic input with values ``w`` at its nodes."""
+        n, q = self.n, NODES.size
         # chain of integrators: a0' = a1, ..., input w(tau) = a0(tau) = sum_k alpha_k tau^k / k!
         M = np.zeros((n + q, n + q))
-        M[:n, :n] = A * h
-        M[:n, n] = B[:, 0] * h
+        M[:n, :n] = self._A * length
+        M[:n, n] = self._B * length
         for k in range(q - 1):
             M[n + k, n + k + 1] = 1.0
         V = np.array([[tau ** k / math.factorial(k) for k in range(q)] for tau in NODES])
         Vinv = np.linalg.inv(V)
-        self.E = np.empty((q, n, n))
-        self.H = np.empty((q, n, q))
-        for i, tau in enumerate(NODES):
+        E = np.empty((len(offsets), n, n))
+        H = np.empty((len(offsets), n, q))
+        for i, tau in enumerate(offsets):
             F = scipy.linalg.expm(M * tau)
-            self.E[i] = F[:n, :n]
-            self.H[i] = F[:n, n:] @ Vinv
+            E[i] = F[:n, :n]
+            H[i] = F[:n, n:] @ Vinv
+        return E, H
+
+    def step_delayed(self, x: np.ndarray, hist: np.ndarray, k: int, j: int) -> np.ndarray:
+        """States at the nodes over step ``k`` for the stored signal ``j`` delayed by a fraction
+        of steps: the two sub-steps of :attr:`split`."""
+        sp = self.split
+        m2 = k - sp["lag"] + 1
+        zero = np.zeros(NODES.size)
+        wa = sp["PA"] @ hist[m2 - 1, j] if m2 - 1 >= 0 else zero
+        wb = sp["PB"] @ hist[m2, j] if m2 >= 0 else zero
+        Ea, Ha = sp["A"]
+        Eb, Hb = sp["B"]
+        xa = np.einsum("inm,m->in", Ea, x) + np.einsum("inq,q->in", Ha, wa)
+        xb = np.einsum("inm,m->in", Eb, xa[-1]) + np.einsum("inq,q->in", Hb, wb)
+        return np.vstack([xa[:sp["n_first"]], xb])
+
+    def constant(self, x: np.ndarray, tau: float, value: float) -> np.ndarray:
+        """State after ``tau`` steps from ``x`` under a constant input (an exponential of its own:
+        for the one step of a delayed disturbance whose jump falls inside it)."""
+        n = self.n
+        M = np.zeros((n + 1, n + 1))
+        M[:n, :n] = self._A * self._h
+        M[:n, n] = self._B * self._h
+        F = scipy.linalg.expm(M * tau)
+        return F[:n, :n] @ x + F[:n, n] * value
 
     def step(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
         """States at the nodes, shape ``(q, n)``, for the state ``x`` at the step's start and the
@@ -124,6 +182,44 @@ class _Path:
 
     def outputs(self, X: np.ndarray, w: np.ndarray) -> np.ndarray:
         return X @ self.C + self.D * w
+
+
+# barycentric weights of the cubic through the nodes
+_BARY = np.array([1.0 / np.prod([a - b for b in NODES if b != a]) for a in NODES])
+
+
+def _cubic_at(values: np.ndarray, tau: float) -> float:
+    """The cubic through ``values`` at the nodes, evaluated at ``tau`` in [0, 1]."""
+    d = tau - NODES
+    hit = np.flatnonzero(d == 0.0)
+    if hit.size:
+        return float(values[hit[0]])
+    w = _BARY / d
+    return float(w @ values / w.sum())
+
+
+def _shift(value: float, h: float, what: str):
+    """A dead time in steps: an int where it is a multiple of ``h``, else a float (>= 1)."""
+    k = round(value / h)
+    if abs(k * h - value) <= _COMMENSURATE_TOL * max(1.0, abs(value)):
+        return int(k)
+    if value < h:
+        raise ConfigError(f"continuous loop: {what} = {value!r} s is shorter than the step {h!r} s")
+    return value / h
+
+
+def _delayed(hist: np.ndarray, k: int, j: int, shift) -> np.ndarray:
+    """Node values over step ``k`` of the stored signal ``j`` delayed by ``shift`` steps (zero
+    before t = 0): a stored step where the shift is whole, else the stored cubics at the shifted
+    nodes (``shift >= 1``, so they lie in finished steps)."""
+    if isinstance(shift, int):
+        return hist[k - shift, j] if k - shift >= 0 else np.zeros(NODES.size)
+    out = np.zeros(NODES.size)
+    for i, si in enumerate(k + NODES - shift):
+        if si >= 0.0:
+            m = int(math.floor(si))
+            out[i] = _cubic_at(hist[m, j], si - m)
+    return out
 
 
 def _multiple(value: float, h: float, what: str) -> int:
@@ -176,16 +272,19 @@ class ContinuousTITOLoop:
                 if sys_g[3] != 0.0 or e.L <= 0.0:
                     raise ConfigError(f"continuous loop: plant element g{i + 1}{k + 1} must be strictly proper "
                                       "with a dead time > 0")
-                G[(i, k)] = (sys_g, _multiple(e.L, h, f"the dead time of g{i + 1}{k + 1}"))
+                G[(i, k)] = (sys_g, _shift(e.L, h, f"the dead time of g{i + 1}{k + 1}"))
         # paths from e_j to y_i, from d_in_k to y_i, from e_j to u_k and to v_j
         self.y_paths, self.d_paths, self.u_paths, self.v_paths = [], [], [], []
         for (k, j), (sys_d, Ld) in D.items():
-            nd = _multiple(Ld, h, "a decoupler dead time")
+            nd = _shift(Ld, h, "a decoupler dead time") if Ld > 0 else 0
             dc = _series(c[j], sys_d)
-            self.u_paths.append((k, j, nd, _Path(dc, h)))
+            self.u_paths.append((k, j, nd, _Path(dc, h, nd)))
             for i in range(2):
                 sys_g, ng = G[(i, k)]
-                self.y_paths.append((i, j, ng + nd, _Path(_series(dc, sys_g), h)))
+                total = ng + nd
+                if not isinstance(total, int):
+                    total = _shift((ng + nd) * h, h, "a path's dead time")
+                self.y_paths.append((i, j, total, _Path(_series(dc, sys_g), h, total)))
         for (i, k), (sys_g, ng) in G.items():
             self.d_paths.append((i, k, ng, _Path(sys_g, h)))
         for j in range(2):
@@ -209,6 +308,26 @@ class ContinuousTITOLoop:
         return r, lambda s: np.asarray(d_in, float) if s >= t_in else np.zeros(2), \
             (np.asarray(d_out, float) if t_mid >= t_out else np.zeros(2))
 
+    @staticmethod
+    def _advance(path, x, hist, k, j, shift):
+        if path.split is None:
+            return path.step(x, _delayed(hist, k, j, shift))
+        return path.step_delayed(x, hist, k, j)
+
+    def _disturbance_step(self, path, x, k, kk, shift, d_in_at):
+        """Node states over step ``k`` of a plant element driven by the input disturbance
+        delayed by ``shift`` steps; exact also where the delayed jump falls inside the step."""
+        h = self.h
+        jump = self.sc.input_disturbance[0] / h + shift  # where the delayed jump falls, in steps
+        if k < jump < k + 1:
+            before = d_in_at((k + 0.5 * (jump - k) - shift) * h)[kk]
+            after = d_in_at((jump + 0.5 * (k + 1 - jump) - shift) * h)[kk]
+            theta = jump - k
+            x_theta = path.constant(x, theta, before)
+            return np.array([path.constant(x, tau, before) if tau < theta else
+                             path.constant(x_theta, tau - theta, after) for tau in NODES])
+        return path.step(x, np.full(NODES.size, d_in_at((k + 0.5 - shift) * h)[kk]))
+
     def run(self):
         """Simulate the scenario.
 
@@ -227,27 +346,23 @@ class ContinuousTITOLoop:
         y_out = np.zeros((n + 1, 2))
         u_out = np.zeros((n + 1, 2))
         v_out = np.zeros((n + 1, 2))
-        zero = np.zeros(q)
         for k in range(n):
             t0 = k * h
             r, d_in_at, d_out = self._piecewise(t0 + 0.5 * h)
             y = np.tile(d_out[:, None], (1, q))
             for i, j, nd, path in self.y_paths:
-                w = e_hist[k - nd, j] if k - nd >= 0 else zero
-                X = path.step(states[id(path)], w)
-                y[i] += path.outputs(X, w)
+                X = self._advance(path, states[id(path)], e_hist, k, j, nd)
+                y[i] += X @ path.C  # strictly proper paths
                 states[id(path)] = X[-1]
             for i, kk, nd, path in self.d_paths:
-                w = np.full(q, d_in_at(t0 + 0.5 * h - nd * h)[kk])
-                X = path.step(states[id(path)], w)
-                y[i] += path.outputs(X, w)
+                X = self._disturbance_step(path, states[id(path)], k, kk, nd, d_in_at)
+                y[i] += X @ path.C
                 states[id(path)] = X[-1]
             e_hist[k] = r[:, None] - y
             u = np.zeros((2, q))
             for kk, j, nd, path in self.u_paths:
-                w = e_hist[k - nd, j] if k - nd >= 0 else zero
-                X = path.step(states[id(path)], w)
-                u[kk] += path.outputs(X, w)
+                X = self._advance(path, states[id(path)], e_hist, k, j, nd)
+                u[kk] += path.outputs(X, _delayed(e_hist, k, j, nd))
                 states[id(path)] = X[-1]
             v = np.zeros((2, q))
             for j, path in self.v_paths:
