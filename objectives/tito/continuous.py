@@ -39,6 +39,7 @@ import scipy.signal
 
 from heurtune.core.errors import ConfigError
 
+from . import continuous_kernels as kern
 from .design import pid_filter_time
 
 __all__ = ["ContinuousTITOLoop"]
@@ -108,28 +109,52 @@ def _lagrange_matrix(points) -> np.ndarray:
     return P
 
 
-class _Path:
-    """A state space advanced exactly over a step for an input given at the nodes."""
+def _shift(value: float, h: float, what: str):
+    """A dead time in steps: an int where it is a multiple of ``h``, else a float (>= 1)."""
+    k = round(value / h)
+    if abs(k * h - value) <= _COMMENSURATE_TOL * max(1.0, abs(value)):
+        return int(k)
+    if value < h:
+        raise ConfigError(f"continuous loop: {what} = {value!r} s is shorter than the step {h!r} s")
+    return value / h
 
-    def __init__(self, system, h: float, shift=0):
+
+def _multiple(value: float, h: float, what: str) -> int:
+    k = round(value / h)
+    if abs(k * h - value) > _COMMENSURATE_TOL * max(1.0, abs(value)):
+        raise ConfigError(f"continuous loop: {what} = {value!r} s is not a multiple of the step {h!r} s")
+    return int(k)
+
+
+class _Path:
+    """The precomputed matrices of one path: a state space driven by a stored signal delayed by
+    ``shift`` steps (an int: the stored step itself; a float: two sub-steps)."""
+
+    def __init__(self, system, h: float, shift, target: int, out: int, src: int):
         A, B, C, D = system
         self.C, self.D = C.reshape(-1), float(D)
-        self._A, self._B, self._h = A, B[:, 0], h
+        self._A, self._B = A, B[:, 0]
         self.n = A.shape[0]
-        self.E, self.H = self._transitions(h, NODES)
-        self.split = None
-        if not isinstance(shift, int):
-            # the delayed window crosses a stored step boundary at theta of every step: two
-            # sub-steps, each with one stored cubic as its input (exact, jumps included)
-            theta = shift - math.floor(shift)  # where, in every step, the window crosses a stored boundary
-            first = [tau / theta for tau in NODES if tau < theta] + [1.0]
-            second = [(tau - theta) / (1.0 - theta) for tau in NODES if tau >= theta]
-            self.split = dict(
-                theta=theta, lag=int(math.ceil(shift)), n_first=len(first) - 1,
-                A=self._transitions(theta * h, first), B=self._transitions((1.0 - theta) * h, second),
-                # the stored cubic of each sub-step, at that sub-step's nodes
-                PA=_lagrange_matrix((1.0 - theta) + theta * NODES), PB=_lagrange_matrix((1.0 - theta) * NODES),
-            )
+        self.target, self.out, self.src = target, out, src
+        self.split = not isinstance(shift, int)
+        if not self.split:
+            self.shift, self.lag, self.nfirst = int(shift), 0, 0
+            self.E, self.H = self._transitions(h, NODES)
+            return
+        # the delayed window crosses a stored step boundary at the same fraction theta of every
+        # step: two sub-steps, each with one stored cubic as its input (exact, jumps included)
+        theta = shift - math.floor(shift)
+        first = [tau / theta for tau in NODES if tau < theta] + [1.0]
+        second = [(tau - theta) / (1.0 - theta) for tau in NODES if tau >= theta]
+        self.shift, self.lag, self.nfirst = 0, int(math.ceil(shift)), len(first) - 1
+        self.EA, self.HA = self._transitions(theta * h, first)
+        self.EB, self.HB = self._transitions((1.0 - theta) * h, second)
+        # each sub-step's stored cubic at that sub-step's nodes, and the input at the step's nodes
+        self.PA = _lagrange_matrix((1.0 - theta) + theta * NODES)
+        self.PB = _lagrange_matrix((1.0 - theta) * NODES)
+        before = NODES < theta
+        self.QA = np.where(before[:, None], _lagrange_matrix(np.clip((1.0 - theta) + NODES, 0.0, 1.0)), 0.0)
+        self.QB = np.where(before[:, None], 0.0, _lagrange_matrix(np.clip(NODES - theta, 0.0, 1.0)))
 
     def _transitions(self, length: float, offsets):
         """``E[i]``, ``H[i]``: the state at ``offsets[i]`` (fractions of a sub-step of ``length``
@@ -151,82 +176,37 @@ class _Path:
             H[i] = F[:n, n:] @ Vinv
         return E, H
 
-    def step_delayed(self, x: np.ndarray, hist: np.ndarray, k: int, j: int) -> np.ndarray:
-        """States at the nodes over step ``k`` for the stored signal ``j`` delayed by a fraction
-        of steps: the two sub-steps of :attr:`split`."""
-        sp = self.split
-        m2 = k - sp["lag"] + 1
-        zero = np.zeros(NODES.size)
-        wa = sp["PA"] @ hist[m2 - 1, j] if m2 - 1 >= 0 else zero
-        wb = sp["PB"] @ hist[m2, j] if m2 >= 0 else zero
-        Ea, Ha = sp["A"]
-        Eb, Hb = sp["B"]
-        xa = np.einsum("inm,m->in", Ea, x) + np.einsum("inq,q->in", Ha, wa)
-        xb = np.einsum("inm,m->in", Eb, xa[-1]) + np.einsum("inq,q->in", Hb, wb)
-        return np.vstack([xa[:sp["n_first"]], xb])
 
-    def constant(self, x: np.ndarray, tau: float, value: float) -> np.ndarray:
-        """State after ``tau`` steps from ``x`` under a constant input (an exponential of its own:
-        for the one step of a delayed disturbance whose jump falls inside it)."""
-        n = self.n
-        M = np.zeros((n + 1, n + 1))
-        M[:n, :n] = self._A * self._h
-        M[:n, n] = self._B * self._h
-        F = scipy.linalg.expm(M * tau)
-        return F[:n, :n] @ x + F[:n, n] * value
+def _stack(paths):
+    """The paths' matrices as the zero-padded arrays of :func:`continuous_kernels.run_loop`."""
+    P, q = len(paths), NODES.size
+    nm = max(1, max(p.n for p in paths))
 
-    def step(self, x: np.ndarray, w: np.ndarray) -> np.ndarray:
-        """States at the nodes, shape ``(q, n)``, for the state ``x`` at the step's start and the
-        input's node values ``w``."""
-        return np.einsum("inm,m->in", self.E, x) + np.einsum("inq,q->in", self.H, w)
+    def ints(name):
+        return np.array([getattr(p, name) for p in paths], np.int64)
 
-    def outputs(self, X: np.ndarray, w: np.ndarray) -> np.ndarray:
-        return X @ self.C + self.D * w
-
-
-# barycentric weights of the cubic through the nodes
-_BARY = np.array([1.0 / np.prod([a - b for b in NODES if b != a]) for a in NODES])
-
-
-def _cubic_at(values: np.ndarray, tau: float) -> float:
-    """The cubic through ``values`` at the nodes, evaluated at ``tau`` in [0, 1]."""
-    d = tau - NODES
-    hit = np.flatnonzero(d == 0.0)
-    if hit.size:
-        return float(values[hit[0]])
-    w = _BARY / d
-    return float(w @ values / w.sum())
-
-
-def _shift(value: float, h: float, what: str):
-    """A dead time in steps: an int where it is a multiple of ``h``, else a float (>= 1)."""
-    k = round(value / h)
-    if abs(k * h - value) <= _COMMENSURATE_TOL * max(1.0, abs(value)):
-        return int(k)
-    if value < h:
-        raise ConfigError(f"continuous loop: {what} = {value!r} s is shorter than the step {h!r} s")
-    return value / h
-
-
-def _delayed(hist: np.ndarray, k: int, j: int, shift) -> np.ndarray:
-    """Node values over step ``k`` of the stored signal ``j`` delayed by ``shift`` steps (zero
-    before t = 0): a stored step where the shift is whole, else the stored cubics at the shifted
-    nodes (``shift >= 1``, so they lie in finished steps)."""
-    if isinstance(shift, int):
-        return hist[k - shift, j] if k - shift >= 0 else np.zeros(NODES.size)
-    out = np.zeros(NODES.size)
-    for i, si in enumerate(k + NODES - shift):
-        if si >= 0.0:
-            m = int(math.floor(si))
-            out[i] = _cubic_at(hist[m, j], si - m)
-    return out
-
-
-def _multiple(value: float, h: float, what: str) -> int:
-    k = round(value / h)
-    if abs(k * h - value) > _COMMENSURATE_TOL * max(1.0, abs(value)):
-        raise ConfigError(f"continuous loop: {what} = {value!r} s is not a multiple of the step {h!r} s")
-    return int(k)
+    arrays = dict(
+        target=ints("target"), out=ints("out"), src=ints("src"), split=ints("split"), shift=ints("shift"),
+        lag=ints("lag"), nfirst=ints("nfirst"), nst=ints("n"),
+        E=np.zeros((P, q, nm, nm)), H=np.zeros((P, q, nm, q)), EA=np.zeros((P, q + 1, nm, nm)),
+        HA=np.zeros((P, q + 1, nm, q)), EB=np.zeros((P, q, nm, nm)), HB=np.zeros((P, q, nm, q)),
+        PA=np.zeros((P, q, q)), PB=np.zeros((P, q, q)), QA=np.zeros((P, q, q)), QB=np.zeros((P, q, q)),
+        C=np.zeros((P, nm)), D=np.array([p.D for p in paths]),
+    )
+    for k, p in enumerate(paths):
+        n = p.n
+        arrays["C"][k, :n] = p.C
+        if p.split:
+            arrays["EA"][k, :p.EA.shape[0], :n, :n] = p.EA
+            arrays["HA"][k, :p.HA.shape[0], :n] = p.HA
+            arrays["EB"][k, :p.EB.shape[0], :n, :n] = p.EB
+            arrays["HB"][k, :p.HB.shape[0], :n] = p.HB
+            for key in ("PA", "PB", "QA", "QB"):
+                arrays[key][k] = getattr(p, key)
+        else:
+            arrays["E"][k, :, :n, :n] = p.E
+            arrays["H"][k, :, :n] = p.H
+    return arrays, nm
 
 
 class ContinuousTITOLoop:
@@ -252,16 +232,17 @@ class ContinuousTITOLoop:
             raise ConfigError("continuous loop: noise is not supported yet; set noise_power = 0")
         self.h, self.sc = h, scenario
         c = [_controller(*map(float, gains[k]), N) for k in range(2)]
+        unit = _ss([1.0], [1.0])
         if decoupler is None:
-            D = {(0, 0): (_ss([1.0], [1.0]), 0.0), (1, 1): (_ss([1.0], [1.0]), 0.0)}
+            D = {(0, 0): (unit, 0.0), (1, 1): (unit, 0.0)}
         else:
             p, (c1, c2) = plant, decoupler.column_delays
             if decoupler.case == 1:
-                D = {(0, 0): (_ss([1.0], [1.0]), c1), (1, 1): (_ss([1.0], [1.0]), c2),
+                D = {(0, 0): (unit, c1), (1, 1): (unit, c2),
                      (1, 0): (_ratio(p.g21, p.g22), p.g21.L - p.g22.L + c1),
                      (0, 1): (_ratio(p.g12, p.g11), p.g12.L - p.g11.L + c2)}
             else:
-                D = {(1, 0): (_ss([1.0], [1.0]), c1), (0, 1): (_ss([1.0], [1.0]), c2),
+                D = {(1, 0): (unit, c1), (0, 1): (unit, c2),
                      (0, 0): (_ratio(p.g22, p.g21), p.g22.L - p.g21.L + c1),
                      (1, 1): (_ratio(p.g11, p.g12), p.g11.L - p.g12.L + c2)}
         G = {}
@@ -272,23 +253,22 @@ class ContinuousTITOLoop:
                 if sys_g[3] != 0.0 or e.L <= 0.0:
                     raise ConfigError(f"continuous loop: plant element g{i + 1}{k + 1} must be strictly proper "
                                       "with a dead time > 0")
-                G[(i, k)] = (sys_g, _shift(e.L, h, f"the dead time of g{i + 1}{k + 1}"))
-        # paths from e_j to y_i, from d_in_k to y_i, from e_j to u_k and to v_j
-        self.y_paths, self.d_paths, self.u_paths, self.v_paths = [], [], [], []
+                G[(i, k)] = (sys_g, _shift(e.L, h, f"the dead time of g{i + 1}{k + 1}"), e.L)
+        # paths: e_j -> y_i through c_j, D_kj, g_ik; d_in_k -> y_i through g_ik; e_j -> u_k; e_j -> v_j
+        paths = []
         for (k, j), (sys_d, Ld) in D.items():
-            nd = _shift(Ld, h, "a decoupler dead time") if Ld > 0 else 0
             dc = _series(c[j], sys_d)
-            self.u_paths.append((k, j, nd, _Path(dc, h, nd)))
+            paths.append(_Path(dc, h, _shift(Ld, h, "a decoupler dead time") if Ld > 0 else 0, kern.TARGET_U, k, j))
             for i in range(2):
-                sys_g, ng = G[(i, k)]
-                total = ng + nd
-                if not isinstance(total, int):
-                    total = _shift((ng + nd) * h, h, "a path's dead time")
-                self.y_paths.append((i, j, total, _Path(_series(dc, sys_g), h, total)))
-        for (i, k), (sys_g, ng) in G.items():
-            self.d_paths.append((i, k, ng, _Path(sys_g, h)))
+                sys_g, _, Lg = G[(i, k)]
+                paths.append(_Path(_series(dc, sys_g), h, _shift(Lg + Ld, h, "a path's dead time"),
+                                   kern.TARGET_Y, i, j))
+        for (i, k), (sys_g, ng, _) in G.items():
+            paths.append(_Path(sys_g, h, ng, kern.TARGET_Y, i, 2 + k))
         for j in range(2):
-            self.v_paths.append((j, _Path(c[j], h)))
+            paths.append(_Path(c[j], h, 0, kern.TARGET_V, j, j))
+        self.paths = paths
+        self._arrays, self._nmax = _stack(paths)
         self.n = _multiple(scenario.horizon, h, "the horizon")
         for steps in scenario.setpoints:
             for t, _ in steps:
@@ -296,37 +276,21 @@ class ContinuousTITOLoop:
         _multiple(scenario.input_disturbance[0], h, "the input disturbance time")
         _multiple(scenario.output_disturbance[0], h, "the output disturbance time")
 
-    def _piecewise(self, t_mid: float):
-        """Set-points and disturbances on the step whose midpoint is ``t_mid`` (constant there)."""
-        r = np.zeros(2)
-        for k, steps in enumerate(self.sc.setpoints):
+    def _signals(self):
+        """Set-points and output disturbances per step, and the history holding the input
+        disturbances at their nodes."""
+        n, h, sc = self.n, self.h, self.sc
+        mid = (np.arange(n) + 0.5) * h
+        r = np.zeros((n, 2))
+        for k, steps in enumerate(sc.setpoints):
             for ts, val in steps:
-                if t_mid >= ts:
-                    r[k] = val
-        t_in, d_in = self.sc.input_disturbance
-        t_out, d_out = self.sc.output_disturbance
-        return r, lambda s: np.asarray(d_in, float) if s >= t_in else np.zeros(2), \
-            (np.asarray(d_out, float) if t_mid >= t_out else np.zeros(2))
-
-    @staticmethod
-    def _advance(path, x, hist, k, j, shift):
-        if path.split is None:
-            return path.step(x, _delayed(hist, k, j, shift))
-        return path.step_delayed(x, hist, k, j)
-
-    def _disturbance_step(self, path, x, k, kk, shift, d_in_at):
-        """Node states over step ``k`` of a plant element driven by the input disturbance
-        delayed by ``shift`` steps; exact also where the delayed jump falls inside the step."""
-        h = self.h
-        jump = self.sc.input_disturbance[0] / h + shift  # where the delayed jump falls, in steps
-        if k < jump < k + 1:
-            before = d_in_at((k + 0.5 * (jump - k) - shift) * h)[kk]
-            after = d_in_at((jump + 0.5 * (k + 1 - jump) - shift) * h)[kk]
-            theta = jump - k
-            x_theta = path.constant(x, theta, before)
-            return np.array([path.constant(x, tau, before) if tau < theta else
-                             path.constant(x_theta, tau - theta, after) for tau in NODES])
-        return path.step(x, np.full(NODES.size, d_in_at((k + 0.5 - shift) * h)[kk]))
+                r[mid >= ts, k] = val
+        t_out, d_out = sc.output_disturbance
+        dout = np.where((mid >= t_out)[:, None], np.asarray(d_out, float)[None, :], 0.0)
+        hist = np.zeros((n + 1, 4, NODES.size))
+        t_in, d_in = sc.input_disturbance
+        hist[:n, 2:, :] = np.where((mid >= t_in)[:, None, None], np.asarray(d_in, float)[None, :, None], 0.0)
+        return r, dout, hist
 
     def run(self):
         """Simulate the scenario.
@@ -339,37 +303,12 @@ class ContinuousTITOLoop:
             Outputs (with the output disturbance), decoupler outputs (before the input
             disturbance) and controller outputs at ``t`` (from the right at a step).
         """
-        h, n, q = self.h, self.n, NODES.size
-        e_hist = np.zeros((n + 1, 2, q))  # error node values of step k (k = n: unused)
-        states = {id(p): np.zeros(p.n) for *_, p in self.y_paths + self.d_paths + self.u_paths}
-        states.update({id(p): np.zeros(p.n) for _, p in self.v_paths})
-        y_out = np.zeros((n + 1, 2))
-        u_out = np.zeros((n + 1, 2))
-        v_out = np.zeros((n + 1, 2))
-        for k in range(n):
-            t0 = k * h
-            r, d_in_at, d_out = self._piecewise(t0 + 0.5 * h)
-            y = np.tile(d_out[:, None], (1, q))
-            for i, j, nd, path in self.y_paths:
-                X = self._advance(path, states[id(path)], e_hist, k, j, nd)
-                y[i] += X @ path.C  # strictly proper paths
-                states[id(path)] = X[-1]
-            for i, kk, nd, path in self.d_paths:
-                X = self._disturbance_step(path, states[id(path)], k, kk, nd, d_in_at)
-                y[i] += X @ path.C
-                states[id(path)] = X[-1]
-            e_hist[k] = r[:, None] - y
-            u = np.zeros((2, q))
-            for kk, j, nd, path in self.u_paths:
-                X = self._advance(path, states[id(path)], e_hist, k, j, nd)
-                u[kk] += path.outputs(X, _delayed(e_hist, k, j, nd))
-                states[id(path)] = X[-1]
-            v = np.zeros((2, q))
-            for j, path in self.v_paths:
-                X = path.step(states[id(path)], e_hist[k, j])
-                v[j] = path.outputs(X, e_hist[k, j])
-                states[id(path)] = X[-1]
-            y_out[k], u_out[k], v_out[k] = y[:, 0], u[:, 0], v[:, 0]
-            if k == n - 1:
-                y_out[n], u_out[n], v_out[n] = y[:, -1], u[:, -1], v[:, -1]
-        return np.arange(n + 1) * h, y_out, u_out, v_out
+        n = self.n
+        r, dout, hist = self._signals()
+        y, u, v = (np.zeros((n + 1, 2)) for _ in range(3))
+        x = np.zeros((len(self.paths), self._nmax))
+        a = self._arrays
+        kern.run_loop(n, hist, r, dout, a["target"], a["out"], a["src"], a["split"], a["shift"], a["lag"],
+                      a["nfirst"], a["nst"], a["E"], a["H"], a["EA"], a["HA"], a["EB"], a["HB"], a["PA"], a["PB"],
+                      a["QA"], a["QB"], a["C"], a["D"], x, y, u, v)
+        return np.arange(n + 1) * self.h, y, u, v
