@@ -40,13 +40,15 @@ import scipy.signal
 from heurtune.core.errors import ConfigError
 
 from . import continuous_kernels as kern
-from .design import pid_filter_time
+from .design import parallel_controller
+from .sim import controller_tf, vary_plant
 
-__all__ = ["ContinuousTITOLoop"]
+__all__ = ["ContinuousTITOLoop", "ContinuousTITOSimulator"]
 
 # Gauss-Lobatto nodes on [0, 1] (cubic through both ends and two interior points)
 NODES = np.array([0.0, 0.5 - 0.5 / math.sqrt(5.0), 0.5 + 0.5 / math.sqrt(5.0), 1.0])
 _COMMENSURATE_TOL = 1e-9
+SIGNAL_LIMIT = 1.0e12
 
 
 def _poly(K, constants):
@@ -88,15 +90,6 @@ def _ratio(num, den):
     n = np.polymul(_poly(-num.K, num.leads), _poly(1.0, den.lags))
     d = np.polymul(_poly(den.K, den.leads), _poly(1.0, num.lags))
     return _ss(n, d)
-
-
-def _controller(kp, ki, kd, N):
-    tf = float(pid_filter_time(kp, ki, kd, N))
-    if kd != 0.0 and tf == 0.0:
-        raise ConfigError(f"controller: a derivative gain Kd = {kd!r} needs a filter (Tf = 0)")
-    if tf == 0.0:
-        return _ss([kp, ki], [1.0, 0.0])
-    return _ss([kd, kp, ki], [tf, 1.0, 0.0])
 
 
 def _lagrange_matrix(points) -> np.ndarray:
@@ -215,23 +208,28 @@ class ContinuousTITOLoop:
     Parameters
     ----------
     plant : TITOPlant
-        Every element strictly proper, with a dead time > 0.
+        Every element strictly proper, with a dead time > 0 (``scenario.variation`` is not
+        applied here; :class:`ContinuousTITOSimulator` does).
     decoupler : Decoupler or None
-    gains : ((Kp, Ki, Kd), (Kp, Ki, Kd))
-        Parallel gains of the two controllers (``C = (Kp + Ki/s + Kd s) / (1 + Tf s)``).
-    N : float
-        Derivative filter ratio, ``Tf = Td / N``.
+    controllers : pair
+        ``PIController``, ``PIDController`` or ``ParallelPID`` (a derivative needs its filter).
     scenario : TITOScenario
         Set-points, disturbances and horizon; its ``dt`` is the step ``h`` and the output
         sample time. Noise is not supported.
     """
 
-    def __init__(self, plant, decoupler, gains, N, scenario):
+    @classmethod
+    def from_gains(cls, plant, decoupler, gains, N, scenario):
+        """The loop of two parallel PID gain triples ``(Kp, Ki, Kd)`` with ``Tf = Td / N`` (the
+        tuning problems' controllers)."""
+        return cls(plant, decoupler, tuple(parallel_controller(*map(float, g), N) for g in gains), scenario)
+
+    def __init__(self, plant, decoupler, controllers, scenario):
         h = float(scenario.dt)
         if max(scenario.noise_power) > 0 or scenario.has_input_noise:
             raise ConfigError("continuous loop: noise is not supported yet; set noise_power = 0")
         self.h, self.sc = h, scenario
-        c = [_controller(*map(float, gains[k]), N) for k in range(2)]
+        c = [_ss(*controller_tf(controllers[k], k + 1)) for k in range(2)]
         unit = _ss([1.0], [1.0])
         if decoupler is None:
             D = {(0, 0): (unit, 0.0), (1, 1): (unit, 0.0)}
@@ -312,3 +310,53 @@ class ContinuousTITOLoop:
                       a["nfirst"], a["nst"], a["E"], a["H"], a["EA"], a["HA"], a["EB"], a["HB"], a["PA"], a["PB"],
                       a["QA"], a["QB"], a["C"], a["D"], x, y, u, v)
         return np.arange(n + 1) * self.h, y, u, v
+
+
+class ContinuousTITOSimulator:
+    """The continuous loop behind the interface of :class:`~heurtune.objectives.tito.sim.TITOSimulator`
+    (what ``[scenario] loop = "continuous"`` selects).
+
+    Parameters
+    ----------
+    plant : TITOPlant
+        Nominal plant (``scenario.variation`` is applied to it).
+    decoupler : Decoupler or None
+    scenario : TITOScenario
+
+    Attributes
+    ----------
+    t, r : numpy.ndarray
+        Step boundaries and set-points there.
+    plant : TITOPlant
+        The simulated (varied) plant.
+    """
+
+    def __init__(self, plant, decoupler, scenario):
+        self.scenario = scenario
+        self.plant = vary_plant(plant, scenario.variation, scenario.vary) if scenario.variation else plant
+        self.decoupler = decoupler
+        self.t = scenario.time()
+        self.r = np.zeros((self.t.size, 2))
+        for k, steps in enumerate(scenario.setpoints):
+            for ts, val in steps:
+                self.r[self.t >= ts - 1e-9, k] = val
+
+    def arrays(self, controllers):
+        """Run the loop for ``controllers``.
+
+        Returns
+        -------
+        status : str
+            ``"ok"``, or ``"diverged"`` where a signal leaves 1e12 or stops being finite.
+        y, ym, u, v : numpy.ndarray, shape (n + 1, 2)
+            As :meth:`TITOSimulator.arrays` (``ym = y``: no noise).
+        """
+        _, y, u, v = ContinuousTITOLoop(self.plant, self.decoupler, controllers, self.scenario).run()
+        big = np.abs(y).sum(axis=1) + np.abs(u).sum(axis=1)
+        bad = ~(big < SIGNAL_LIMIT)
+        if bad.any():
+            k = int(np.argmax(bad))
+            for a in (y, u, v):
+                a[k:] = np.nan
+            return "diverged", y, y, u, v
+        return "ok", y, y, u, v

@@ -62,6 +62,7 @@ SCHEMA = dict(COMMON_SCHEMA, **{
         "input_noise_power": ("oneof", (NUMBER, PAIR)), "input_noise_seed": int,
         "variation": ("map", NUMBER),
         "vary": ("list", ("K", "lags", "leads", "L")),
+        "loop": ("sampled", "continuous"),
     },
     "problem": {
         "objective": OBJECTIVES,
@@ -174,10 +175,13 @@ class TITOExperiment(ExperimentBase):
 
     def _scenarios(self, sc: dict) -> dict:
         kw = {}
-        for key in ("horizon", "dt", "noise_power", "noise_seed", "input_noise_power", "input_noise_seed"):
+        for key in ("horizon", "dt", "noise_power", "noise_seed", "input_noise_power", "input_noise_seed", "loop"):
             if key in sc:
                 kw[key] = tuple(sc[key]) if isinstance(sc[key], list) else sc[key]
         power = kw.get("input_noise_power", 0.0)
+        if self.model == "two_tank_nonlinear" and kw.get("loop", "sampled") != "sampled":
+            raise ConfigError(f"{self.name}: scenario.loop: the nonlinear two-tank simulator is sampled; allowed with "
+                              f"plant.model = 'tito' only ('sampled' or leave it out here)")
         if self.model == "two_tank_nonlinear" and any(p != 0 for p in np.atleast_1d(power)):
             raise ConfigError(f"{self.name}: scenario.input_noise_power: the nonlinear two-tank simulator has no "
                               f"input noise; allowed with plant.model = 'tito' only (0 or leave it out here)")

@@ -51,6 +51,7 @@ from heurtune.objectives.tito import design as tito_design
 from heurtune.objectives.tito import margins as tito_margins
 from heurtune.objectives.tito import model as tito
 from heurtune.objectives.tito import two_tank
+from heurtune.objectives.tito.continuous import ContinuousTITOSimulator
 from heurtune.objectives.tito.sim import TITOScenario, TITOSimulator
 
 __all__ = ["TITOProblem", "DesignChain", "gain_names", "default_bounds", "fopdt_fit", "DEFAULT_GPM"]
@@ -390,7 +391,9 @@ class TITOProblem(TuningProblem):
 
     def _simulator(self, sc: TITOScenario):
         if sc not in self._simulators:
-            if self.nonlinear is None:
+            if self.nonlinear is None and sc.loop == "continuous":
+                self._simulators[sc] = ContinuousTITOSimulator(self.chain.plant, self.chain.decoupler, sc)
+            elif self.nonlinear is None:
                 self._simulators[sc] = TITOSimulator(self.chain.plant, self.chain.decoupler, sc)
             else:
                 self._simulators[sc] = None  # simulate_two_tank per call

@@ -54,14 +54,15 @@ from heurtune.core.errors import ConfigError
 from . import kernels as _k
 from .model import Decoupler, ParallelPID, PIController, PIDController, TFElement, TITOPlant
 
-__all__ = ["TITOScenario", "TITOSimulator", "discretise_rational", "input_noise", "loop_metrics", "simulate_tito",
-           "vary_plant"]
+__all__ = ["LOOPS", "TITOScenario", "TITOSimulator", "controller_tf", "discretise_rational", "input_noise",
+           "loop_metrics", "simulate_tito", "vary_plant"]
 
 DELAY_TOL = 1e-9
 _VARY_KEYS = ("K", "lags", "leads", "L")
 # Fields of TITOScenario that enter its identity only when input noise is on (so that the
 # problem_id of every scenario without input noise stays what it was before they existed).
 _INPUT_NOISE_FIELDS = ("input_noise_power", "input_noise_seed")
+LOOPS = ("sampled", "continuous")
 
 
 def _check_steps(name: str, steps) -> tuple:
@@ -131,6 +132,10 @@ class TITOScenario:
     input_noise_seed : int or None
         Seed of the input noise; None (default) derives it from ``noise_seed`` (see the module
         docstring and :func:`input_noise`).
+    loop : {"sampled", "continuous"}
+        ``"sampled"`` (default): this module's loop, controllers and decoupler sampled at ``dt``.
+        ``"continuous"``: :class:`~heurtune.objectives.tito.continuous.ContinuousTITOSimulator`,
+        the continuous loop with exact dead times on the step ``dt`` (no noise).
 
     A step time ``t`` acts from the first sample ``k`` with ``k dt >= t - 1e-9``.
     """
@@ -146,6 +151,7 @@ class TITOScenario:
     vary: tuple = ("K", "lags", "L")
     input_noise_power: object = 0.0
     input_noise_seed: int | None = None
+    loop: str = "sampled"
 
     def __post_init__(self):
         try:
@@ -192,6 +198,11 @@ class TITOScenario:
             raise ConfigError(
                 f"scenario: unknown vary key(s) {', '.join(map(str, bad))}; allowed: {', '.join(_VARY_KEYS)}"
             )
+        if self.loop not in LOOPS:
+            raise ConfigError(f"scenario: loop must be one of {', '.join(LOOPS)}, got {self.loop!r}")
+        if self.loop == "continuous" and (max(power) > 0 or max(in_power) > 0):
+            raise ConfigError("scenario: the continuous loop has no noise yet; set noise_power and "
+                              "input_noise_power to 0 or use loop = 'sampled'")
         for key, val in (("horizon", horizon), ("dt", dt), ("variation", variation), ("setpoints", setpoints),
                          ("input_disturbance", dists[0]), ("output_disturbance", dists[1]),
                          ("noise_power", power), ("noise_seed", int(self.noise_seed)), ("vary", vary),
@@ -219,6 +230,8 @@ class TITOScenario:
         if not self.has_input_noise:
             for key in _INPUT_NOISE_FIELDS:
                 out.pop(key)
+        if self.loop == "sampled":  # the identity every sampled scenario had before the key existed
+            out.pop("loop")
         return out
 
     @property
@@ -335,7 +348,26 @@ def vary_plant(plant: TITOPlant, variation: float, vary=("K", "lags", "L")) -> T
                      name=f"{plant.name}*{f:g}" if variation else plant.name)
 
 
-def _controller_tf(c, i: int):
+def controller_tf(c, i: int):
+    """Transfer function of one controller.
+
+    Parameters
+    ----------
+    c : PIController, PIDController or ParallelPID
+    i : int
+        Its loop (1 or 2), named in errors.
+
+    Returns
+    -------
+    num, den : array_like
+        Polynomial coefficients, highest power first.
+
+    Raises
+    ------
+    ConfigError
+        One line, for a controller that cannot be realised (non-finite gains, a derivative
+        without its filter).
+    """
     if isinstance(c, PIController):
         Kc, Ti = float(c.Kc), float(c.Ti)
         if not (math.isfinite(Kc) and math.isfinite(Ti) and Ti > 0):
@@ -502,7 +534,7 @@ class TITOSimulator:
         if isinstance(controllers, (str, bytes)) or not hasattr(controllers, "__len__") or len(controllers) != 2:
             raise ConfigError("controllers: must be a pair (c1, c2) of PIController / PIDController")
         for i, c in enumerate(controllers):
-            Ad, Bd, C, D = discretise_rational(*_controller_tf(c, i + 1), self.scenario.dt)
+            Ad, Bd, C, D = discretise_rational(*controller_tf(c, i + 1), self.scenario.dt)
             self._set_block(_k.CTRL0 + i, Ad, Bd, C, D, 0)
         n1 = self.t.size
         x = np.zeros((_k.N_BLOCKS, self._m))

@@ -37,10 +37,10 @@ from . import two_tank_kernels as _k
 from .model import TFElement, TITOPlant
 from .sim import (
     TITOScenario,
-    _controller_tf,
     _decoupler_entries,
     _delay_samples,
     _step_signal,
+    controller_tf,
     discretise_rational,
 )
 
@@ -581,7 +581,7 @@ def simulate_two_tank(params: TwoTankParams, controllers, decoupler=None, scenar
     blocks = []
     rounding = 0.0
     for i, c in enumerate(controllers, start=1):
-        Ad, Bd, C, D = discretise_rational(*_controller_tf(c, i), dt)
+        Ad, Bd, C, D = discretise_rational(*controller_tf(c, i), dt)
         blocks.append((Ad, Bd, C, D, 0))
     for q, (num, den, L) in enumerate(_decoupler_entries(decoupler)):
         Ad, Bd, C, D = discretise_rational(num, den, dt)

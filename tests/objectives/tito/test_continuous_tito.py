@@ -36,7 +36,7 @@ def wood_berry(tmp_path_factory):
 
 
 def _run(prob, sc, gains, h, times):
-    t, y, u, v = ContinuousTITOLoop(prob.chain.plant, prob.chain.decoupler, gains, prob.N,
+    t, y, u, v = ContinuousTITOLoop.from_gains(prob.chain.plant, prob.chain.decoupler, gains, prob.N,
                                     dataclasses.replace(sc, dt=h)).run()
     return y[np.rint(times / h).astype(int)]
 
@@ -87,6 +87,49 @@ def test_a_dead_time_shorter_than_the_step_is_a_one_line_error(wood_berry):
     prob, sc = wood_berry
     x = prob.baseline("gpm")
     with pytest.raises(ConfigError, match="shorter than the step") as err:
-        ContinuousTITOLoop(prob.chain.plant, prob.chain.decoupler, ((x[0], x[1], 0.0), (x[3], x[4], 0.0)),
+        ContinuousTITOLoop.from_gains(prob.chain.plant, prob.chain.decoupler, ((x[0], x[1], 0.0), (x[3], x[4], 0.0)),
                            prob.N, dataclasses.replace(sc, dt=1.5))
     assert "\n" not in str(err.value) and "g11" in str(err.value)
+
+
+def _config(tmp_path, name, text):
+    path = tmp_path / f"{name}.toml"
+    path.write_text(text)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return heurtune.load_experiment(str(path))
+
+
+def test_scenario_loop_continuous_runs_the_tuning_problem_on_it(tmp_path):
+    """``[scenario] loop = "continuous"``: the CCTS's GPM PI on ga_pi_ccts's scenarios (varied
+    plants included, whose dead times fall off the step), its own problem id, the same
+    trajectory at two steps (the rest is the step's own quadrature of the metrics)."""
+    base = _config(tmp_path, "base", 'extends = "ga_pi_ccts"\n')
+    cont = _config(tmp_path, "cont", 'extends = "ga_pi_ccts"\n[scenario]\nloop = "continuous"\n')
+    fine = _config(tmp_path, "fine", 'extends = "ga_pi_ccts"\n[scenario]\nloop = "continuous"\ndt = 0.1\n')
+    prob, pb, pf = cont.problem("ccts"), base.problem("ccts"), fine.problem("ccts")
+    assert prob.scenario("nominal").identity()["loop"] == "continuous"
+    assert "loop" not in pb.scenario("nominal").identity()  # sampled ids as before the key
+    x = prob.baseline("gpm")
+    ev = prob.evaluate(x[None, :])
+    assert ev.reason[0] == "" and ev.feasible[0]
+    for scenario in ("nominal", "+30%", "-30%"):
+        a, b = prob.simulate(x, scenario), pf.simulate(x, scenario)
+        assert a.attrs["status"] == "ok"
+        rows = np.arange(0, len(b), 5)
+        assert np.abs(a[["y1", "y2"]].to_numpy() - b[["y1", "y2"]].to_numpy()[rows]).max() < 1e-5, scenario
+    # the sampled loop at the same step: within a few percent, not the same loop
+    iae_c = ev.metrics[0][prob.metric_names.index("IAE1")]
+    iae_s = pb.evaluate(x[None, :]).metrics[0][pb.metric_names.index("IAE1")]
+    assert 1e-4 < abs(iae_c / iae_s - 1.0) < 0.05
+
+
+@pytest.mark.parametrize("text, words", [
+    ('loop = "fast"', ("scenario.loop", "sampled", "continuous")),
+    ('loop = "continuous"\nnoise_power = 0.01', ("continuous loop has no noise", "noise_power")),
+])
+def test_bad_loop_settings_are_one_line_errors(tmp_path, text, words):
+    with pytest.raises(ConfigError) as err:
+        _config(tmp_path, "bad", f'extends = "ga_pi_ccts"\n[scenario]\n{text}\n').problem("ccts")
+    msg = str(err.value)
+    assert "\n" not in msg and all(w in msg for w in words), msg
