@@ -23,18 +23,6 @@ from heurtune.core.errors import ConfigError
 from heurtune.objectives.tito.continuous import ContinuousTITOLoop
 
 
-@pytest.fixture(scope="module")
-def wood_berry(tmp_path_factory):
-    cfg = tmp_path_factory.mktemp("wb") / "wood_berry.toml"
-    cfg.write_text('extends = "paper_001"\n[plant]\ncases = ["wood_berry"]\n')
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        prob = heurtune.load_experiment(str(cfg)).problem("wood_berry")
-    sc = dataclasses.replace(prob.scenario("nominal"), horizon=200.0, input_disturbance=(60.0, (0.1, 0.1)),
-                             output_disturbance=(120.0, (0.1, 0.1)))
-    return prob, sc
-
-
 def _run(prob, sc, gains, h, times):
     t, y, u, v = ContinuousTITOLoop.from_gains(prob.chain.plant, prob.chain.decoupler, gains, prob.N,
                                     dataclasses.replace(sc, dt=h)).run()

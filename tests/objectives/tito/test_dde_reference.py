@@ -12,33 +12,22 @@ and the reference agrees with itself across two solvers and tolerances (LSODA at
 """
 
 import dataclasses
-import warnings
 
 import numpy as np
 import pytest
 from numerics import assert_close
 from tito_dde_reference import DDELoop
 
-import heurtune
 
-
-@pytest.fixture(scope="module")
-def wood_berry(tmp_path_factory):
-    cfg = tmp_path_factory.mktemp("wb") / "wood_berry.toml"
-    cfg.write_text('extends = "paper_001"\n[plant]\ncases = ["wood_berry"]\n')
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        prob = heurtune.load_experiment(str(cfg)).problem("wood_berry")
+def _gpm_pi(prob):
     x = prob.baseline("gpm")
-    sc = dataclasses.replace(prob.scenario("nominal"), horizon=200.0, input_disturbance=(60.0, (0.1, 0.1)),
-                             output_disturbance=(120.0, (0.1, 0.1)))
-    gains = ((x[0], x[1], 0.0), (x[3], x[4], 0.0))
-    return prob, x, sc, gains
+    return x, ((x[0], x[1], 0.0), (x[3], x[4], 0.0))
 
 
 @pytest.fixture(scope="module")
 def reference(wood_berry):
-    prob, _, sc, gains = wood_berry
+    prob, sc = wood_berry
+    _, gains = _gpm_pi(prob)
     times = np.arange(0.0, sc.horizon + 1e-9, 0.5)
     loops = {method: DDELoop(prob.chain.plant, prob.chain.decoupler, gains, prob.N, sc).solve(
         rtol=rtol, atol=1e-2 * rtol, method=method) for method, rtol in (("LSODA", 1e-10), ("RK45", 1e-9))}
@@ -53,7 +42,8 @@ def test_the_reference_agrees_with_itself(reference):
 
 
 def test_the_sampled_loop_converges_to_it_at_first_order(wood_berry, reference):
-    prob, x, sc, _ = wood_berry
+    prob, sc = wood_berry
+    x, _ = _gpm_pi(prob)
     times, y = reference
     errors = []
     for dt in (0.1, 0.05, 0.025):
