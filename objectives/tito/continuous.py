@@ -21,12 +21,13 @@ same way, from paths ``D_kj c_j`` and ``c_j`` driven by the stored errors.
 
 A dead time that is not a multiple of the step (it must not be shorter than the step) puts a
 stored step boundary at the same fraction ``theta`` of every step; the path is advanced over the
-two sub-steps, each with its own stored cubic as input, so it stays exact (the errors' jumps and
-kinks included). The input
-disturbance's jump is integrated exactly wherever its delayed image falls. Set-point and
-disturbance times must be multiples of the step; no measurement or input noise; linear plants
-only. Checked against the method of
-steps with ``solve_ivp`` (``tests/tito_dde_reference.py``).
+two sub-steps, each with its own stored cubic as input, so a jump of the delayed signal (the
+input disturbance, a set-point step) is integrated exactly. The breakpoints it creates in the
+errors then fall inside steps, where the cubics smooth their kinks: second order in ``h``. With a
+derivative in the controllers the order is about 2 as well (the derivative acts on the cubics'
+slope jumps at the step boundaries). Set-point and disturbance times must be multiples of the
+step; no measurement or input noise; linear plants only. Checked against the method of steps
+with ``solve_ivp`` (``tests/tito_dde_reference.py``, ``tests/objectives/tito/test_continuous_tito.py``).
 """
 
 from __future__ import annotations
