@@ -16,7 +16,6 @@ import warnings
 
 import numpy as np
 import pytest
-from tito_dde_reference import DDELoop
 
 import heurtune
 from heurtune.core.errors import ConfigError
@@ -29,13 +28,11 @@ def _run(prob, sc, gains, h, times):
     return y[np.rint(times / h).astype(int)]
 
 
-def test_pi_loop_agrees_with_the_reference_at_coarse_steps(wood_berry):
+def test_pi_loop_agrees_with_the_reference_at_coarse_steps(wood_berry, wood_berry_gpm_pi, wood_berry_reference):
     prob, sc = wood_berry
-    x = prob.baseline("gpm")
-    gains = ((x[0], x[1], 0.0), (x[3], x[4], 0.0))
+    gains = wood_berry_gpm_pi[1]
     times = np.arange(0.0, sc.horizon + 1e-9, 0.5)
-    ref = DDELoop(prob.chain.plant, prob.chain.decoupler, gains, prob.N, sc).solve(
-        rtol=1e-10, atol=1e-12, method="LSODA").outputs(times)
+    ref = wood_berry_reference.outputs(times)
     for h in (0.5, 0.1):
         assert np.abs(_run(prob, sc, gains, h, times) - ref).max() < 1e-8, h
 
@@ -55,17 +52,15 @@ def test_pid_loop_converges_where_the_sampled_loop_diverges(wood_berry):
     assert prob.simulate(xs, dataclasses.replace(sc, dt=0.1)).attrs["status"] != "ok"
 
 
-def test_dead_times_off_the_step_converge_at_second_order(wood_berry):
+def test_dead_times_off_the_step_converge_at_second_order(wood_berry, wood_berry_gpm_pi, wood_berry_reference):
     """h = 0.16 and 0.08 s put Wood-Berry's plant dead times (1, 3, 7 s) at fractions of a step:
     the paths stay exact over their two sub-steps, but the errors now have kinks inside steps
     (a breakpoint delayed by a fractional dead time), which the cubics smooth: measured 3.0e-5
     and 7.0e-6 (1.7e-4 at 0.4 s), against 5e-10 at the commensurate 0.2 s."""
     prob, sc = wood_berry
-    x = prob.baseline("gpm")
-    gains = ((x[0], x[1], 0.0), (x[3], x[4], 0.0))
+    gains = wood_berry_gpm_pi[1]
     times = np.arange(0.0, sc.horizon + 1e-9, 1.6)
-    ref = DDELoop(prob.chain.plant, prob.chain.decoupler, gains, prob.N, sc).solve(
-        rtol=1e-10, atol=1e-12, method="LSODA").outputs(times)
+    ref = wood_berry_reference.outputs(times)
     coarse = np.abs(_run(prob, sc, gains, 0.16, times) - ref).max()
     fine = np.abs(_run(prob, sc, gains, 0.08, times) - ref).max()
     assert coarse < 1e-4 and fine < 2e-5 and coarse / fine > 3.0, (coarse, fine)
