@@ -42,6 +42,7 @@ from heurtune.core.errors import ConfigError
 
 from . import continuous_kernels as kern
 from .design import parallel_controller
+from .model import ParallelPID, PIController
 from .sim import controller_tf, vary_plant
 
 __all__ = ["ContinuousTITOLoop", "ContinuousTITOSimulator"]
@@ -101,6 +102,22 @@ def _lagrange_matrix(points) -> np.ndarray:
             others = [b for i, b in enumerate(NODES) if i != c]
             P[r, c] = np.prod([(tau - b) / (NODES[c] - b) for b in others])
     return P
+
+
+def _pi_gains(controllers):
+    """``((Kp1, Ki1), (Kp2, Ki2))`` where both controllers are PIs (a ParallelPID without
+    derivative and filter, or a PIController), else None."""
+    out = []
+    for c in controllers:
+        if isinstance(c, ParallelPID) and c.Kd == 0.0 and c.Tf == 0.0:
+            out.append((float(c.Kp), float(c.Ki)))
+        elif isinstance(c, PIController):
+            out.append((float(c.Kc), float(c.Kc) / float(c.Ti)))
+        else:
+            return None
+    if not all(math.isfinite(v) for pair in out for v in pair):
+        return None
+    return tuple(out)
 
 
 def _shift(value: float, h: float, what: str):
@@ -230,8 +247,15 @@ class ContinuousTITOLoop:
         if max(scenario.noise_power) > 0 or scenario.has_input_noise:
             raise ConfigError("continuous loop: noise is not supported yet; set noise_power = 0")
         self.h, self.sc = h, scenario
-        c = [_ss(*controller_tf(controllers[k], k + 1)) for k in range(2)]
         unit = _ss([1.0], [1.0])
+        self.pi = _pi_gains(controllers) is not None
+        if self.pi:
+            # a PI is Kp + Ki/s: every path is linear in the gains, so the loop is built from the
+            # bases 1 and 1/s once, and a new PI only rescales the paths' outputs (run(controllers))
+            integrator = _ss([1.0], [1.0, 0.0])
+            bases = [[(unit, 2 * j), (integrator, 2 * j + 1)] for j in range(2)]
+        else:
+            bases = [[(_ss(*controller_tf(controllers[j], j + 1)), -1)] for j in range(2)]
         if decoupler is None:
             D = {(0, 0): (unit, 0.0), (1, 1): (unit, 0.0)}
         else:
@@ -254,20 +278,29 @@ class ContinuousTITOLoop:
                                       "with a dead time > 0")
                 G[(i, k)] = (sys_g, _shift(e.L, h, f"the dead time of g{i + 1}{k + 1}"), e.L)
         # paths: e_j -> y_i through c_j, D_kj, g_ik; d_in_k -> y_i through g_ik; e_j -> u_k; e_j -> v_j
-        paths = []
+        paths, weights = [], []  # weights: which gain scales a path's output (-1: none)
         for (k, j), (sys_d, Ld) in D.items():
-            dc = _series(c[j], sys_d)
-            paths.append(_Path(dc, h, _shift(Ld, h, "a decoupler dead time") if Ld > 0 else 0, kern.TARGET_U, k, j))
-            for i in range(2):
-                sys_g, _, Lg = G[(i, k)]
-                paths.append(_Path(_series(dc, sys_g), h, _shift(Lg + Ld, h, "a path's dead time"),
-                                   kern.TARGET_Y, i, j))
+            for basis, weight in bases[j]:
+                dc = _series(basis, sys_d)
+                paths.append(_Path(dc, h, _shift(Ld, h, "a decoupler dead time") if Ld > 0 else 0,
+                                   kern.TARGET_U, k, j))
+                weights.append(weight)
+                for i in range(2):
+                    sys_g, _, Lg = G[(i, k)]
+                    paths.append(_Path(_series(dc, sys_g), h, _shift(Lg + Ld, h, "a path's dead time"),
+                                       kern.TARGET_Y, i, j))
+                    weights.append(weight)
         for (i, k), (sys_g, ng, _) in G.items():
             paths.append(_Path(sys_g, h, ng, kern.TARGET_Y, i, 2 + k))
+            weights.append(-1)
         for j in range(2):
-            paths.append(_Path(c[j], h, 0, kern.TARGET_V, j, j))
+            for basis, weight in bases[j]:
+                paths.append(_Path(basis, h, 0, kern.TARGET_V, j, j))
+                weights.append(weight)
         self.paths = paths
+        self._weights = np.array(weights, dtype=np.int64)
         self._arrays, self._nmax = _stack(paths)
+        self._gains = None if not self.pi else np.array([g for pair in _pi_gains(controllers) for g in pair])
         self.n = _multiple(scenario.horizon, h, "the horizon")
         for steps in scenario.setpoints:
             for t, _ in steps:
@@ -291,8 +324,14 @@ class ContinuousTITOLoop:
         hist[:n, 2:, :] = np.where((mid >= t_in)[:, None, None], np.asarray(d_in, float)[None, :, None], 0.0)
         return r, dout, hist
 
-    def run(self):
+    def run(self, controllers=None):
         """Simulate the scenario.
+
+        Parameters
+        ----------
+        controllers : pair, optional
+            Other PI controllers for a loop built from PI controllers (its paths are linear in
+            the gains, so nothing is rebuilt); default: the loop's own.
 
         Returns
         -------
@@ -307,9 +346,21 @@ class ContinuousTITOLoop:
         y, u, v = (np.zeros((n + 1, 2)) for _ in range(3))
         x = np.zeros((len(self.paths), self._nmax))
         a = self._arrays
+        C, D = a["C"], a["D"]
+        if self.pi:
+            gains = self._gains
+            if controllers is not None:
+                pairs = _pi_gains(controllers)
+                if pairs is None:
+                    raise ConfigError("continuous loop: a loop built for PI controllers runs PI controllers only")
+                gains = np.array([g for pair in pairs for g in pair])
+            scale = np.where(self._weights >= 0, gains[np.maximum(self._weights, 0)], 1.0)
+            C, D = C * scale[:, None], D * scale
+        elif controllers is not None:
+            raise ConfigError("continuous loop: only a loop built for PI controllers takes others")
         kern.run_loop(n, hist, r, dout, a["target"], a["out"], a["src"], a["split"], a["shift"], a["lag"],
                       a["nfirst"], a["nst"], a["E"], a["H"], a["EA"], a["HA"], a["EB"], a["HB"], a["PA"], a["PB"],
-                      a["QA"], a["QB"], a["C"], a["D"], x, y, u, v)
+                      a["QA"], a["QB"], C, D, x, y, u, v)
         return np.arange(n + 1) * self.h, y, u, v
 
 
@@ -336,6 +387,7 @@ class ContinuousTITOSimulator:
         self.scenario = scenario
         self.plant = vary_plant(plant, scenario.variation, scenario.vary) if scenario.variation else plant
         self.decoupler = decoupler
+        self._pi_loop = None
         self.t = scenario.time()
         self.r = np.zeros((self.t.size, 2))
         for k, steps in enumerate(scenario.setpoints):
@@ -352,7 +404,12 @@ class ContinuousTITOSimulator:
         y, ym, u, v : numpy.ndarray, shape (n + 1, 2)
             As :meth:`TITOSimulator.arrays` (``ym = y``: no noise).
         """
-        _, y, u, v = ContinuousTITOLoop(self.plant, self.decoupler, controllers, self.scenario).run()
+        if _pi_gains(controllers) is not None:
+            if self._pi_loop is None:  # built once: a PI only rescales the paths
+                self._pi_loop = ContinuousTITOLoop(self.plant, self.decoupler, controllers, self.scenario)
+            _, y, u, v = self._pi_loop.run(controllers)
+        else:
+            _, y, u, v = ContinuousTITOLoop(self.plant, self.decoupler, controllers, self.scenario).run()
         big = np.abs(y).sum(axis=1) + np.abs(u).sum(axis=1)
         bad = ~(big < SIGNAL_LIMIT)
         if bad.any():

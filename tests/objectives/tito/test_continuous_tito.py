@@ -16,10 +16,12 @@ import warnings
 
 import numpy as np
 import pytest
+from numerics import assert_same_bits
 
 import heurtune
 from heurtune.core.errors import ConfigError
 from heurtune.objectives.tito.continuous import ContinuousTITOLoop
+from heurtune.objectives.tito.design import parallel_controller
 
 
 def _run(prob, sc, gains, h, times):
@@ -116,3 +118,21 @@ def test_bad_loop_settings_are_one_line_errors(tmp_path, text, words):
         _config(tmp_path, "bad", f'extends = "ga_pi_ccts"\n[scenario]\n{text}\n').problem("ccts")
     msg = str(err.value)
     assert "\n" not in msg and all(w in msg for w in words), msg
+
+
+def test_a_pi_loop_is_built_once_and_rescaled(wood_berry, wood_berry_gpm_pi):
+    """PI paths are linear in Kp and Ki: a loop built for one PI runs another by rescaling the
+    paths' outputs, the same arithmetic as a loop built for that PI."""
+    prob, sc = wood_berry
+    gains = wood_berry_gpm_pi[1]
+    other = tuple((1.3 * kp, 0.7 * ki, 0.0) for kp, ki, _ in gains)
+    scenario = dataclasses.replace(sc, dt=0.5)
+    built = ContinuousTITOLoop.from_gains(prob.chain.plant, prob.chain.decoupler, gains, prob.N, scenario)
+    fresh = ContinuousTITOLoop.from_gains(prob.chain.plant, prob.chain.decoupler, other, prob.N, scenario)
+    controllers = tuple(parallel_controller(*g, prob.N) for g in other)
+    for a, b in zip(built.run(controllers), fresh.run()):
+        assert_same_bits(a, b, because="same code")
+    pid = ContinuousTITOLoop.from_gains(prob.chain.plant, prob.chain.decoupler,
+                                        tuple((kp, ki, 0.3 * kp) for kp, ki, _ in gains), prob.N, scenario)
+    with pytest.raises(ConfigError, match="PI controllers"):
+        pid.run(controllers)
