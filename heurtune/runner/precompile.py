@@ -4,7 +4,8 @@
 candidates of every case of every shipped experiment on each CPU device (``cpu``,
 ``cpu-batch``), and of the QTP experiments also with the sampled loop (``[controller]
 sample_time``) and under all their scenarios at once; a TITO problem, which simulates only the
-candidates its frequency check passes, also simulates one. Every kernel those evaluations call
+candidates its frequency check passes, also simulates one, and ``ga_pi_ccts`` runs on the
+continuous loop too (``[scenario] loop = "continuous"``). Every kernel those evaluations call
 is compiled and written to numba's cache (``__pycache__`` beside the sources, or
 ``NUMBA_CACHE_DIR``), so a later run, test or worker process loads it instead of compiling.
 ``make setup`` and ``make test`` call it; with a filled cache it takes seconds.
@@ -32,6 +33,9 @@ from pathlib import Path
 # QTP experiments whose sampled loop (sample_time = 0.01) is compiled too: one with a single
 # scenario and one with several (the robust one), which call different kernels.
 SAMPLED = ("cs_lqi_qtp", "robust_cs_folqi_qtp")
+# A TITO experiment run on the continuous loop too ([scenario] loop = "continuous").
+CONTINUOUS = ("ga_pi_ccts",)
+_VARIANTS = {"sampled": "[controller]\nsample_time = 0.01\n", "continuous": '[scenario]\nloop = "continuous"\n'}
 
 
 DEVICES = ("cpu", "cpu-batch")
@@ -66,7 +70,8 @@ def warm(names: list[str]) -> list[str]:
     Parameters
     ----------
     names : list of str
-        Shipped experiment names; ``"NAME:sampled"`` for a QTP experiment's sampled loop;
+        Shipped experiment names; ``"NAME:sampled"`` for a QTP experiment's sampled loop,
+        ``"NAME:continuous"`` for a TITO experiment's continuous loop;
         ``"NAME@DEVICE"`` (``cpu`` or ``cpu-batch``) for one device only (default: both).
 
     Returns
@@ -89,10 +94,10 @@ def warm(names: list[str]) -> list[str]:
                         contextlib.redirect_stderr(io.StringIO()):
                     warnings.simplefilter("ignore")
                     devices = (device,) if device else DEVICES
-                    if name.endswith(":sampled"):
-                        base = name.split(":")[0]
-                        cfg = Path(tmp) / f"{base}_sampled.toml"
-                        cfg.write_text(f'extends = "{base}"\n[controller]\nsample_time = 0.01\n')
+                    base, _, variant = name.partition(":")
+                    if variant:
+                        cfg = Path(tmp) / f"{base}_{variant}.toml"
+                        cfg.write_text(f'extends = "{base}"\n{_VARIANTS[variant]}')
                         experiment = load_experiment(str(cfg))
                     else:
                         experiment = load_experiment(name)
@@ -118,6 +123,7 @@ def _groups(jobs: int) -> list[list[str]]:
         by_family.setdefault(family, []).append(name)
     qtp = by_family.pop("qtp", []) + [f"{name}:sampled" for name in SAMPLED]
     rest = [name for family in sorted(by_family) for name in by_family[family]]
+    rest += [f"{name}:continuous" for name in CONTINUOUS]
     if jobs <= 1:
         return [qtp + rest]
     return [[f"{name}@cpu" for name in qtp], [f"{name}@cpu-batch" for name in qtp] + rest]

@@ -6,15 +6,15 @@ import subprocess
 import sys
 
 from heurtune.runner.config import list_experiments
-from heurtune.runner.precompile import SAMPLED, _groups, warm
+from heurtune.runner.precompile import CONTINUOUS, SAMPLED, _groups, warm
 
 
 def test_two_groups_cover_every_experiment_once_per_device():
     one, = _groups(1)
     a, b = _groups(2)
-    names = set(list_experiments())
-    assert {n.split("@")[0] for n in one} == names | {f"{n}:sampled" for n in SAMPLED}
-    assert {n.split("@")[0] for n in a + b} == names | {f"{n}:sampled" for n in SAMPLED}
+    names = set(list_experiments()) | {f"{n}:sampled" for n in SAMPLED} | {f"{n}:continuous" for n in CONTINUOUS}
+    assert {n.split("@")[0] for n in one} == names
+    assert {n.split("@")[0] for n in a + b} == names
     # a QTP experiment's one-candidate kernels in one process, its batched ones in the other
     assert all(n.endswith("@cpu") for n in a) and "cs_folqi_qtp@cpu-batch" in b
     assert len(a + b) == len(set(a + b))
