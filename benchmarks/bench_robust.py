@@ -22,6 +22,7 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
+from timing import median_seconds  # noqa: E402
 
 import heurtune  # noqa: E402
 from heurtune.runner.machine import cpu_name  # noqa: E402
@@ -31,13 +32,7 @@ GAINS = dict(Q11=0.4431, Q22=0.3027, Q33=0.4434, Q44=1.5722, R11=4.2253, R22=2.5
 
 
 def _ms_per_candidate(fn, n, repeats) -> float:
-    fn()  # warm
-    runs = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        runs.append(time.perf_counter() - t0)
-    return 1e3 * float(np.median(runs)) / n
+    return 1e3 * median_seconds(fn, repeats) / n
 
 
 def _compare(label, nominal, robust, X, repeats):

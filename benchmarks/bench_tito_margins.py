@@ -20,11 +20,11 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import time  # noqa: E402
 import warnings  # noqa: E402
 
 import numpy as np  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
+from timing import median_seconds  # noqa: E402
 
 import heurtune  # noqa: E402
 from heurtune.objectives.tito import design as tito_design  # noqa: E402
@@ -32,16 +32,6 @@ from heurtune.objectives.tito import margins as tito_margins  # noqa: E402
 from heurtune.objectives.tito.papers import simulated  # noqa: E402
 from heurtune.objectives.tito.problem import _controller_tail  # noqa: E402
 from heurtune.runner.machine import cpu_name  # noqa: E402
-
-
-def _seconds(fn, repeats) -> float:
-    fn()  # warm
-    runs = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        runs.append(time.perf_counter() - t0)
-    return float(np.median(runs))
 
 
 def _candidates(prob, n=25):
@@ -79,8 +69,8 @@ def main(argv=None) -> int:
                     return tito_design.bandwidth_design_eval(Pw, w, Xi, prob.kind, prob.N, 1.0, 1.0, 1e9,
                                                              return_metrics=True, tail=tail)[3]
 
-                t_exact = _seconds(exact, args.repeats) / len(Xi)
-                t_shared = _seconds(shared, args.repeats) / len(Xi)
+                t_exact = median_seconds(exact, args.repeats) / len(Xi)
+                t_shared = median_seconds(shared, args.repeats) / len(Xi)
                 ms = exact()
                 ok = [m for m in ms if m is not None]
                 gm_exact = np.array([m.gain_margin[0] for m in ok])

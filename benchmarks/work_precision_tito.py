@@ -34,17 +34,12 @@ from heurtune.objectives.tito.continuous import ContinuousTITOLoop  # noqa: E402
 from heurtune.runner.machine import cpu_name  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from timing import median_seconds  # noqa: E402
 from tito_dde_reference import DDELoop  # noqa: E402
 
 
 def _median_ms(fn, repeats):
-    fn()
-    runs = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        runs.append(time.perf_counter() - t0)
-    return 1e3 * float(np.median(runs))
+    return 1e3 * median_seconds(fn, repeats)
 
 
 def _iae(t, r, y):

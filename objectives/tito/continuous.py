@@ -43,7 +43,7 @@ from heurtune.core.errors import ConfigError
 from . import continuous_kernels as kern
 from .design import parallel_controller
 from .model import ParallelPID, PIController
-from .sim import controller_tf, vary_plant
+from .sim import _poly, controller_tf, vary_plant
 
 __all__ = ["ContinuousTITOLoop", "ContinuousTITOSimulator"]
 
@@ -51,13 +51,6 @@ __all__ = ["ContinuousTITOLoop", "ContinuousTITOSimulator"]
 NODES = np.array([0.0, 0.5 - 0.5 / math.sqrt(5.0), 0.5 + 0.5 / math.sqrt(5.0), 1.0])
 _COMMENSURATE_TOL = 1e-9
 SIGNAL_LIMIT = 1.0e12
-
-
-def _poly(K, constants):
-    p = np.array([float(K)])
-    for t in constants:
-        p = np.polymul(p, [float(t), 1.0])
-    return p
 
 
 def _ss(num, den):

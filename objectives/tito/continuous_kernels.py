@@ -49,6 +49,18 @@ def _inputs(p, k, hist, src, split, shift, lag, PA, PB, QA, QB, wa, wb, wn):
         wn[i] = na + nb
 
 
+@njit(cache=True, inline="always")
+def _affine(E, H, p, i, n, x, w, out, row):
+    """``out[row, :n] = E[p, i] x + H[p, i] w`` (a path's state at one node)."""
+    for r in range(n):
+        acc = 0.0
+        for c in range(n):
+            acc += E[p, i, r, c] * x[c]
+        for c in range(w.size):
+            acc += H[p, i, r, c] * w[c]
+        out[row, r] = acc
+
+
 @njit(cache=True)
 def _advance(p, x, wa, wb, split, nst, nfirst, E, H, EA, HA, EB, HB, X):
     """Node states ``X[i, :]`` of path ``p`` over the step from its state ``x[p]``."""
@@ -56,36 +68,16 @@ def _advance(p, x, wa, wb, split, nst, nfirst, E, H, EA, HA, EB, HB, X):
     n = nst[p]
     if split[p] == 0:
         for i in range(q):
-            for r in range(n):
-                acc = 0.0
-                for c in range(n):
-                    acc += E[p, i, r, c] * x[p, c]
-                for c in range(q):
-                    acc += H[p, i, r, c] * wa[c]
-                X[i, r] = acc
+            _affine(E, H, p, i, n, x[p], wa, X, i)
         return
     nf = nfirst[p]
-    # first sub-step: nodes 0 .. nf - 1 and its end (row nf of EA/HA)
-    xm = np.empty(n)
+    # first sub-step: nodes 0 .. nf - 1, then its end (row nf of EA/HA) into row nf of X, which
+    # the second sub-step starts from and then overwrites with its own first node
     for i in range(nf + 1):
-        for r in range(n):
-            acc = 0.0
-            for c in range(n):
-                acc += EA[p, i, r, c] * x[p, c]
-            for c in range(q):
-                acc += HA[p, i, r, c] * wa[c]
-            if i < nf:
-                X[i, r] = acc
-            else:
-                xm[r] = acc
+        _affine(EA, HA, p, i, n, x[p], wa, X, i)
+    xm = X[nf, :n].copy()
     for i in range(q - nf):
-        for r in range(n):
-            acc = 0.0
-            for c in range(n):
-                acc += EB[p, i, r, c] * xm[c]
-            for c in range(q):
-                acc += HB[p, i, r, c] * wb[c]
-            X[nf + i, r] = acc
+        _affine(EB, HB, p, i, n, xm, wb, X, nf + i)
 
 
 @njit(cache=True)
