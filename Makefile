@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: setup run test portability lint bench clean
+.PHONY: setup run test test-long test-all portability lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -28,11 +28,24 @@ run: $(STAMP)
 # Two worker processes, each test file on one of them (pytest-xdist; `--dist loadfile` keeps a
 # file's module-level caches and compiled kernels in one process), the longest files first
 # (tests/conftest.py). TEST_WORKERS=0 runs in-process; PYTEST_ARGS adds options (--durations=20).
+# `make test` is the five-minute suite: every test but those marked `long` (a fresh compilation of
+# every kernel, the papers' and the sampled release's end-to-end reproductions, the densest
+# references); `make test-long` runs those, `make test-all` both tiers in one call. CI runs
+# `make test` and `make test-long` (docs/testing.md, "Two tiers").
 TEST_WORKERS ?= 2
 PYTEST_ARGS ?=
+PYTEST := $(BIN)/pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 test: $(STAMP)
 	$(PRECOMPILE)
-	$(BIN)/pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder $(PYTEST_ARGS)
+	$(PYTEST) -m "not long" $(PYTEST_ARGS)
+
+test-long: $(STAMP)
+	$(PRECOMPILE)
+	$(PYTEST) -m long $(PYTEST_ARGS)
+
+test-all: $(STAMP)
+	$(PRECOMPILE)
+	$(PYTEST) $(PYTEST_ARGS)
 
 # The numerical tests with numba's generic x86-64 target (no AVX, no FMA) and a cache of their
 # own, in a fresh process: a test that holds only on this CPU's instruction set fails here

@@ -10,6 +10,9 @@ import pytest
 import heurtune
 from heurtune.core.testfunctions import BUDGETS, PROBLEMS
 
+# every optimiser on every standard problem at its full budget: `make test-long` (docs/testing.md, "Two tiers")
+pytestmark = pytest.mark.long
+
 THRESHOLD = {
     ("apso", "ackley"): 3.48,
     ("apso", "pressure_vessel"): 1.69e+03,

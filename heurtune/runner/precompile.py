@@ -10,6 +10,12 @@ is compiled and written to numba's cache (``__pycache__`` beside the sources, or
 ``NUMBA_CACHE_DIR``), so a later run, test or worker process loads it instead of compiling.
 ``make setup`` and ``make test`` call it; with a filled cache it takes seconds.
 
+A full run leaves a stamp in the cache (``heurtune-precompile.json``): the numba version, the
+CPU numba compiles for, the size and modification time of every source and config file of the
+package, and of every index file of the cache. While none of them has changed, a later call
+(without names or ``--force``) says so and stops in well under a second; an edited kernel, a
+new experiment, another numba or CPU, or a removed cache runs it again.
+
 The work is split over ``--jobs`` processes (default: the number of CPUs, at most 2) so that
 no two processes compile the same kernel: the QTP experiments' one-candidate kernels in one,
 their batched kernels and the other families' kernels in the other (about equal shares). The
@@ -23,6 +29,7 @@ import argparse
 import concurrent.futures
 import contextlib
 import io
+import json
 import os
 import sys
 import tempfile
@@ -129,6 +136,64 @@ def _groups(jobs: int) -> list[list[str]]:
     return [[f"{name}@cpu" for name in qtp], [f"{name}@cpu-batch" for name in qtp] + rest]
 
 
+STAMP = "heurtune-precompile.json"
+# The package's folders (heurtune.algorithms, .objectives and .experiments live beside heurtune/).
+_SOURCES = ("heurtune", "algorithms", "objectives", "experiments")
+
+
+def _cache_dirs() -> tuple[Path, list[Path]]:
+    """Where the stamp goes, and the folders numba's index files are in."""
+    root = Path(__file__).resolve().parents[2]
+    custom = os.environ.get("NUMBA_CACHE_DIR")
+    if custom:
+        return Path(custom), [Path(custom)]
+    return root / "heurtune" / "__pycache__", [root / name for name in _SOURCES]
+
+
+def _stat(path: Path) -> list[int]:
+    st = path.stat()
+    return [st.st_size, st.st_mtime_ns]
+
+
+def _state() -> dict:
+    """What a full run's result depends on (the module docstring): numba, the CPU, the files."""
+    import numba
+    from llvmlite import binding
+
+    root = Path(__file__).resolve().parents[2]
+    sources = {str(path.relative_to(root)): _stat(path) for name in _SOURCES
+               for path in sorted((root / name).rglob("*")) if path.suffix in (".py", ".toml")}
+    _, folders = _cache_dirs()
+    index = {str(path): _stat(path) for folder in folders if folder.is_dir() for path in sorted(folder.rglob("*.nbi"))}
+    cpu = os.environ.get("NUMBA_CPU_NAME") or binding.get_host_cpu_name()
+    return {"numba": numba.__version__, "python": sys.version, "cpu": cpu,
+            "features": os.environ.get("NUMBA_CPU_FEATURES", ""), "sources": sources, "index": index}
+
+
+def _up_to_date() -> bool:
+    """Whether the stamp of the last full run still holds: the same numba, CPU and sources, and
+    every index file it saw unchanged (index files written since, by kernels compiled outside
+    the shipped experiments, do not matter)."""
+    stamp_dir, _ = _cache_dirs()
+    try:
+        old = json.loads((stamp_dir / STAMP).read_text())
+        now = _state()
+    except (OSError, ValueError):
+        return False
+    same = all(old.get(key) == now[key] for key in ("numba", "python", "cpu", "features", "sources"))
+    index = old.get("index")
+    return same and isinstance(index, dict) and bool(index) and all(now["index"].get(k) == v for k, v in index.items())
+
+
+def _write_stamp() -> None:
+    stamp_dir, _ = _cache_dirs()
+    with contextlib.suppress(OSError):  # a read-only install: no stamp, the next call runs again
+        stamp_dir.mkdir(parents=True, exist_ok=True)
+        tmp = stamp_dir / f".{STAMP}.{os.getpid()}"
+        tmp.write_text(json.dumps(_state()))
+        os.replace(tmp, stamp_dir / STAMP)
+
+
 def main(argv=None) -> None:
     """Command line of ``python -m heurtune.precompile``.
 
@@ -145,10 +210,16 @@ def main(argv=None) -> None:
     ap.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
                     help="processes (default: the CPUs, at most 2)")
     ap.add_argument("--quiet", action="store_true", help="print only the total")
+    ap.add_argument("--force", action="store_true",
+                    help="run even when the stamp says nothing changed since the last full run")
     args = ap.parse_args(argv)
     if args.jobs < 1:
         ap.error(f"--jobs = {args.jobs}: give 1 or more")
     start = time.perf_counter()
+    if not args.names and not args.force and _up_to_date():
+        print("precompile: numba's cache is up to date (nothing changed since the last full run; --force runs it)",
+              file=sys.stderr)
+        return
     groups = [args.names] if args.names else _groups(args.jobs)
     if len(groups) == 1:
         lines = warm(groups[0])
@@ -158,6 +229,8 @@ def main(argv=None) -> None:
     if not args.quiet:
         print("\n".join(lines))
     failed = [line for line in lines if "not compiled" in line]
+    if not args.names and not failed:
+        _write_stamp()
     print(f"precompile: {len(lines) - len(failed)} experiments' kernels in numba's cache "
           f"({time.perf_counter() - start:.0f} s){'; ' + str(len(failed)) + ' not compiled' if failed else ''}",
           file=sys.stderr)

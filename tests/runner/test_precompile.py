@@ -33,3 +33,43 @@ def test_the_command_fills_an_empty_cache(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     assert "paper_002: " in done.stdout and "1 experiments' kernels in numba's cache" in done.stderr
     assert any((tmp_path / "cache").rglob("*.nbi"))
+
+
+def test_a_stamp_skips_an_unchanged_cache_and_any_change_runs_it_again(tmp_path, monkeypatch, capsys):
+    """The stamp holds while numba, the CPU, the sources and the index files it saw are as they
+    were; an index file written since does not matter; a changed or removed one, or an edited
+    source, does."""
+    import json
+
+    from heurtune.runner import precompile
+
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(cache))
+    (cache / "kernels").mkdir(parents=True)
+    index = cache / "kernels" / "loop.run-1.py311.nbi"
+    index.write_bytes(b"index")
+    assert not precompile._up_to_date()  # no stamp yet
+    precompile._write_stamp()
+    assert precompile._up_to_date()
+    (cache / "kernels" / "test_only.run-9.py311.nbi").write_bytes(b"a kernel compiled by a test")
+    assert precompile._up_to_date()
+    os.utime(index, ns=(0, 0))  # recompiled since
+    assert not precompile._up_to_date()
+    precompile._write_stamp()
+    index.unlink()  # the cache removed
+    assert not precompile._up_to_date()
+    index.write_bytes(b"index")
+    precompile._write_stamp()
+    stamp = cache / precompile.STAMP
+    state = json.loads(stamp.read_text())
+    state["sources"]["objectives/qtp/kernels.py"][1] -= 1  # a kernel edited since
+    stamp.write_text(json.dumps(state))
+    assert not precompile._up_to_date()
+    # the command: up to date, it says so and compiles nothing; --force runs it
+    precompile._write_stamp()
+    ran = []
+    monkeypatch.setattr(precompile, "_groups", lambda jobs: ran.append(jobs) or [[]])
+    precompile.main(["--quiet"])
+    assert not ran and "numba's cache is up to date" in capsys.readouterr().err
+    precompile.main(["--quiet", "--force"])
+    assert ran

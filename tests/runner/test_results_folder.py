@@ -351,8 +351,9 @@ def test_a_killed_worker_names_the_run_and_the_folder_resumes(tmp_path, capsys):
     cfg = tmp_path / "die.toml"
     cfg.write_text('extends = "cs_folqi_qtp"\nplugins = ["die_opt.py"]\nruns = 2\n'
                    '[[optimisers]]\nname = "die_in_worker"\nmax_epochs = 2\n')
+    # three epochs of CS beside it: the runs that finish before the worker dies
     cmd = [sys.executable, "-m", "heurtune.experiment", str(cfg), "--out", str(tmp_path / "out"), "--jobs", "2",
-           "--no-figures"]
+           "--no-figures", "--max-epochs", "3"]
     died = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=dict(os.environ, DIE_IN_WORKERS="1"))
     assert died.returncode == 2, died.stderr
     errors = [line for line in died.stderr.splitlines() if line.startswith("error:")]

@@ -189,6 +189,7 @@ def test_a_renamed_experiment_has_the_smoke_runs_of_the_one_it_renames(alias, na
     assert not differences(ref[name], [dict(r, experiment=name) for r in ref[alias]], exact=True)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("name", RERUN)
 def test_sample_time_reproduces_the_sampled_release(tmp_path, name):
     from heurtune.runner.experiment import run

@@ -20,6 +20,11 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
+# a fresh compilation of every QTP kernel: `make test-long` (docs/testing.md, "Two tiers")
+pytestmark = pytest.mark.long
+
 _SCRIPT = textwrap.dedent(
     """
     import json, sys, warnings

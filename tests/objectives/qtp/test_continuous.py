@@ -415,7 +415,13 @@ def ladr_gains():
     return {n: float(row[n]) for n in decision_names("ladr")}
 
 
-@pytest.mark.parametrize("name", list(CONTROLLERS) + ["ladr-min"])
+# the weakly damped FOLQI and the LADR take Radau 10-20 s each (tens of thousands of steps at
+# rtol 1e-11): `make test-long` (docs/testing.md, "Two tiers")
+LONG = ("folqi-weak", "ladr-min")
+
+
+@pytest.mark.parametrize("name", [pytest.param(name, marks=pytest.mark.long) if name in LONG else name
+                                  for name in [*CONTROLLERS, "ladr-min"]])
 def test_metrics_within_the_targets_of_the_continuous_reference(name, ladr_gains):
     case, kind, gains, options = CONTROLLERS[name] if name != "ladr-min" else ("min", "ladr", ladr_gains, {})
     loop = ClosedLoop(preset(case), kind, **options)

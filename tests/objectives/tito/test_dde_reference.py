@@ -18,6 +18,9 @@ import pytest
 from numerics import assert_close
 from tito_dde_reference import DDELoop
 
+# the reference solved twice more at tight tolerances: `make test-long` (docs/testing.md, "Two tiers")
+pytestmark = pytest.mark.long
+
 
 @pytest.fixture(scope="module")
 def reference(wood_berry, wood_berry_gpm_pi, wood_berry_reference):

@@ -125,6 +125,7 @@ def problems(tmp_path_factory):
     return {(name, case): _problem(tmp_path_factory, name, case) for name, case, _ in CASES}
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("name, case, paper", CASES, ids=[f"{n}-{c}" for n, c, _ in CASES])
 def test_margins_and_verdicts_agree_with_a_dense_evaluation(problems, name, case, paper):
     prob = problems[(name, case)]

@@ -26,6 +26,7 @@ def smoke_runs(tmp_path_factory):
             for paper in papers.PAPER_TABLES}
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("paper", sorted(papers.PAPER_TABLES))
 def test_a_smoke_run_writes_every_table_beside_the_printed_values(smoke_runs, paper):
     tdir = smoke_runs[paper] / "tables"
@@ -53,6 +54,7 @@ def test_a_smoke_run_writes_every_table_beside_the_printed_values(smoke_runs, pa
                     assert f"| {text} |" in md, (table, col, text)
 
 
+@pytest.mark.long
 def test_the_tables_state_their_conditions(smoke_runs):
     md = (smoke_runs["000"] / "tables" / "table_1.md").read_text()
     assert ("conditions: set-point steps (loop 1: 1 at 0 s; loop 2: 1 at 0 s); input disturbance 0.1, 0.1 at 500 s; "
@@ -67,6 +69,7 @@ def _trapezoid_iae(df, loop, t0, t1):
     return float(np.sum((e[1:] + e[:-1]) * np.diff(t)) / 2.0)
 
 
+@pytest.mark.long
 def test_the_printed_csts_pid_of_paper_000_is_simulated_as_printed(smoke_runs):
     exp = load_experiment("paper_000")
     prob = exp.problem("csts")
@@ -84,6 +87,7 @@ def test_the_printed_csts_pid_of_paper_000_is_simulated_as_printed(smoke_runs):
     assert iae_servo == pytest.approx(_trapezoid_iae(df, 1, 0.0, 500.0), rel=1e-3)  # shown to 4 digits
 
 
+@pytest.mark.long
 def test_controllers_that_diverge_get_no_numbers_and_a_note(smoke_runs):
     md = (smoke_runs["000"] / "tables" / "table_1.md").read_text()  # QTS: the printed PID diverges
     assert "Proposed PID: unstable on heurtune's QTS" in md
@@ -93,6 +97,7 @@ def test_controllers_that_diverge_get_no_numbers_and_a_note(smoke_runs):
     assert "no parameters printed for" in md
 
 
+@pytest.mark.long
 def test_paper_002_table_I_recomputes_the_gpm_pi_at_the_printed_specification(smoke_runs):
     from heurtune.objectives.tito import model as tito
 
@@ -107,6 +112,7 @@ def test_paper_002_table_I_recomputes_the_gpm_pi_at_the_printed_specification(sm
     assert "identified model (eq. 28)" in (smoke_runs["002"] / "tables" / "table_II.md").read_text()
 
 
+@pytest.mark.long
 def test_paper_figures_are_drawn(smoke_runs):
     names = {p.name for p in (smoke_runs["000"] / "tables").glob("*.png")}
     assert {"spectral_radius_csts.png", "noise_input_csts.png", "noise_output_csts.png", "variation_csts.png"} <= names
@@ -129,6 +135,7 @@ def test_unknown_paper_in_the_library_is_a_one_line_error():
         papers.paper_tables("004", None)
 
 
+@pytest.mark.long
 def test_part_b_lists_heurtunes_designs(smoke_runs):
     runs = pd.read_parquet(smoke_runs["001"] / "runs.parquet")
     gpm_cases = set(runs.loc[runs["algorithm"] == "gpm", "case"])
