@@ -2,11 +2,13 @@
 equations solved by the method of steps with scipy's ``solve_ivp``, the dense output of earlier
 segments serving as the history of the delayed signals.
 
-The loop (deviations from the operating point, at rest for t < 0, no noise)::
+The loop (deviations from the operating point, at rest for t < 0)::
 
-    e_k = r_k - y_k,   v_k = c_k(e_k),   u_i = sum_k D_ik(v_k(t - Ld_ik)) + d_in_i,
+    e_k = r_k - y_k - n_k,   v_k = c_k(e_k),   u_i = sum_k D_ik(v_k(t - Ld_ik)) + d_in_i + n_in_i,
     y_i = sum_j g_ij(u_j(t - Lg_ij)) + d_out_i
 
+with the measurement noise ``n`` and the input noise ``n_in`` given as samples held over a
+period (zero without them)
 with every rational part (plant element, decoupler ratio, controller) a continuous state space
 of its own (``scipy.signal.tf2ss`` of its polynomials) and every dead time exact. The plant
 elements must be strictly proper, so ``v(s)`` needs the states at ``s`` only and ``u(s)`` the
@@ -80,9 +82,13 @@ class DDELoop:
         Derivative filter ratio (``Tf = Td / N``, as the tuning problems).
     scenario : TITOScenario
         Set-points, disturbances and horizon (its ``dt`` and noise are not used).
+    noise, input_noise : array_like, shape (m, 2), optional
+        Measurement and input noise: sample ``k`` held over ``[k hold, (k + 1) hold)``.
+    hold : float, optional
+        Their hold period (needed with either).
     """
 
-    def __init__(self, plant, decoupler, gains, N, scenario):
+    def __init__(self, plant, decoupler, gains, N, scenario, noise=None, input_noise=None, hold=None):
         g = {(i, j): _element(plant.element(i + 1, j + 1)) for i in range(2) for j in range(2)}
         for (i, j), blk in g.items():
             if abs(blk[3]) > 0 or blk[4] <= 0:
@@ -107,12 +113,18 @@ class DDELoop:
             n += blk[0].shape[0]
         self.n = n
         self.sc = scenario
+        self.hold = hold
+        self.noise = None if noise is None else np.asarray(noise, float)
+        self.input_noise = None if input_noise is None else np.asarray(input_noise, float)
         self.segments = []  # (a, b, dense solution)
         self._starts = []
         delays = sorted({blk[4] for blk in self.blocks.values() if blk[4] > 0})
         self.h = min(delays)
         jumps = [0.0] + [t for steps in scenario.setpoints for t, _ in steps]
         jumps += [scenario.input_disturbance[0], scenario.output_disturbance[0]]
+        held = [a for a in (self.noise, self.input_noise) if a is not None]
+        if held:
+            jumps += [k * float(hold) for k in range(max(len(a) for a in held))]
         paths = sorted(set(delays) | {a + b for a in delays for b in delays})
         marks = {t + L for t in jumps for L in [0.0] + paths}
         self.marks = sorted(t for t in marks if 0.0 <= t < scenario.horizon)
@@ -129,6 +141,11 @@ class DDELoop:
     def _dist(self, which, t):
         ts, mag = getattr(self.sc, which)
         return np.asarray(mag, float) if t >= ts else np.zeros(2)
+
+    def _held(self, samples, t):
+        if samples is None or t < 0.0:
+            return np.zeros(2)
+        return samples[min(int(math.floor(t / self.hold + 1e-9)), len(samples) - 1)]
 
     # -- signals from states -------------------------------------------------------------------------
     def _state(self, s):
@@ -152,11 +169,11 @@ class DDELoop:
         return y
 
     def _v(self, x, t):
-        e = self._r(t) - self._y(x, t)
+        e = self._r(t) - self._y(x, t) - self._held(self.noise, t)
         return np.array([self._part(("c", k), x) + self.blocks[("c", k)][3] * e[k] for k in range(2)]), e
 
     def _u(self, x, t, v_at):
-        u = self._dist("input_disturbance", t).copy()
+        u = self._dist("input_disturbance", t) + self._held(self.input_noise, t)
         for i in range(2):
             for k in range(2):
                 key = ("d", i, k)

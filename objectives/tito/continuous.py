@@ -26,8 +26,15 @@ input disturbance, a set-point step) is integrated exactly. The breakpoints it c
 errors then fall inside steps, where the cubics smooth their kinks: second order in ``h``. With a
 derivative in the controllers the order is about 2 as well (the derivative acts on the cubics'
 slope jumps at the step boundaries). Set-point and disturbance times must be multiples of the
-step; no measurement or input noise; linear plants only. Checked against the method of steps
-with ``solve_ivp`` (``tests/tito_dde_reference.py``, ``tests/objectives/tito/test_continuous_tito.py``).
+step; linear plants only.
+
+Noise is a zero-order-held signal on the step: the sampled loop's draws (the same generators,
+variance ``P / dt`` per sample), sample ``k`` held over ``[k h, (k + 1) h)``. The measurement
+noise enters the errors (``e = r - y - n``) and the input noise the plant inputs beside the
+input disturbance; both are constant within a step and jump at its boundaries, where the stored
+cubics already break, so the loop stays exact for them. The outputs ``y`` are the plant's, the
+measurement ``ym = y + n``. Checked against the method of steps with ``solve_ivp``
+(``tests/tito_dde_reference.py``, ``tests/objectives/tito/test_continuous_tito.py``).
 """
 
 from __future__ import annotations
@@ -43,7 +50,7 @@ from heurtune.core.errors import ConfigError
 from . import continuous_kernels as kern
 from .design import parallel_controller
 from .model import ParallelPID, PIController
-from .sim import _poly, controller_tf, vary_plant
+from .sim import _poly, controller_tf, input_noise, measurement_noise, vary_plant
 
 __all__ = ["ContinuousTITOLoop", "ContinuousTITOSimulator"]
 
@@ -225,8 +232,8 @@ class ContinuousTITOLoop:
     controllers : pair
         ``PIController``, ``PIDController`` or ``ParallelPID`` (a derivative needs its filter).
     scenario : TITOScenario
-        Set-points, disturbances and horizon; its ``dt`` is the step ``h`` and the output
-        sample time. Noise is not supported.
+        Set-points, disturbances, noise and horizon; its ``dt`` is the step ``h``, the output
+        sample time and the noise's hold period.
     """
 
     @classmethod
@@ -237,8 +244,6 @@ class ContinuousTITOLoop:
 
     def __init__(self, plant, decoupler, controllers, scenario):
         h = float(scenario.dt)
-        if max(scenario.noise_power) > 0 or scenario.has_input_noise:
-            raise ConfigError("continuous loop: noise is not supported yet; set noise_power = 0")
         self.h, self.sc = h, scenario
         unit = _ss([1.0], [1.0])
         self.pi = _pi_gains(controllers) is not None
@@ -302,19 +307,23 @@ class ContinuousTITOLoop:
         _multiple(scenario.output_disturbance[0], h, "the output disturbance time")
 
     def _signals(self):
-        """Set-points and output disturbances per step, and the history holding the input
-        disturbances at their nodes."""
+        """Set-points less the measurement noise and output disturbances per step, and the
+        history holding the input disturbances and input noise at their nodes."""
         n, h, sc = self.n, self.h, self.sc
         mid = (np.arange(n) + 0.5) * h
         r = np.zeros((n, 2))
         for k, steps in enumerate(sc.setpoints):
             for ts, val in steps:
                 r[mid >= ts, k] = val
+        if max(sc.noise_power) > 0:  # e = r - (y + n): the noise of step k held over it
+            r -= measurement_noise(sc)[:n]
         t_out, d_out = sc.output_disturbance
         dout = np.where((mid >= t_out)[:, None], np.asarray(d_out, float)[None, :], 0.0)
         hist = np.zeros((n + 1, 4, NODES.size))
         t_in, d_in = sc.input_disturbance
         hist[:n, 2:, :] = np.where((mid >= t_in)[:, None, None], np.asarray(d_in, float)[None, :, None], 0.0)
+        if sc.has_input_noise:
+            hist[:n, 2:, :] += input_noise(sc)[:n, :, None]
         return r, dout, hist
 
     def run(self, controllers=None):
@@ -331,8 +340,9 @@ class ContinuousTITOLoop:
         t : numpy.ndarray, shape (n + 1,)
             The step boundaries ``0, h, ..., horizon``.
         y, u, v : numpy.ndarray, shape (n + 1, 2)
-            Outputs (with the output disturbance), decoupler outputs (before the input
-            disturbance) and controller outputs at ``t`` (from the right at a step).
+            Outputs (with the output disturbance, without the measurement noise), decoupler
+            outputs (before the input disturbance and noise) and controller outputs at ``t``
+            (from the right at a step).
         """
         n = self.n
         r, dout, hist = self._signals()
@@ -374,10 +384,13 @@ class ContinuousTITOSimulator:
         Step boundaries and set-points there.
     plant : TITOPlant
         The simulated (varied) plant.
+    noise : numpy.ndarray, shape (n + 1, 2)
+        Measurement noise, sample ``k`` held over the step from ``t[k]`` (zeros without).
     """
 
     def __init__(self, plant, decoupler, scenario):
         self.scenario = scenario
+        self.noise = measurement_noise(scenario)
         self.plant = vary_plant(plant, scenario.variation, scenario.vary) if scenario.variation else plant
         self.decoupler = decoupler
         self._pi_loop = None
@@ -395,7 +408,8 @@ class ContinuousTITOSimulator:
         status : str
             ``"ok"``, or ``"diverged"`` where a signal leaves 1e12 or stops being finite.
         y, ym, u, v : numpy.ndarray, shape (n + 1, 2)
-            As :meth:`TITOSimulator.arrays` (``ym = y``: no noise).
+            As :meth:`TITOSimulator.arrays`: ``ym = y + noise``, the measurement at ``t`` (from the
+            right at a step).
         """
         if _pi_gains(controllers) is not None:
             if self._pi_loop is None:  # built once: a PI only rescales the paths
@@ -409,5 +423,5 @@ class ContinuousTITOSimulator:
             k = int(np.argmax(bad))
             for a in (y, u, v):
                 a[k:] = np.nan
-            return "diverged", y, y, u, v
-        return "ok", y, y, u, v
+            return "diverged", y, y + self.noise, u, v
+        return "ok", y, y + self.noise, u, v

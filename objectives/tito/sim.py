@@ -55,7 +55,7 @@ from . import kernels as _k
 from .model import Decoupler, ParallelPID, PIController, PIDController, TFElement, TITOPlant
 
 __all__ = ["LOOPS", "TITOScenario", "TITOSimulator", "controller_tf", "discretise_rational", "input_noise",
-           "loop_metrics", "simulate_tito", "vary_plant"]
+           "loop_metrics", "measurement_noise", "simulate_tito", "vary_plant"]
 
 DELAY_TOL = 1e-9
 _VARY_KEYS = ("K", "lags", "leads", "L")
@@ -135,7 +135,7 @@ class TITOScenario:
     loop : {"sampled", "continuous"}
         ``"sampled"`` (default): this module's loop, controllers and decoupler sampled at ``dt``.
         ``"continuous"``: :class:`~heurtune.objectives.tito.continuous.ContinuousTITOSimulator`,
-        the continuous loop with exact dead times on the step ``dt`` (no noise).
+        the continuous loop with exact dead times on the step ``dt`` (noise held over each step).
 
     A step time ``t`` acts from the first sample ``k`` with ``k dt >= t - 1e-9``.
     """
@@ -200,9 +200,6 @@ class TITOScenario:
             )
         if self.loop not in LOOPS:
             raise ConfigError(f"scenario: loop must be one of {', '.join(LOOPS)}, got {self.loop!r}")
-        if self.loop == "continuous" and (max(power) > 0 or max(in_power) > 0):
-            raise ConfigError("scenario: the continuous loop has no noise yet; set noise_power and "
-                              "input_noise_power to 0 or use loop = 'sampled'")
         for key, val in (("horizon", horizon), ("dt", dt), ("variation", variation), ("setpoints", setpoints),
                          ("input_disturbance", dists[0]), ("output_disturbance", dists[1]),
                          ("noise_power", power), ("noise_seed", int(self.noise_seed)), ("vary", vary),
@@ -245,6 +242,28 @@ class TITOScenario:
 # --------------------------------------------------------------------------------------------
 # Realisation
 # --------------------------------------------------------------------------------------------
+
+
+def measurement_noise(scenario: TITOScenario) -> np.ndarray:
+    """The measurement noise under ``scenario``, one column per loop.
+
+    Zero-mean Gaussian, variance ``P_i / dt`` per sample (``P_i = noise_power[i]``), drawn as
+    ``numpy.random.default_rng(noise_seed).standard_normal((n + 1, 2))`` scaled per column: the
+    sampled loop adds sample ``k`` to the outputs at ``k dt``, the continuous loop holds it over
+    ``[k dt, (k + 1) dt)``.
+
+    Parameters
+    ----------
+    scenario : TITOScenario
+
+    Returns
+    -------
+    numpy.ndarray, shape (n + 1, 2)
+        Zeros when ``noise_power`` is 0 on both loops.
+    """
+    rng = np.random.default_rng(scenario.noise_seed)
+    n1 = scenario.n_steps + 1
+    return np.ascontiguousarray(rng.standard_normal((n1, 2)) * np.sqrt(np.array(scenario.noise_power) / scenario.dt))
 
 
 def input_noise(scenario: TITOScenario) -> np.ndarray:
@@ -501,8 +520,7 @@ class TITOSimulator:
         on_o = (t >= to - 1e-9).astype(np.float64)
         self.d_in = np.column_stack([on_i * mi[0], on_i * mi[1]])
         self.d_out = np.column_stack([on_o * mo[0], on_o * mo[1]])
-        rng = np.random.default_rng(sc.noise_seed)
-        self.noise = np.ascontiguousarray(rng.standard_normal((t.size, 2)) * np.sqrt(np.array(sc.noise_power) / dt))
+        self.noise = measurement_noise(sc)
         # Input noise enters where the input disturbance does: the kernel gets their sum. Without
         # it, d_in is left untouched (the simulation is bit for bit the one before the key existed).
         self.input_noise = input_noise(sc)
