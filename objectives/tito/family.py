@@ -63,6 +63,8 @@ SCHEMA = dict(COMMON_SCHEMA, **{
         "variation": ("map", NUMBER),
         "vary": ("list", ("K", "lags", "leads", "L")),
         "loop": ("sampled", "continuous"),
+        # the sampled loop with derivative filters shorter than 10 dt (sim.check_sampling)
+        "allow_coarse_sampling": bool,
     },
     "problem": {
         "objective": OBJECTIVES,
@@ -175,7 +177,8 @@ class TITOExperiment(ExperimentBase):
 
     def _scenarios(self, sc: dict) -> dict:
         kw = {}
-        for key in ("horizon", "dt", "noise_power", "noise_seed", "input_noise_power", "input_noise_seed", "loop"):
+        for key in ("horizon", "dt", "noise_power", "noise_seed", "input_noise_power", "input_noise_seed", "loop",
+                    "allow_coarse_sampling"):
             if key in sc:
                 kw[key] = tuple(sc[key]) if isinstance(sc[key], list) else sc[key]
         power = kw.get("input_noise_power", 0.0)

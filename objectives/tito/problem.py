@@ -52,7 +52,7 @@ from heurtune.objectives.tito import margins as tito_margins
 from heurtune.objectives.tito import model as tito
 from heurtune.objectives.tito import two_tank
 from heurtune.objectives.tito.continuous import ContinuousTITOSimulator
-from heurtune.objectives.tito.sim import TITOScenario, TITOSimulator
+from heurtune.objectives.tito.sim import TITOScenario, TITOSimulator, check_sampling
 
 __all__ = ["TITOProblem", "DesignChain", "gain_names", "default_bounds", "fopdt_fit", "DEFAULT_GPM"]
 
@@ -256,6 +256,9 @@ class TITOProblem(TuningProblem):
         self.nonlinear = nonlinear
         self.robustness_options = dict(robustness)
         self.gpm_spec = dict(DEFAULT_GPM if gpm_spec is None else gpm_spec)
+        if kind == "pid" and np.any(self.lower[2::3] != 0.0) | np.any(self.upper[2::3] != 0.0):
+            for sc in self.scenarios.values():  # a derivative the sampled loop may not follow
+                check_sampling(sc, N=self.N)
         self.constraint_names = tuple(f"{k}{i}" for k in self.constraints for i in (1, 2))
         self.metric_names = tuple(f"{m}{i}" for m in LOOP_METRICS for i in (1, 2)) + tuple(
             f"{m}_{w}{i}" for w in self.windows for m in ("IAE", "ISE", "ITAE", "ts") for i in (1, 2))

@@ -54,8 +54,8 @@ from heurtune.core.errors import ConfigError
 from . import kernels as _k
 from .model import Decoupler, ParallelPID, PIController, PIDController, TFElement, TITOPlant
 
-__all__ = ["LOOPS", "TITOScenario", "TITOSimulator", "controller_tf", "discretise_rational", "input_noise",
-           "loop_metrics", "measurement_noise", "simulate_tito", "vary_plant"]
+__all__ = ["LOOPS", "TITOScenario", "TITOSimulator", "check_sampling", "controller_tf", "discretise_rational",
+           "input_noise", "loop_metrics", "measurement_noise", "simulate_tito", "vary_plant"]
 
 DELAY_TOL = 1e-9
 _VARY_KEYS = ("K", "lags", "leads", "L")
@@ -136,6 +136,10 @@ class TITOScenario:
         ``"sampled"`` (default): this module's loop, controllers and decoupler sampled at ``dt``.
         ``"continuous"``: :class:`~heurtune.objectives.tito.continuous.ContinuousTITOSimulator`,
         the continuous loop with exact dead times on the step ``dt`` (noise held over each step).
+    allow_coarse_sampling : bool
+        On the sampled loop, a derivative filter ``Tf`` shorter than ``10 dt`` is an error
+        (:func:`check_sampling`) unless this is True (default False). Not part of the identity:
+        it changes no number.
 
     A step time ``t`` acts from the first sample ``k`` with ``k dt >= t - 1e-9``.
     """
@@ -152,6 +156,7 @@ class TITOScenario:
     input_noise_power: object = 0.0
     input_noise_seed: int | None = None
     loop: str = "sampled"
+    allow_coarse_sampling: bool = False
 
     def __post_init__(self):
         try:
@@ -200,6 +205,8 @@ class TITOScenario:
             )
         if self.loop not in LOOPS:
             raise ConfigError(f"scenario: loop must be one of {', '.join(LOOPS)}, got {self.loop!r}")
+        if not isinstance(self.allow_coarse_sampling, (bool, np.bool_)):
+            raise ConfigError(f"scenario: allow_coarse_sampling must be true or false, got {self.allow_coarse_sampling!r}")
         for key, val in (("horizon", horizon), ("dt", dt), ("variation", variation), ("setpoints", setpoints),
                          ("input_disturbance", dists[0]), ("output_disturbance", dists[1]),
                          ("noise_power", power), ("noise_seed", int(self.noise_seed)), ("vary", vary),
@@ -224,6 +231,7 @@ class TITOScenario:
             ``dataclasses.asdict`` of the scenario, less the input-noise fields when they are off.
         """
         out = dataclasses.asdict(self)
+        out.pop("allow_coarse_sampling")  # permits a loop, changes no number
         if not self.has_input_noise:
             for key in _INPUT_NOISE_FIELDS:
                 out.pop(key)
@@ -242,6 +250,51 @@ class TITOScenario:
 # --------------------------------------------------------------------------------------------
 # Realisation
 # --------------------------------------------------------------------------------------------
+
+
+COARSE_FACTOR = 10.0
+
+
+def check_sampling(scenario: TITOScenario, controllers=None, N=None) -> None:
+    """Refuse a sampled loop too coarse for its derivative filters (one line).
+
+    The sampled loop holds the controllers' outputs over ``dt``; a derivative filter ``Tf``
+    shorter than ``10 dt`` is then not followed (paper 000's designs oscillate at dt = 0.1 s
+    where the continuous loop settles). Nothing is checked on the continuous loop or with
+    ``allow_coarse_sampling``.
+
+    Parameters
+    ----------
+    scenario : TITOScenario
+    controllers : pair, optional
+        Explicit controllers: each filter ``Tf`` of a controller with a derivative is checked.
+    N : float, optional
+        For a PID tuning problem (no explicit controllers): its filter ratio. Its candidates'
+        filters ``Tf = Td / N`` go below ``10 dt`` for every ``Td < 10 N dt``, so such a
+        problem is refused on the sampled loop.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``dt`` and the filter, and the two ways out.
+    """
+    if scenario.loop != "sampled" or scenario.allow_coarse_sampling:
+        return
+    dt = scenario.dt
+    limit = COARSE_FACTOR * dt
+    way_out = "use [scenario] loop = \"continuous\", or allow_coarse_sampling = true to keep the sampled loop"
+    if controllers is None:
+        if N is not None:
+            raise ConfigError(f"scenario: the sampled loop at dt = {dt:g} s cannot follow a PID tuning problem's "
+                              f"derivative filters (Tf = Td / N, N = {N:g}: below 10 dt = {limit:g} s for every "
+                              f"Td below {limit * N:g} s); {way_out}")
+        return
+    for i, c in enumerate(controllers, start=1):
+        kd = c.parallel()[2] if hasattr(c, "parallel") else 0.0
+        tf = float(getattr(c, "Tf", 0.0))
+        if kd != 0.0 and 0.0 < tf < limit:
+            raise ConfigError(f"scenario: dt = {dt:g} s exceeds a tenth of controller {i}'s derivative filter "
+                              f"Tf = {tf:g} s; {way_out}")
 
 
 def measurement_noise(scenario: TITOScenario) -> np.ndarray:
@@ -602,6 +655,7 @@ def simulate_tito(plant: TITOPlant, controllers, decoupler: Decoupler | None = N
     """
     if isinstance(controllers, (str, bytes)) or not hasattr(controllers, "__len__") or len(controllers) != 2:
         raise ConfigError("controllers: must be a pair (c1, c2) of PIController / PIDController")
+    check_sampling(TITOScenario() if scenario is None else scenario, controllers)
     return TITOSimulator(plant, decoupler, scenario).run(controllers)
 
 

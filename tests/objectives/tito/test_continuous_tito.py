@@ -28,7 +28,7 @@ import heurtune
 from heurtune.core.errors import ConfigError
 from heurtune.objectives.tito.continuous import ContinuousTITOLoop, ContinuousTITOSimulator
 from heurtune.objectives.tito.design import parallel_controller
-from heurtune.objectives.tito.sim import TITOSimulator, input_noise, measurement_noise
+from heurtune.objectives.tito.sim import TITOSimulator, input_noise, measurement_noise, simulate_tito
 
 
 def _run(prob, sc, gains, h, times):
@@ -180,3 +180,32 @@ def test_a_pid_with_noise_converges_at_first_order(wood_berry, wood_berry_gpm_pi
     gains = tuple((kp, ki, 0.5 * kp) for kp, ki, _ in wood_berry_gpm_pi[1])
     coarse, fine = (_noise_error(prob, _noisy(sc, h), gains) for h in (1.0, 0.5))
     assert fine < 3e-3 and coarse / fine > 1.7, (coarse, fine)
+
+
+def test_a_sampled_loop_coarser_than_its_derivative_filters_is_a_one_line_error(tmp_path, wood_berry):
+    """A PID tuning problem on the sampled loop visits filters Tf = Td / N below 10 dt; it is
+    refused unless the config allows it (the shipped PID configs do, keeping the release's
+    numbers and problem ids) or runs the continuous loop. Explicit controllers are checked by
+    their own filter."""
+    base = 'extends = "optimal_pid_qts"\n[scenario]\n'
+    with pytest.raises(ConfigError) as err:
+        _config(tmp_path, "coarse", base + "allow_coarse_sampling = false\n").problem("qts")
+    msg = str(err.value)
+    assert "\n" not in msg and "dt = 0.1 s" in msg and "10 dt = 1 s" in msg, msg
+    assert 'loop = "continuous"' in msg and "allow_coarse_sampling = true" in msg
+    shipped = heurtune.load_experiment("optimal_pid_qts").problem("qts")
+    assert shipped.scenario("nominal").allow_coarse_sampling
+    assert "allow_coarse_sampling" not in shipped.identity()["scenario"]
+    assert _config(tmp_path, "cont", base + 'allow_coarse_sampling = false\nloop = "continuous"\n').problem("qts")
+    # explicit controllers: their own filters
+    prob, sc = wood_berry
+    coarse = dataclasses.replace(sc, horizon=20.0, dt=0.5, allow_coarse_sampling=False)
+    pid = (parallel_controller(1.0, 0.1, 0.5, 100.0), parallel_controller(1.0, 0.1, 0.0, 100.0))
+    with pytest.raises(ConfigError) as err:
+        simulate_tito(prob.chain.plant, pid, prob.chain.decoupler, coarse)
+    msg = str(err.value)
+    assert "\n" not in msg and "dt = 0.5 s" in msg and f"Tf = {pid[0].Tf:g} s" in msg and "controller 1" in msg, msg
+    allowed = dataclasses.replace(coarse, allow_coarse_sampling=True)
+    assert len(simulate_tito(prob.chain.plant, pid, prob.chain.decoupler, allowed)) == 41
+    pi = tuple(parallel_controller(1.0, 0.1, 0.0, 100.0) for _ in range(2))
+    assert len(simulate_tito(prob.chain.plant, pi, prob.chain.decoupler, coarse))
