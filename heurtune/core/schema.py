@@ -115,7 +115,7 @@ def _describe(spec) -> str:
         return "a number"
     if isinstance(spec, dict):
         return "a table"
-    return {str: "a string", int: "an integer", dict: "a table"}.get(spec, str(spec))
+    return {str: "a string", int: "an integer", dict: "a table", bool: "true or false"}.get(spec, str(spec))
 
 
 def _is_number(v) -> bool:

@@ -118,6 +118,7 @@ def test_scenario_loop_continuous_runs_the_tuning_problem_on_it(tmp_path):
 
 @pytest.mark.parametrize("text, words", [
     ('loop = "fast"', ("scenario.loop", "sampled", "continuous")),
+    ('allow_coarse_sampling = "yes"', ("scenario.allow_coarse_sampling", "expected true or false", "'yes'")),
 ])
 def test_bad_loop_settings_are_one_line_errors(tmp_path, text, words):
     with pytest.raises(ConfigError) as err:
