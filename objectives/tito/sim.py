@@ -206,7 +206,8 @@ class TITOScenario:
         if self.loop not in LOOPS:
             raise ConfigError(f"scenario: loop must be one of {', '.join(LOOPS)}, got {self.loop!r}")
         if not isinstance(self.allow_coarse_sampling, (bool, np.bool_)):
-            raise ConfigError(f"scenario: allow_coarse_sampling must be true or false, got {self.allow_coarse_sampling!r}")
+            raise ConfigError("scenario: allow_coarse_sampling must be true or false, "
+                              f"got {self.allow_coarse_sampling!r}")
         for key, val in (("horizon", horizon), ("dt", dt), ("variation", variation), ("setpoints", setpoints),
                          ("input_disturbance", dists[0]), ("output_disturbance", dists[1]),
                          ("noise_power", power), ("noise_seed", int(self.noise_seed)), ("vary", vary),
