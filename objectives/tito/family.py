@@ -27,7 +27,7 @@ from heurtune.objectives.tito.problem import (
     fopdt_fit,
     gain_names,
 )
-from heurtune.objectives.tito.sim import TITOScenario
+from heurtune.objectives.tito.sim import LOOPS, TITOScenario
 
 __all__ = ["TITOExperiment", "SCHEMA", "MODELS"]
 
@@ -62,7 +62,7 @@ SCHEMA = dict(COMMON_SCHEMA, **{
         "input_noise_power": ("oneof", (NUMBER, PAIR)), "input_noise_seed": int,
         "variation": ("map", NUMBER),
         "vary": ("list", ("K", "lags", "leads", "L")),
-        "loop": ("sampled", "continuous"),
+        "loop": LOOPS,
         # the sampled loop with derivative filters shorter than 10 dt (sim.check_sampling)
         "allow_coarse_sampling": bool,
     },

@@ -256,7 +256,7 @@ class TITOProblem(TuningProblem):
         self.nonlinear = nonlinear
         self.robustness_options = dict(robustness)
         self.gpm_spec = dict(DEFAULT_GPM if gpm_spec is None else gpm_spec)
-        if kind == "pid" and np.any(self.lower[2::3] != 0.0) | np.any(self.upper[2::3] != 0.0):
+        if kind == "pid" and (np.any(self.lower[2::3] != 0.0) or np.any(self.upper[2::3] != 0.0)):
             for sc in self.scenarios.values():  # a derivative the sampled loop may not follow
                 check_sampling(sc, N=self.N)
         self.constraint_names = tuple(f"{k}{i}" for k in self.constraints for i in (1, 2))

@@ -291,6 +291,7 @@ def check_sampling(scenario: TITOScenario, controllers=None, N=None) -> None:
                               f"Td below {limit * N:g} s); {way_out}")
         return
     for i, c in enumerate(controllers, start=1):
+        # a PIController has no filter; anything else is refused later, by controller_tf
         kd = c.parallel()[2] if hasattr(c, "parallel") else 0.0
         tf = float(getattr(c, "Tf", 0.0))
         if kd != 0.0 and 0.0 < tf < limit:
@@ -315,9 +316,14 @@ def measurement_noise(scenario: TITOScenario) -> np.ndarray:
     numpy.ndarray, shape (n + 1, 2)
         Zeros when ``noise_power`` is 0 on both loops.
     """
-    rng = np.random.default_rng(scenario.noise_seed)
-    n1 = scenario.n_steps + 1
-    return np.ascontiguousarray(rng.standard_normal((n1, 2)) * np.sqrt(np.array(scenario.noise_power) / scenario.dt))
+    return _white_noise(scenario.noise_seed, scenario.noise_power, scenario)
+
+
+def _white_noise(seed, power, scenario: TITOScenario) -> np.ndarray:
+    """``n + 1`` samples per loop from ``default_rng(seed)``, variance ``power / dt``."""
+    rng = np.random.default_rng(seed)
+    return np.ascontiguousarray(rng.standard_normal((scenario.n_steps + 1, 2))
+                                * np.sqrt(np.array(power) / scenario.dt))
 
 
 def input_noise(scenario: TITOScenario) -> np.ndarray:
@@ -341,14 +347,12 @@ def input_noise(scenario: TITOScenario) -> np.ndarray:
     """
     if not isinstance(scenario, TITOScenario):
         raise ConfigError(f"scenario: must be a TITOScenario, got {type(scenario).__name__}")
-    n1 = scenario.n_steps + 1
     if not scenario.has_input_noise:
-        return np.zeros((n1, 2))
+        return np.zeros((scenario.n_steps + 1, 2))
     seed = scenario.input_noise_seed
     if seed is None:
         seed = np.random.SeedSequence(scenario.noise_seed, spawn_key=(1,))
-    rng = np.random.default_rng(seed)
-    return rng.standard_normal((n1, 2)) * np.sqrt(np.array(scenario.input_noise_power) / scenario.dt)
+    return _white_noise(seed, scenario.input_noise_power, scenario)
 
 
 def _poly(K: float, tcs) -> np.ndarray:
