@@ -58,6 +58,9 @@ __all__ = ["ContinuousTITOLoop", "ContinuousTITOSimulator"]
 NODES = np.array([0.0, 0.5 - 0.5 / math.sqrt(5.0), 0.5 + 0.5 / math.sqrt(5.0), 1.0])
 _COMMENSURATE_TOL = 1e-9
 SIGNAL_LIMIT = 1.0e12
+# the continuous loop's default tolerance on the outputs (a config without sample_time or
+# tolerance): 0.1 % of the presets' unit set-point steps
+DEFAULT_TOLERANCE = 1e-3
 
 
 def _ss(num, den):
@@ -120,14 +123,19 @@ def _pi_gains(controllers):
     return tuple(out)
 
 
-def _shift(value: float, h: float, what: str):
-    """A dead time in steps: an int where it is a multiple of ``h``, else a float (>= 1)."""
+def _shift(value: float, h: float, what: str, shortest: float = 1.0):
+    """A dead time in steps: an int where it is a multiple of ``h``, else a float (at least
+    ``shortest`` steps: 1 for a path into the outputs, which must read finished steps only)."""
     k = round(value / h)
     if abs(k * h - value) <= _COMMENSURATE_TOL * max(1.0, abs(value)):
         return int(k)
-    if value < h:
+    if value < shortest * h:
         raise ConfigError(f"continuous loop: {what} = {value!r} s is shorter than the step {h!r} s")
     return value / h
+
+
+def _noisy(scenario) -> bool:
+    return max(scenario.noise_power) > 0 or scenario.has_input_noise
 
 
 def _multiple(value: float, h: float, what: str) -> int:
@@ -137,35 +145,76 @@ def _multiple(value: float, h: float, what: str) -> int:
     return int(k)
 
 
+def check_continuous_plant(plant) -> None:
+    """Raise a one-line ConfigError unless every element of ``plant`` is strictly proper with a
+    dead time > 0, as the continuous loop needs (a direct feedthrough would put the jumps of the
+    delayed errors inside the steps)."""
+    for i in (1, 2):
+        for k in (1, 2):
+            e = plant.element(i, k)
+            if len(e.leads) >= len(e.lags) or not e.L > 0:
+                what = "biproper" if len(e.leads) >= len(e.lags) else f"without dead time (L = {e.L!r})"
+                raise ConfigError(f"the continuous loop needs every plant element strictly proper with a dead time "
+                                  f"> 0; g{i}{k} is {what}")
+
+
 class _Path:
     """The precomputed matrices of one path: a state space driven by a stored signal delayed by
-    ``shift`` steps (an int: the stored step itself; a float: two sub-steps)."""
+    ``shift`` steps (an int: one stored step; a float: two sub-steps, each with its own stored
+    step as input).
+
+    Over a step the path needs its outputs at the step's nodes and its state at the end, both
+    affine in its state ``x`` at the start and the node values ``h1``, ``h2`` of the stored
+    steps it reads (``k - lag`` and ``k - lag + 1``; ``h2`` only where the window is split)::
+
+        out[i] = Ox[i] x + O1[i] h1 + O2[i] h2        x_end = Sx x + S1 h1 + S2 h2
+
+    so a step costs ``(q + n) (n + q)`` multiply-adds (``n + 2 q`` where split), whatever the
+    path's stiffness: the matrices are exact (matrix exponentials) for a cubic input.
+    """
 
     def __init__(self, system, h: float, shift, target: int, out: int, src: int):
         A, B, C, D = system
-        self.C, self.D = C.reshape(-1), float(D)
+        C, D = C.reshape(-1), float(D)
         self._A, self._B = A, B[:, 0]
-        self.n = A.shape[0]
+        n, q = A.shape[0], NODES.size
+        self.n = n
         self.target, self.out, self.src = target, out, src
         self.split = not isinstance(shift, int)
+        self.O2, self.S2 = np.zeros((q, q)), np.zeros((n, q))
         if not self.split:
-            self.shift, self.lag, self.nfirst = int(shift), 0, 0
-            self.E, self.H = self._transitions(h, NODES)
+            self.lag = int(shift)
+            E, H = self._transitions(h, NODES)
+            self.Ox = np.einsum("r,irc->ic", C, E)
+            self.O1 = np.einsum("r,irc->ic", C, H) + D * np.eye(q)
+            self.Sx, self.S1 = E[-1], H[-1]
             return
         # the delayed window crosses a stored step boundary at the same fraction theta of every
         # step: two sub-steps, each with one stored cubic as its input (exact, jumps included)
         theta = shift - math.floor(shift)
         first = [tau / theta for tau in NODES if tau < theta] + [1.0]
         second = [(tau - theta) / (1.0 - theta) for tau in NODES if tau >= theta]
-        self.shift, self.lag, self.nfirst = 0, int(math.ceil(shift)), len(first) - 1
-        self.EA, self.HA = self._transitions(theta * h, first)
-        self.EB, self.HB = self._transitions((1.0 - theta) * h, second)
+        self.lag, nf = int(math.ceil(shift)), len(first) - 1
+        EA, HA = self._transitions(theta * h, first)
+        EB, HB = self._transitions((1.0 - theta) * h, second)
         # each sub-step's stored cubic at that sub-step's nodes, and the input at the step's nodes
-        self.PA = _lagrange_matrix((1.0 - theta) + theta * NODES)
-        self.PB = _lagrange_matrix((1.0 - theta) * NODES)
+        PA = _lagrange_matrix((1.0 - theta) + theta * NODES)
+        PB = _lagrange_matrix((1.0 - theta) * NODES)
         before = NODES < theta
-        self.QA = np.where(before[:, None], _lagrange_matrix(np.clip((1.0 - theta) + NODES, 0.0, 1.0)), 0.0)
-        self.QB = np.where(before[:, None], 0.0, _lagrange_matrix(np.clip(NODES - theta, 0.0, 1.0)))
+        QA = np.where(before[:, None], _lagrange_matrix(np.clip((1.0 - theta) + NODES, 0.0, 1.0)), 0.0)
+        QB = np.where(before[:, None], 0.0, _lagrange_matrix(np.clip(NODES - theta, 0.0, 1.0)))
+        # x_mid = Mx x + M1 h1 at the sub-steps' junction
+        Mx, M1 = EA[nf], HA[nf] @ PA
+        self.Ox, self.O1, self.O2 = np.empty((q, n)), D * QA, D * QB
+        for i in range(nf):
+            self.Ox[i] = C @ EA[i]
+            self.O1[i] += C @ HA[i] @ PA
+        for i in range(nf, q):
+            j = i - nf
+            self.Ox[i] = C @ EB[j] @ Mx
+            self.O1[i] += C @ EB[j] @ M1
+            self.O2[i] += C @ HB[j] @ PB
+        self.Sx, self.S1, self.S2 = EB[-1] @ Mx, EB[-1] @ M1, HB[-1] @ PB
 
     def _transitions(self, length: float, offsets):
         """``E[i]``, ``H[i]``: the state at ``offsets[i]`` (fractions of a sub-step of ``length``
@@ -189,7 +238,11 @@ class _Path:
 
 
 def _stack(paths):
-    """The paths' matrices as the zero-padded arrays of :func:`continuous_kernels.run_loop`."""
+    """The paths' matrices as the zero-padded arrays of :func:`continuous_kernels.run_loop`,
+    ordered by target (outputs, decoupler outputs, controller outputs): ``bounds[s]`` to
+    ``bounds[s + 1]`` are the paths of stage ``s``."""
+    order = sorted(range(len(paths)), key=lambda k: paths[k].target)
+    paths = [paths[k] for k in order]
     P, q = len(paths), NODES.size
     nm = max(1, max(p.n for p in paths))
 
@@ -197,27 +250,20 @@ def _stack(paths):
         return np.array([getattr(p, name) for p in paths], np.int64)
 
     arrays = dict(
-        target=ints("target"), out=ints("out"), src=ints("src"), split=ints("split"), shift=ints("shift"),
-        lag=ints("lag"), nfirst=ints("nfirst"), nst=ints("n"),
-        E=np.zeros((P, q, nm, nm)), H=np.zeros((P, q, nm, q)), EA=np.zeros((P, q + 1, nm, nm)),
-        HA=np.zeros((P, q + 1, nm, q)), EB=np.zeros((P, q, nm, nm)), HB=np.zeros((P, q, nm, q)),
-        PA=np.zeros((P, q, q)), PB=np.zeros((P, q, q)), QA=np.zeros((P, q, q)), QB=np.zeros((P, q, q)),
-        C=np.zeros((P, nm)), D=np.array([p.D for p in paths]),
+        out=ints("out"), src=ints("src"), split=ints("split"), lag=ints("lag"), nst=ints("n"),
+        bounds=np.searchsorted(ints("target"), np.arange(4)).astype(np.int64),
+        Ox=np.zeros((P, q, nm)), O1=np.zeros((P, q, q)), O2=np.zeros((P, q, q)),
+        Sx=np.zeros((P, nm, nm)), S1=np.zeros((P, nm, q)), S2=np.zeros((P, nm, q)),
     )
     for k, p in enumerate(paths):
         n = p.n
-        arrays["C"][k, :n] = p.C
-        if p.split:
-            arrays["EA"][k, :p.EA.shape[0], :n, :n] = p.EA
-            arrays["HA"][k, :p.HA.shape[0], :n] = p.HA
-            arrays["EB"][k, :p.EB.shape[0], :n, :n] = p.EB
-            arrays["HB"][k, :p.HB.shape[0], :n] = p.HB
-            for key in ("PA", "PB", "QA", "QB"):
-                arrays[key][k] = getattr(p, key)
-        else:
-            arrays["E"][k, :, :n, :n] = p.E
-            arrays["H"][k, :, :n] = p.H
-    return arrays, nm
+        arrays["Ox"][k, :, :n] = p.Ox
+        arrays["O1"][k] = p.O1
+        arrays["O2"][k] = p.O2
+        arrays["Sx"][k, :n, :n] = p.Sx
+        arrays["S1"][k, :n] = p.S1
+        arrays["S2"][k, :n] = p.S2
+    return arrays, nm, np.array(order, np.int64)
 
 
 class ContinuousTITOLoop:
@@ -237,14 +283,16 @@ class ContinuousTITOLoop:
     """
 
     @classmethod
-    def from_gains(cls, plant, decoupler, gains, N, scenario):
+    def from_gains(cls, plant, decoupler, gains, N, scenario, step=None):
         """The loop of two parallel PID gain triples ``(Kp, Ki, Kd)`` with ``Tf = Td / N`` (the
         tuning problems' controllers)."""
-        return cls(plant, decoupler, tuple(parallel_controller(*map(float, g), N) for g in gains), scenario)
+        return cls(plant, decoupler, tuple(parallel_controller(*map(float, g), N) for g in gains), scenario, step)
 
-    def __init__(self, plant, decoupler, controllers, scenario):
-        h = float(scenario.dt)
+    def __init__(self, plant, decoupler, controllers, scenario, step=None):
+        h = float(scenario.dt if step is None else step)
         self.h, self.sc = h, scenario
+        # the noise is held over scenario.dt: a whole number of steps
+        self._hold = _multiple(float(scenario.dt), h, "the noise sample time (dt)") if _noisy(scenario) else 1
         unit = _ss([1.0], [1.0])
         self.pi = _pi_gains(controllers) is not None
         if self.pi:
@@ -266,22 +314,20 @@ class ContinuousTITOLoop:
                 D = {(1, 0): (unit, c1), (0, 1): (unit, c2),
                      (0, 0): (_ratio(p.g22, p.g21), p.g22.L - p.g21.L + c1),
                      (1, 1): (_ratio(p.g11, p.g12), p.g11.L - p.g12.L + c2)}
+        check_continuous_plant(plant)
         G = {}
         for i in range(2):
             for k in range(2):
                 e = plant.element(i + 1, k + 1)
                 sys_g = _element(e)
-                if sys_g[3] != 0.0 or e.L <= 0.0:
-                    raise ConfigError(f"continuous loop: plant element g{i + 1}{k + 1} must be strictly proper "
-                                      "with a dead time > 0")
                 G[(i, k)] = (sys_g, _shift(e.L, h, f"the dead time of g{i + 1}{k + 1}"), e.L)
         # paths: e_j -> y_i through c_j, D_kj, g_ik; d_in_k -> y_i through g_ik; e_j -> u_k; e_j -> v_j
         paths, weights = [], []  # weights: which gain scales a path's output (-1: none)
         for (k, j), (sys_d, Ld) in D.items():
             for basis, weight in bases[j]:
                 dc = _series(basis, sys_d)
-                paths.append(_Path(dc, h, _shift(Ld, h, "a decoupler dead time") if Ld > 0 else 0,
-                                   kern.TARGET_U, k, j))
+                # the decoupler outputs follow the step's own errors: any delay will do
+                paths.append(_Path(dc, h, _shift(Ld, h, "a decoupler dead time", 0.0), kern.TARGET_U, k, j))
                 weights.append(weight)
                 for i in range(2):
                     sys_g, _, Lg = G[(i, k)]
@@ -295,9 +341,9 @@ class ContinuousTITOLoop:
             for basis, weight in bases[j]:
                 paths.append(_Path(basis, h, 0, kern.TARGET_V, j, j))
                 weights.append(weight)
-        self.paths = paths
-        self._weights = np.array(weights, dtype=np.int64)
-        self._arrays, self._nmax = _stack(paths)
+        self._arrays, self._nmax, order = _stack(paths)
+        self.paths = [paths[k] for k in order]
+        self._weights = np.array(weights, dtype=np.int64)[order]
         self._gains = None if not self.pi else np.array([g for pair in _pi_gains(controllers) for g in pair])
         self.n = _multiple(scenario.horizon, h, "the horizon")
         for steps in scenario.setpoints:
@@ -305,6 +351,7 @@ class ContinuousTITOLoop:
                 _multiple(t, h, "a set-point step time")
         _multiple(scenario.input_disturbance[0], h, "the input disturbance time")
         _multiple(scenario.output_disturbance[0], h, "the output disturbance time")
+        self._inputs = self._signals()
 
     def _signals(self):
         """Set-points less the measurement noise and output disturbances per step, and the
@@ -315,18 +362,22 @@ class ContinuousTITOLoop:
         for k, steps in enumerate(sc.setpoints):
             for ts, val in steps:
                 r[mid >= ts, k] = val
-        if max(sc.noise_power) > 0:  # e = r - (y + n): the noise of step k held over it
-            r -= measurement_noise(sc)[:n]
+        hold = np.arange(n + 1) // self._hold  # the noise sample over each step (and at the end)
+        self.noise = np.zeros((n + 1, 2))
+        if max(sc.noise_power) > 0:  # e = r - (y + n): the noise held over the step
+            self.noise = measurement_noise(sc)[hold]
+            r -= self.noise[:n]
+        hold = hold[:n]
         t_out, d_out = sc.output_disturbance
         dout = np.where((mid >= t_out)[:, None], np.asarray(d_out, float)[None, :], 0.0)
         hist = np.zeros((n + 1, 4, NODES.size))
         t_in, d_in = sc.input_disturbance
         hist[:n, 2:, :] = np.where((mid >= t_in)[:, None, None], np.asarray(d_in, float)[None, :, None], 0.0)
         if sc.has_input_noise:
-            hist[:n, 2:, :] += input_noise(sc)[:n, :, None]
+            hist[:n, 2:, :] += input_noise(sc)[hold, :, None]
         return r, dout, hist
 
-    def run(self, controllers=None):
+    def run(self, controllers=None, signals="yuv"):
         """Simulate the scenario.
 
         Parameters
@@ -334,6 +385,9 @@ class ContinuousTITOLoop:
         controllers : pair, optional
             Other PI controllers for a loop built from PI controllers (its paths are linear in
             the gains, so nothing is rebuilt); default: the loop's own.
+        signals : {"yuv", "yu", "y"}
+            Which signals to compute; the others are returned as zeros (the outputs need
+            neither ``u`` nor ``v``: skipping them saves their paths).
 
         Returns
         -------
@@ -345,11 +399,12 @@ class ContinuousTITOLoop:
             (from the right at a step).
         """
         n = self.n
-        r, dout, hist = self._signals()
+        r, dout, hist = self._inputs
+        hist = hist.copy()
         y, u, v = (np.zeros((n + 1, 2)) for _ in range(3))
         x = np.zeros((len(self.paths), self._nmax))
         a = self._arrays
-        C, D = a["C"], a["D"]
+        scale = np.ones(len(self.paths))
         if self.pi:
             gains = self._gains
             if controllers is not None:
@@ -358,18 +413,117 @@ class ContinuousTITOLoop:
                     raise ConfigError("continuous loop: a loop built for PI controllers runs PI controllers only")
                 gains = np.array([g for pair in pairs for g in pair])
             scale = np.where(self._weights >= 0, gains[np.maximum(self._weights, 0)], 1.0)
-            C, D = C * scale[:, None], D * scale
         elif controllers is not None:
             raise ConfigError("continuous loop: only a loop built for PI controllers takes others")
-        kern.run_loop(n, hist, r, dout, a["target"], a["out"], a["src"], a["split"], a["shift"], a["lag"],
-                      a["nfirst"], a["nst"], a["E"], a["H"], a["EA"], a["HA"], a["EB"], a["HB"], a["PA"], a["PB"],
-                      a["QA"], a["QB"], C, D, x, y, u, v)
+        done = kern.run_loop(n, hist, r, dout, a["bounds"], a["out"], a["src"], a["split"], a["lag"], a["nst"],
+                             a["Ox"], a["O1"], a["O2"], a["Sx"], a["S1"], a["S2"], scale, x, y, u, v,
+                             SIGNAL_LIMIT, len(signals))
+        if done < n:  # left the signal limit in step `done`: the rest is not computed
+            for arr in (y, u, v):
+                arr[done:] = np.nan
+            hist[done:, :2] = np.nan
+        # r - y at every step's nodes (the stored errors carry the measurement noise)
+        self.errors = hist[:n, :2] + self.noise[:n, :, None]
         return np.arange(n + 1) * self.h, y, u, v
+
+
+# the monomial coefficients of the cubic through the values at NODES
+_TO_MONOMIAL = np.linalg.inv(np.vander(NODES, NODES.size, increasing=True))
+
+
+class ErrorCubics:
+    """The errors ``r - y`` of a continuous run as one cubic per step and loop, with exact
+    integrals (their sign changes located to machine precision).
+
+    Parameters
+    ----------
+    errors : numpy.ndarray, shape (n, 2, 4)
+        Errors at the Gauss-Lobatto nodes of each step.
+    h : float
+        The step (s).
+    """
+
+    def __init__(self, errors, h: float):
+        self.h = float(h)
+        self.n = errors.shape[0]
+        self.coef = [np.ascontiguousarray(errors[:, i, :] @ _TO_MONOMIAL.T) for i in range(2)]
+
+    def _span(self, t0: float, t1: float):
+        """``(k0, a0, k1, b1)``: the window ``[t0, t1]`` as steps and fractions (clipped)."""
+        T = self.n * self.h
+        t0, t1 = min(max(t0, 0.0), T), min(max(t1, 0.0), T)
+        k0 = min(int(math.floor(t0 / self.h + 1e-9)), self.n - 1)
+        k1 = min(max(int(math.ceil(t1 / self.h - 1e-9)) - 1, k0), self.n - 1)
+        return k0, t0 / self.h - k0, k1, t1 / self.h - k1
+
+    def integrals(self, loop: int, t0: float = 0.0, t1: float = math.inf):
+        """``(IAE, ISE, ITAE)`` of loop ``loop`` (0 or 1) over ``[t0, t1]``, with ``t`` counted
+        from ``t0`` in the ITAE."""
+        k0, a0, k1, b1 = self._span(t0, t1)
+        iae, tae, ise = kern.window_integrals(self.coef[loop], self.h, k0, a0, k1, b1)
+        return iae, ise, tae - a0 * self.h * iae  # tae counts t from step k0's start
+
+    def settling_time(self, loop: int, band: float, t0: float = 0.0, t1: float = math.inf) -> float:
+        """Time from ``t0`` to the last instant at which ``|e| > band`` in ``[t0, t1]`` (0 if
+        never; ``inf`` if still outside at ``t1``)."""
+        k0, a0, k1, b1 = self._span(t0, t1)
+        k, tau = kern.last_exit(self.coef[loop], k0, a0, k1, b1, band)
+        if k < 0:
+            return 0.0
+        if k == k1 and tau >= b1:
+            return math.inf
+        return (k + tau) * self.h - (k0 + a0) * self.h
+
+
+class ContinuousRun:
+    """One run of :class:`ContinuousTITOSimulator`: ``status``, the grid ``t`` (step boundaries),
+    set-points ``r``, outputs ``y``, measurements ``ym``, decoupler and controller outputs ``u``,
+    ``v`` at ``t`` (from the right at a step), the error cubics ``errors`` (:class:`ErrorCubics`),
+    the ``step`` and the ``error_estimate`` (largest output difference from the run at twice the
+    step; NaN on a fixed step)."""
+
+    __slots__ = ("status", "t", "r", "y", "ym", "u", "v", "errors", "step", "error_estimate")
+
+    def __init__(self, **kw):
+        for key, val in kw.items():
+            setattr(self, key, val)
+
+
+def _gcd(values) -> float:
+    """The largest step that divides every value (a rational approximation: 1e-6 s)."""
+    from fractions import Fraction
+    g = Fraction(0)
+    for v in values:
+        f = Fraction(v).limit_denominator(10 ** 6)
+        g = Fraction(math.gcd(g.numerator * f.denominator, f.numerator * g.denominator), g.denominator * f.denominator)
+    return float(g)
+
+
+def coarsest_step(plant, decoupler, scenario) -> float:
+    """The coarsest step of the continuous loop's step ladder under ``scenario``: it divides the
+    horizon, every set-point and disturbance time and (with noise) the noise sample time ``dt``,
+    and is no longer than the shortest dead time into the outputs (a plant element's, which
+    every output path carries)."""
+    times = [scenario.horizon, scenario.input_disturbance[0], scenario.output_disturbance[0]]
+    times += [t for steps in scenario.setpoints for t, _ in steps]
+    if _noisy(scenario):
+        times.append(scenario.dt)
+    g = _gcd([t for t in times if t > 0])
+    shortest = min(plant.element(i, j).L for i in (1, 2) for j in (1, 2))
+    if not shortest > 0:
+        raise ConfigError("continuous loop: every plant element needs a dead time > 0")
+    return g / math.ceil(g / shortest - 1e-9)
 
 
 class ContinuousTITOSimulator:
     """The continuous loop behind the interface of :class:`~heurtune.objectives.tito.sim.TITOSimulator`
     (what ``[scenario] loop = "continuous"`` selects).
+
+    With ``scenario.tolerance`` set, each run chooses its step: the ladder ``h0, h0/2, h0/4, ...``
+    from :func:`coarsest_step`; a run at ``h`` is kept when its outputs differ from the run at
+    ``2 h`` by at most ``tolerance * max(1, max |y|)`` (the difference bounds the error of the
+    coarser run, and so, the error shrinking with the step, of the kept one), else the step is
+    halved, down to ``h0 / 2**MAX_HALVINGS``. Without it the step is ``scenario.dt``.
 
     Parameters
     ----------
@@ -377,51 +531,75 @@ class ContinuousTITOSimulator:
         Nominal plant (``scenario.variation`` is applied to it).
     decoupler : Decoupler or None
     scenario : TITOScenario
+    controller_outputs : bool
+        Whether runs compute the controller outputs ``v`` (default True; zeros otherwise).
 
     Attributes
     ----------
-    t, r : numpy.ndarray
-        Step boundaries and set-points there.
     plant : TITOPlant
         The simulated (varied) plant.
-    noise : numpy.ndarray, shape (n + 1, 2)
-        Measurement noise, sample ``k`` held over the step from ``t[k]`` (zeros without).
     """
 
-    def __init__(self, plant, decoupler, scenario):
+    MAX_HALVINGS = 8
+
+    def __init__(self, plant, decoupler, scenario, controller_outputs=True):
         self.scenario = scenario
-        self.noise = measurement_noise(scenario)
+        self._signals = "yuv" if controller_outputs else "yu"
         self.plant = vary_plant(plant, scenario.variation, scenario.vary) if scenario.variation else plant
         self.decoupler = decoupler
-        self._pi_loop = None
-        self.t = scenario.time()
-        self.r = np.zeros((self.t.size, 2))
-        for k, steps in enumerate(scenario.setpoints):
-            for ts, val in steps:
-                self.r[self.t >= ts - 1e-9, k] = val
+        self.tolerance = getattr(scenario, "tolerance", None)
+        if self.tolerance is None:
+            self.steps = (float(scenario.dt),)
+        else:
+            h0 = coarsest_step(self.plant, decoupler, scenario)
+            self.steps = tuple(h0 / 2 ** j for j in range(self.MAX_HALVINGS + 1))
+        self._pi_loops = {}
 
-    def arrays(self, controllers):
-        """Run the loop for ``controllers``.
+    def _loop(self, controllers, level: int, signals: str):
+        h = self.steps[level]
+        if _pi_gains(controllers) is not None:
+            if level not in self._pi_loops:  # built once per step: a PI only rescales the paths
+                self._pi_loops[level] = ContinuousTITOLoop(self.plant, self.decoupler, controllers, self.scenario, h)
+            loop = self._pi_loops[level]
+            return loop, loop.run(controllers, signals)
+        loop = ContinuousTITOLoop(self.plant, self.decoupler, controllers, self.scenario, h)
+        return loop, loop.run(None, signals)
+
+    def _record(self, loop, t, y, u, v, estimate):
+        sc = self.scenario
+        r = np.zeros((t.size, 2))
+        for k, steps in enumerate(sc.setpoints):
+            for ts, val in steps:
+                r[t >= ts - 1e-9, k] = val
+        noise = loop.noise
+        status = "ok" if np.isfinite(y).all() and np.isfinite(u).all() else "diverged"
+        return ContinuousRun(status=status, t=t, r=r, y=y, ym=y + noise, u=u, v=v,
+                             errors=ErrorCubics(loop.errors, loop.h), step=loop.h, error_estimate=estimate)
+
+    def run(self, controllers) -> ContinuousRun:
+        """Run the loop for ``controllers`` (to the tolerance where the scenario sets one).
 
         Returns
         -------
-        status : str
-            ``"ok"``, or ``"diverged"`` where a signal leaves 1e12 or stops being finite.
-        y, ym, u, v : numpy.ndarray, shape (n + 1, 2)
-            As :meth:`TITOSimulator.arrays`: ``ym = y + noise``, the measurement at ``t`` (from the
-            right at a step).
+        ContinuousRun
+            ``status`` is ``"ok"``, or ``"diverged"`` where a signal leaves 1e12 or stops being
+            finite (the signals are NaN from there on).
         """
-        if _pi_gains(controllers) is not None:
-            if self._pi_loop is None:  # built once: a PI only rescales the paths
-                self._pi_loop = ContinuousTITOLoop(self.plant, self.decoupler, controllers, self.scenario)
-            _, y, u, v = self._pi_loop.run(controllers)
-        else:
-            _, y, u, v = ContinuousTITOLoop(self.plant, self.decoupler, controllers, self.scenario).run()
-        big = np.abs(y).sum(axis=1) + np.abs(u).sum(axis=1)
-        bad = ~(big < SIGNAL_LIMIT)
-        if bad.any():
-            k = int(np.argmax(bad))
-            for a in (y, u, v):
-                a[k:] = np.nan
-            return "diverged", y, y + self.noise, u, v
-        return "ok", y, y + self.noise, u, v
+        if self.tolerance is None:
+            loop, (t, y, u, v) = self._loop(controllers, 0, self._signals)
+            return self._record(loop, t, y, u, v, math.nan)
+        _, (_, coarse, _, _) = self._loop(controllers, 0, "y")
+        for level in range(1, len(self.steps)):
+            loop, (t, y, u, v) = self._loop(controllers, level, self._signals)
+            if not np.isfinite(y).all():  # diverged at the finer step: so it is
+                return self._record(loop, t, y, u, v, math.nan)
+            diff = np.abs(y[::2] - coarse)
+            estimate = float(diff.max()) if np.isfinite(diff).all() else math.inf
+            if estimate <= self.tolerance * max(1.0, float(np.abs(y).max())) or level == len(self.steps) - 1:
+                return self._record(loop, t, y, u, v, estimate)
+            coarse = y
+
+    def arrays(self, controllers):
+        """``(status, y, ym, u, v)`` of :meth:`run`, as :meth:`TITOSimulator.arrays` returns them."""
+        res = self.run(controllers)
+        return res.status, res.y, res.ym, res.u, res.v

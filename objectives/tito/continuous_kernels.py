@@ -3,10 +3,12 @@
 Arrays in, arrays out; everything a step needs is precomputed by the caller. Signals are stored
 per step as their values at the ``q`` Gauss-Lobatto nodes, in ``hist[step, signal, node]`` with
 signals 0, 1 the errors ``e_1, e_2`` and 2, 3 the input disturbances. A path ``p`` is a state
-space of ``nst[p]`` states driven by signal ``src[p]`` delayed by ``shift[p]`` whole steps
-(``split[p] = 0``) or by a fraction (``split[p] = 1``: two sub-steps, the first ending at node
-``nfirst[p]``, with stored steps ``k - lag[p]`` and ``k - lag[p] + 1`` as inputs). Its output goes
-to ``target[p]`` (0: ``y``, 1: ``u``, 2: ``v``) at index ``out[p]``.
+space of ``nst[p]`` states driven by signal ``src[p]``: over step ``k`` it reads the stored step
+``k - lag[p]`` (``h1``) and, where its delayed window is split (``split[p] = 1``), also step
+``k - lag[p] + 1`` (``h2``). Its outputs at the step's nodes and its state at the step's end are
+``Ox x + O1 h1 + O2 h2`` and ``Sx x + S1 h1 + S2 h2``. Paths are ordered by stage: ``bounds[0]``
+to ``bounds[1]`` add to the outputs ``y``, then (once the step's errors are known) to the
+decoupler outputs ``u``, then to the controller outputs ``v``, each at index ``out[p]``.
 """
 
 import numpy as np
@@ -17,84 +19,57 @@ TARGET_U = 1
 TARGET_V = 2
 
 
-@njit(cache=True)
-def _inputs(p, k, hist, src, split, shift, lag, PA, PB, QA, QB, wa, wb, wn):
-    """Fill ``wa`` (first sub-step or whole step inputs at the nodes), ``wb`` (second sub-step)
-    and ``wn`` (the input at the step's own nodes, for the feedthrough)."""
-    q = wa.size
+@njit(cache=True, inline="always")
+def _path_step(p, k, hist, src, split, lag, nst, Ox, O1, O2, Sx, S1, S2, scale, x, xn, acc):
+    """Add path ``p``'s outputs over step ``k`` (scaled by ``scale[p]``) to ``acc`` and advance its
+    state ``x[p]`` to the step's end."""
+    q = acc.size
+    n = nst[p]
     s = src[p]
-    if split[p] == 0:
-        m = k - shift[p]
-        for i in range(q):
-            v = hist[m, s, i] if m >= 0 else 0.0
-            wa[i] = v
-            wn[i] = v
-        return
-    m2 = k - lag[p] + 1
-    m1 = m2 - 1
+    m1 = k - lag[p]
+    two = split[p] == 1
+    m2 = m1 + 1
+    c = scale[p]
     for i in range(q):
         a = 0.0
-        b = 0.0
-        na = 0.0
-        nb = 0.0
-        for c in range(q):
-            h1 = hist[m1, s, c] if m1 >= 0 else 0.0
-            h2 = hist[m2, s, c] if m2 >= 0 else 0.0
-            a += PA[p, i, c] * h1
-            b += PB[p, i, c] * h2
-            na += QA[p, i, c] * h1
-            nb += QB[p, i, c] * h2
-        wa[i] = a
-        wb[i] = b
-        wn[i] = na + nb
-
-
-@njit(cache=True, inline="always")
-def _affine(E, H, p, i, n, x, w, out, row):
-    """``out[row, :n] = E[p, i] x + H[p, i] w`` (a path's state at one node)."""
+        for r in range(n):
+            a += Ox[p, i, r] * x[p, r]
+        if m1 >= 0:
+            for j in range(q):
+                a += O1[p, i, j] * hist[m1, s, j]
+        if two and m2 >= 0:
+            for j in range(q):
+                a += O2[p, i, j] * hist[m2, s, j]
+        acc[i] += c * a
     for r in range(n):
-        acc = 0.0
-        for c in range(n):
-            acc += E[p, i, r, c] * x[c]
-        for c in range(w.size):
-            acc += H[p, i, r, c] * w[c]
-        out[row, r] = acc
+        a = 0.0
+        for j in range(n):
+            a += Sx[p, r, j] * x[p, j]
+        if m1 >= 0:
+            for j in range(q):
+                a += S1[p, r, j] * hist[m1, s, j]
+        if two and m2 >= 0:
+            for j in range(q):
+                a += S2[p, r, j] * hist[m2, s, j]
+        xn[r] = a
+    for r in range(n):
+        x[p, r] = xn[r]
 
 
 @njit(cache=True)
-def _advance(p, x, wa, wb, split, nst, nfirst, E, H, EA, HA, EB, HB, X):
-    """Node states ``X[i, :]`` of path ``p`` over the step from its state ``x[p]``."""
-    q = wa.size
-    n = nst[p]
-    if split[p] == 0:
-        for i in range(q):
-            _affine(E, H, p, i, n, x[p], wa, X, i)
-        return
-    nf = nfirst[p]
-    # first sub-step: nodes 0 .. nf - 1, then its end (row nf of EA/HA) into row nf of X, which
-    # the second sub-step starts from and then overwrites with its own first node
-    for i in range(nf + 1):
-        _affine(EA, HA, p, i, n, x[p], wa, X, i)
-    xm = X[nf, :n].copy()
-    for i in range(q - nf):
-        _affine(EB, HB, p, i, n, xm, wb, X, nf + i)
-
-
-@njit(cache=True)
-def run_loop(n, hist, r_step, dout_step, target, out, src, split, shift, lag, nfirst, nst,
-             E, H, EA, HA, EB, HB, PA, PB, QA, QB, C, D, x, y_rec, u_rec, v_rec):
+def run_loop(n, hist, r_step, dout_step, bounds, out, src, split, lag, nst, Ox, O1, O2, Sx, S1, S2, scale,
+             x, y_rec, u_rec, v_rec, limit, stages):
     """Run ``n`` steps; records ``y``, ``u``, ``v`` at the step boundaries (rows ``0 .. n``).
 
-    ``r_step``, ``dout_step``: (n, 2) set-points and output disturbances on each step (constant
-    there); ``x``: (paths, max states) zero on entry, updated in place; ``hist`` holds the input
-    disturbances (signals 2, 3) on entry and gets the errors (signals 0, 1)."""
-    P = target.size
+    ``r_step``, ``dout_step``: (n, 2) set-points (less the measurement noise) and output
+    disturbances on each step (constant there); ``x``: (paths, max states) zero on entry, updated
+    in place; ``hist`` holds the input disturbances (signals 2, 3) on entry and gets the errors
+    (signals 0, 1). Stops at the first step whose outputs leave ``limit`` (or are not finite) and
+    returns its index (``n`` when none did): the rows from there on are not valid."""
     q = hist.shape[2]
     nmax = x.shape[1]
-    X = np.zeros((q, nmax))
-    wa = np.zeros(q)
-    wb = np.zeros(q)
-    wn = np.zeros(q)
+    xn = np.zeros(nmax)
+    acc = np.zeros(q)
     y = np.zeros((2, q))
     u = np.zeros((2, q))
     v = np.zeros((2, q))
@@ -109,29 +84,182 @@ def run_loop(n, hist, r_step, dout_step, target, out, src, split, shift, lag, nf
                 for i in range(2):
                     for j in range(q):
                         hist[k, i, j] = r_step[k, i] - y[i, j]
-            for p in range(P):
-                if target[p] != stage:
-                    continue
-                _inputs(p, k, hist, src, split, shift, lag, PA, PB, QA, QB, wa, wb, wn)
-                _advance(p, x, wa, wb, split, nst, nfirst, E, H, EA, HA, EB, HB, X)
+            if stage >= stages:
+                break
+            for p in range(bounds[stage], bounds[stage + 1]):
+                for j in range(q):
+                    acc[j] = 0.0
+                _path_step(p, k, hist, src, split, lag, nst, Ox, O1, O2, Sx, S1, S2, scale, x, xn, acc)
                 o = out[p]
-                for i in range(q):
-                    acc = D[p] * wn[i]
-                    for r in range(nst[p]):
-                        acc += C[p, r] * X[i, r]
+                for j in range(q):
                     if stage == 0:
-                        y[o, i] += acc
+                        y[o, j] += acc[j]
                     elif stage == 1:
-                        u[o, i] += acc
+                        u[o, j] += acc[j]
                     else:
-                        v[o, i] += acc
-                for r in range(nst[p]):
-                    x[p, r] = X[q - 1, r]
+                        v[o, j] += acc[j]
+        big = 0.0
         for i in range(2):
             y_rec[k, i] = y[i, 0]
             u_rec[k, i] = u[i, 0]
             v_rec[k, i] = v[i, 0]
-            if k == n - 1:
-                y_rec[n, i] = y[i, q - 1]
-                u_rec[n, i] = u[i, q - 1]
-                v_rec[n, i] = v[i, q - 1]
+            y_rec[k + 1, i] = y[i, q - 1]
+            u_rec[k + 1, i] = u[i, q - 1]
+            v_rec[k + 1, i] = v[i, q - 1]
+            for j in range(q):
+                big += abs(y[i, j]) + abs(u[i, j])
+        if not big < limit:
+            return k
+    return n
+
+
+# ---------------------------------------------------------------------------------------------
+# Quadrature of the error cubics: each step's error is the cubic c0 + c1 tau + c2 tau^2 + c3 tau^3
+# in the step's fraction tau in [0, 1]; the integrals below are exact for it, |e| included (its
+# sign changes are located to machine precision).
+# ---------------------------------------------------------------------------------------------
+
+
+@njit(cache=True, inline="always")
+def _cubic(c, tau):
+    return c[0] + tau * (c[1] + tau * (c[2] + tau * c[3]))
+
+
+@njit(cache=True)
+def _pieces(c, a, b, cuts):
+    """Fill ``cuts`` with ``a``, the extrema of the cubic inside ``(a, b)`` and ``b`` (sorted);
+    returns their number. Between two cuts the cubic is monotone."""
+    m = 0
+    cuts[m] = a
+    m += 1
+    # p' = c1 + 2 c2 tau + 3 c3 tau^2
+    qa, qb, qc = 3.0 * c[3], 2.0 * c[2], c[1]
+    r1 = np.nan
+    r2 = np.nan
+    if qa != 0.0:
+        disc = qb * qb - 4.0 * qa * qc
+        if disc > 0.0:
+            s = np.sqrt(disc)
+            qq = -0.5 * (qb + s if qb >= 0.0 else qb - s)
+            r1 = qq / qa
+            r2 = qc / qq if qq != 0.0 else np.nan
+    elif qb != 0.0:
+        r1 = -qc / qb
+    if r2 < r1:
+        r1, r2 = r2, r1
+    for r in (r1, r2):
+        if r == r and a < r < b:
+            cuts[m] = r
+            m += 1
+    cuts[m] = b
+    return m + 1
+
+
+@njit(cache=True)
+def _root(c, lo, hi, level):
+    """The root of ``p - level`` in ``[lo, hi]``, where the cubic is monotone and changes sign
+    (bisection with secant steps, to a few ulps of the interval)."""
+    flo = _cubic(c, lo) - level
+    fhi = _cubic(c, hi) - level
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if flo != fhi:
+            sec = lo - flo * (hi - lo) / (fhi - flo)
+            if lo < sec < hi:
+                mid = 0.5 * (mid + sec)
+        fm = _cubic(c, mid) - level
+        if fm == 0.0:
+            return mid
+        if (fm < 0.0) == (flo < 0.0):
+            lo, flo = mid, fm
+        else:
+            hi, fhi = mid, fm
+        if hi - lo <= 4e-16 * max(1.0, abs(lo)):
+            break
+    return 0.5 * (lo + hi)
+
+
+@njit(cache=True, inline="always")
+def _moments(c, a, b):
+    """``(int p, int tau p, int p^2)`` over ``[a, b]``."""
+    m0 = 0.0
+    m1 = 0.0
+    m2 = 0.0
+    for j in range(4):
+        m0 += c[j] * (b ** (j + 1) - a ** (j + 1)) / (j + 1)
+        m1 += c[j] * (b ** (j + 2) - a ** (j + 2)) / (j + 2)
+        for i in range(4):
+            m2 += c[i] * c[j] * (b ** (i + j + 1) - a ** (i + j + 1)) / (i + j + 1)
+    return m0, m1, m2
+
+
+@njit(cache=True)
+def step_integrals(c, a, b):
+    """``(int |p|, int tau |p|, int p^2)`` of the cubic ``c`` over ``[a, b]`` in ``[0, 1]``, exact:
+    split at its extrema and at its sign changes."""
+    cuts = np.empty(4)
+    m = _pieces(c, a, b, cuts)
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    for k in range(m - 1):
+        lo, hi = cuts[k], cuts[k + 1]
+        flo, fhi = _cubic(c, lo), _cubic(c, hi)
+        if flo * fhi < 0.0:
+            r = _root(c, lo, hi, 0.0)
+            segs = ((lo, r), (r, hi))
+        else:
+            segs = ((lo, hi), (hi, hi))
+        for s in range(2):
+            x0, x1 = segs[s]
+            if x1 <= x0:
+                continue
+            m0, m1, m2 = _moments(c, x0, x1)
+            sign = 1.0 if _cubic(c, 0.5 * (x0 + x1)) >= 0.0 else -1.0
+            s0 += sign * m0
+            s1 += sign * m1
+            s2 += m2
+    return s0, s1, s2
+
+
+@njit(cache=True)
+def window_integrals(coef, h, k0, a0, k1, b1):
+    """IAE, ``int t |e| dt`` (``t`` from the first step's start) and ISE of one loop's error
+    cubics ``coef[k, :]`` from fraction ``a0`` of step ``k0`` to fraction ``b1`` of step ``k1``."""
+    iae = 0.0
+    tae = 0.0
+    ise = 0.0
+    for k in range(k0, k1 + 1):
+        a = a0 if k == k0 else 0.0
+        b = b1 if k == k1 else 1.0
+        if b <= a:
+            continue
+        s0, s1, s2 = step_integrals(coef[k], a, b)
+        t0 = (k - k0) * h
+        iae += h * s0
+        tae += h * (t0 * s0 + h * s1)
+        ise += h * s2
+    return iae, tae, ise
+
+
+@njit(cache=True)
+def last_exit(coef, k0, a0, k1, b1, band):
+    """The last time, as ``(step, fraction)``, at which ``|e|`` is above ``band`` in the window
+    (``(-1, 0)`` when it never is), located on the cubic."""
+    cuts = np.empty(4)
+    for k in range(k1, k0 - 1, -1):
+        a = a0 if k == k0 else 0.0
+        b = b1 if k == k1 else 1.0
+        if b <= a:
+            continue
+        c = coef[k]
+        m = _pieces(c, a, b, cuts)
+        for j in range(m - 2, -1, -1):  # the monotone pieces, latest first
+            lo, hi = cuts[j], cuts[j + 1]
+            flo, fhi = abs(_cubic(c, lo)), abs(_cubic(c, hi))
+            if fhi > band:
+                return k, hi
+            if flo > band:  # |p| falls through the band inside the piece
+                level = band if _cubic(c, lo) > 0.0 else -band
+                return k, _root(c, lo, hi, level)
+    return -1, 0.0

@@ -17,6 +17,7 @@ from heurtune.core.robust import ROBUST_SCHEMA, robust_tuning
 from heurtune.core.schema import COMMON_SCHEMA, MULTI_OBJECTIVE_SCHEMA, NUMBER, PAIR
 from heurtune.objectives.tito import model as tito
 from heurtune.objectives.tito import report, two_tank
+from heurtune.objectives.tito.continuous import DEFAULT_TOLERANCE, check_continuous_plant
 from heurtune.objectives.tito.problem import (
     DEFAULT_GPM,
     MULTI_OBJECTIVES,
@@ -63,6 +64,9 @@ SCHEMA = dict(COMMON_SCHEMA, **{
         "variation": ("map", NUMBER),
         "vary": ("list", ("K", "lags", "leads", "L")),
         "loop": LOOPS,
+        # the loop: sample_time = the sampled loop's step; tolerance = the continuous loop's
+        # error on the outputs (docs/tito.md, "Which loop")
+        "sample_time": NUMBER, "tolerance": NUMBER,
         # the sampled loop with derivative filters shorter than 10 dt (sim.check_sampling)
         "allow_coarse_sampling": bool,
     },
@@ -178,9 +182,10 @@ class TITOExperiment(ExperimentBase):
     def _scenarios(self, sc: dict) -> dict:
         kw = {}
         for key in ("horizon", "dt", "noise_power", "noise_seed", "input_noise_power", "input_noise_seed", "loop",
-                    "allow_coarse_sampling"):
+                    "allow_coarse_sampling", "tolerance"):
             if key in sc:
                 kw[key] = tuple(sc[key]) if isinstance(sc[key], list) else sc[key]
+        kw.update(self._loop_choice(sc))
         power = kw.get("input_noise_power", 0.0)
         if self.model == "two_tank_nonlinear" and kw.get("loop", "sampled") != "sampled":
             raise ConfigError(f"{self.name}: scenario.loop: the nonlinear two-tank simulator is sampled; allowed with "
@@ -205,6 +210,38 @@ class TITOExperiment(ExperimentBase):
             return {k: TITOScenario(**kw, variation=float(v)) for k, v in variation.items()}
         except ConfigError as exc:
             raise ConfigError(f"{self.name}: {exc}") from None
+
+    def _loop_choice(self, sc: dict) -> dict:
+        """The scenario keys that choose the loop (docs/tito.md, "Which loop"):
+
+        - ``sample_time``: the sampled loop at that step (``dt`` alone, the older spelling, too);
+        - ``tolerance``: the continuous loop, each run's step chosen to that tolerance;
+        - ``loop = "continuous"`` with ``dt``: the continuous loop on the fixed step ``dt``;
+        - none of them: the continuous loop to ``DEFAULT_TOLERANCE`` (the sampled loop for the
+          nonlinear two-tank rig, whose simulator has no other).
+        """
+        where = f"{self.name}: scenario"
+        loop = sc.get("loop")
+        if "sample_time" in sc:
+            if "dt" in sc:
+                raise ConfigError(f"{where}.sample_time: give sample_time or dt, not both (dt is its older spelling)")
+            if "tolerance" in sc or loop == "continuous":
+                raise ConfigError(f"{where}.sample_time: sample_time sets the sampled loop; the continuous loop takes "
+                                  "tolerance (give one of them)")
+            return {"loop": "sampled", "dt": sc["sample_time"]}
+        if "tolerance" in sc:
+            if loop == "sampled":
+                raise ConfigError(f"{where}.tolerance: tolerance sets the continuous loop; the sampled loop takes "
+                                  "sample_time (give one of them)")
+            if self.model == "two_tank_nonlinear":
+                raise ConfigError(f"{where}.tolerance: the nonlinear two-tank simulator is sampled; allowed with "
+                                  "plant.model = 'tito' only (use sample_time here)")
+            return {"loop": "continuous"}
+        if loop is None and "dt" not in sc and self.model != "two_tank_nonlinear":
+            return {"loop": "continuous", "tolerance": DEFAULT_TOLERANCE}
+        if loop == "continuous" and "dt" not in sc:
+            return {"tolerance": DEFAULT_TOLERANCE}
+        return {}
 
     def _plant(self, case: str):
         """``(TITOPlant, TwoTankParams or None)`` of a plant case."""
@@ -274,6 +311,12 @@ class TITOExperiment(ExperimentBase):
         signs = [float(np.real(chain.element(i)(np.array([1e-9]))[0])) for i in (1, 2)]
         bounds = default_bounds(kind, gpm_x, signs)
         bounds = self._override_bounds(bounds, self.bounds_config, set(gain_names("pid")), gain_names(kind))
+        if params is None and any(sc.loop == "continuous" for sc in self.scenarios.values()):
+            try:
+                check_continuous_plant(chain.plant)
+            except ConfigError as exc:
+                raise ConfigError(f"{self.name}: case {case!r}: {exc}; scenario.sample_time = X runs the sampled "
+                                  f"loop, which takes it") from None
         prob = TITOProblem(case, kind, chain, bounds, objective=self.objective, constraints=self.constraints,
                            scenarios=self.scenarios, tuning_scenario=self.tuning_scenario, N=self.N,
                            windows=self.windows, settling_band=self.settling_band, nonlinear=params,

@@ -395,7 +395,8 @@ class TITOProblem(TuningProblem):
     def _simulator(self, sc: TITOScenario):
         if sc not in self._simulators:
             if self.nonlinear is None and sc.loop == "continuous":
-                self._simulators[sc] = ContinuousTITOSimulator(self.chain.plant, self.chain.decoupler, sc)
+                self._simulators[sc] = ContinuousTITOSimulator(self.chain.plant, self.chain.decoupler, sc,
+                                                                controller_outputs=False)
             elif self.nonlinear is None:
                 self._simulators[sc] = TITOSimulator(self.chain.plant, self.chain.decoupler, sc)
             else:
@@ -403,16 +404,24 @@ class TITOProblem(TuningProblem):
         return self._simulators[sc]
 
     def _run(self, controllers, sc: TITOScenario):
-        """``(status, t, r, y, u)`` of one simulation."""
+        """``(status, t, r, y, u, errors)`` of one simulation; ``errors`` is the continuous loop's
+        :class:`~heurtune.objectives.tito.continuous.ErrorCubics` (None on a sampled loop)."""
         sim = self._simulator(sc)
+        if isinstance(sim, ContinuousTITOSimulator):
+            res = sim.run(controllers)
+            return res.status, res.t, res.r, res.y, res.u, res.errors
         if sim is not None:
             status, y, _, u, _ = sim.arrays(controllers)
-            return status, sim.t, sim.r, y, u
+            return status, sim.t, sim.r, y, u, None
         df = two_tank.simulate_two_tank(self.nonlinear, controllers, self.chain.decoupler, sc)
         return (df.attrs["status"], df["t"].to_numpy(), df[["r1", "r2"]].to_numpy(),
-                df[["y1", "y2"]].to_numpy(), df[["u1", "u2"]].to_numpy())
+                df[["y1", "y2"]].to_numpy(), df[["u1", "u2"]].to_numpy(), None)
 
-    def _time_metrics(self, t, r, y, u, row: np.ndarray):
+    def _time_metrics(self, t, r, y, u, row: np.ndarray, errors=None):
+        """Fill ``row``'s time-domain metrics. On samples (trapezoid rule, the settling time at
+        the samples) for a sampled loop; for the continuous loop (``errors`` given) IAE, ISE,
+        ITAE, RMS error and settling time are exact on its error cubics, ``max_u`` and ``tv_u``
+        on the step boundaries."""
         e = r - y
         band = self.settling_band / 100.0
         dt = t[1] - t[0] if t.size > 1 else 1.0
@@ -421,18 +430,24 @@ class TITOProblem(TuningProblem):
             ae = np.abs(ei)
             scale = float(np.max(np.abs(r[:, i])))
             band_i = band * (scale if scale > 0 else 1.0)
-            vals = dict(
-                IAE=_trapz(ae, dt),
-                ISE=_trapz(ei * ei, dt),
-                ITAE=_trapz(t * ae, dt),
-                ts=_settling(t, ae, band_i),
-                max_u=float(np.max(np.abs(u[:, i]))),
-                rms_e=float(np.sqrt(np.mean(ei * ei))),
-                tv_u=float(np.sum(np.abs(np.diff(u[:, i])))),
-            )
+            if errors is None:
+                vals = dict(IAE=_trapz(ae, dt), ISE=_trapz(ei * ei, dt), ITAE=_trapz(t * ae, dt),
+                            ts=_settling(t, ae, band_i), rms_e=float(np.sqrt(np.mean(ei * ei))))
+            else:
+                iae, ise, itae = errors.integrals(i)
+                vals = dict(IAE=iae, ISE=ise, ITAE=itae, ts=errors.settling_time(i, band_i),
+                            rms_e=math.sqrt(ise / (t[-1] - t[0])))
+            vals.update(max_u=float(np.max(np.abs(u[:, i]))), tv_u=float(np.sum(np.abs(np.diff(u[:, i])))))
             for key, v in vals.items():
                 row[self._midx[f"{key}{i + 1}"]] = v
             for wname, (t0, t1) in self.windows.items():
+                if errors is not None:
+                    iae, ise, itae = errors.integrals(i, t0, t1)
+                    row[self._midx[f"IAE_{wname}{i + 1}"]] = iae
+                    row[self._midx[f"ISE_{wname}{i + 1}"]] = ise
+                    row[self._midx[f"ITAE_{wname}{i + 1}"]] = itae
+                    row[self._midx[f"ts_{wname}{i + 1}"]] = errors.settling_time(i, band_i, t0, t1)
+                    continue
                 sel = (t >= t0 - 1e-9) & (t <= t1 + 1e-9)
                 tw, ew = t[sel], ei[sel]
                 if tw.size >= 2:
@@ -501,14 +516,14 @@ class TITOProblem(TuningProblem):
                 continue
             if time_needed:
                 try:
-                    status, t, r, y, u = self._run(self.controllers(X[k]), sc)
+                    status, t, r, y, u, errors = self._run(self.controllers(X[k]), sc)
                 except ConfigError:
                     reason[k] = "invalid_parameter"
                     continue
                 if status != "ok":
                     reason[k] = "diverged"
                     continue
-                self._time_metrics(t, r, y, u, metrics[k])
+                self._time_metrics(t, r, y, u, metrics[k], errors)
             F[k] = [self._objective_value(name, metrics[k], freq, k) for name in names]
             f[k] = F[k, 0]
             g[k] = self._constraint_values(metrics[k])
@@ -558,7 +573,7 @@ class TITOProblem(TuningProblem):
     def simulate(self, x, scenario="nominal") -> pd.DataFrame:
         """Trajectories of one candidate: columns t, r1, r2, y1, y2, u1, u2."""
         sc = self.scenario(scenario)
-        status, t, r, y, u = self._run(self.controllers(np.array([self.values(x)[n] for n in self.names])), sc)
+        status, t, r, y, u, _ = self._run(self.controllers(np.array([self.values(x)[n] for n in self.names])), sc)
         df = pd.DataFrame({"t": t, "r1": r[:, 0], "r2": r[:, 1], "y1": y[:, 0], "y2": y[:, 1],
                            "u1": u[:, 0], "u2": u[:, 1]})
         df.attrs["status"] = status
@@ -584,10 +599,10 @@ class TITOProblem(TuningProblem):
             for loop 2, and per window ``IAE_<window><loop>``...
         """
         row = np.full(len(self.metric_names), np.nan)
-        status, t, r, y, u = self._run(self.controllers(np.array([self.values(x)[n] for n in self.names])),
-                                       self.scenario(scenario))
+        status, t, r, y, u, errors = self._run(self.controllers(np.array([self.values(x)[n] for n in self.names])),
+                                               self.scenario(scenario))
         if status == "ok":
-            self._time_metrics(t, r, y, u, row)
+            self._time_metrics(t, r, y, u, row, errors)
         names = [n for n in self.metric_names if n[:-1].rstrip("_") not in _FREQ_METRICS]
         return status, {n: float(row[self._midx[n]]) for n in names}
 

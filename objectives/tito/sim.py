@@ -140,6 +140,10 @@ class TITOScenario:
         On the sampled loop, a derivative filter ``Tf`` shorter than ``10 dt`` is an error
         (:func:`check_sampling`) unless this is True (default False). Not part of the identity:
         it changes no number.
+    tolerance : float or None
+        The continuous loop only: each run chooses its step to this tolerance on the outputs
+        (:class:`~heurtune.objectives.tito.continuous.ContinuousTITOSimulator`); ``dt`` is then
+        the noise's sample time alone. None (default): the step is ``dt``.
 
     A step time ``t`` acts from the first sample ``k`` with ``k dt >= t - 1e-9``.
     """
@@ -157,6 +161,7 @@ class TITOScenario:
     input_noise_seed: int | None = None
     loop: str = "sampled"
     allow_coarse_sampling: bool = False
+    tolerance: float | None = None
 
     def __post_init__(self):
         try:
@@ -208,6 +213,15 @@ class TITOScenario:
         if not isinstance(self.allow_coarse_sampling, (bool, np.bool_)):
             raise ConfigError("scenario: allow_coarse_sampling must be true or false, "
                               f"got {self.allow_coarse_sampling!r}")
+        if self.tolerance is not None:
+            tol = self.tolerance
+            if isinstance(tol, bool) or not isinstance(tol, (int, float, np.integer, np.floating)) \
+                    or not (math.isfinite(tol) and tol > 0):
+                raise ConfigError(f"scenario: tolerance must be a finite number > 0, got {tol!r}")
+            if self.loop != "continuous":
+                raise ConfigError(f"scenario: tolerance sets the continuous loop's step; loop is {self.loop!r} "
+                                  "(use loop = 'continuous', or the sampled loop's step alone)")
+            object.__setattr__(self, "tolerance", float(tol))
         for key, val in (("horizon", horizon), ("dt", dt), ("variation", variation), ("setpoints", setpoints),
                          ("input_disturbance", dists[0]), ("output_disturbance", dists[1]),
                          ("noise_power", power), ("noise_seed", int(self.noise_seed)), ("vary", vary),
@@ -238,6 +252,8 @@ class TITOScenario:
                 out.pop(key)
         if self.loop == "sampled":  # the identity every sampled scenario had before the key existed
             out.pop("loop")
+        if self.tolerance is None:  # a fixed step: the identity it had before the key existed
+            out.pop("tolerance")
         return out
 
     @property
@@ -283,7 +299,8 @@ def check_sampling(scenario: TITOScenario, controllers=None, N=None) -> None:
         return
     dt = scenario.dt
     limit = COARSE_FACTOR * dt
-    way_out = "use [scenario] loop = \"continuous\", or allow_coarse_sampling = true to keep the sampled loop"
+    way_out = ("run the continuous loop ([scenario] tolerance = X, or neither sample_time nor dt), or "
+               "allow_coarse_sampling = true to keep the sampled loop")
     if controllers is None:
         if N is not None:
             raise ConfigError(f"scenario: the sampled loop at dt = {dt:g} s cannot follow a PID tuning problem's "

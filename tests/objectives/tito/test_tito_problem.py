@@ -64,9 +64,12 @@ def test_problem_interface_and_gpm_chain(ccts):
     assert ccts.lower.min() == 0.0 and np.all(ccts.upper > x)
 
 
-def test_time_objective_equals_the_simulators_record(ccts):
-    """f = IAE1 + IAE2 over the whole tuning scenario, against simulate_tito and its own
-    (pandas / numpy.trapezoid) metrics: same samples, so agreement to rounding."""
+def test_time_objective_equals_the_simulators_record(tmp_path):
+    """On the sampled loop, f = IAE1 + IAE2 over the whole tuning scenario, against
+    simulate_tito and its own (pandas / numpy.trapezoid) metrics: same samples, so agreement
+    to rounding. (The continuous loop's quadrature: test_continuous_tito.py.)"""
+    ccts = heurtune.load_experiment(write_config(tmp_path, 'extends = "ga_pi_ccts"\n[scenario]\nsample_time = 0.5\n')
+                                    ).problem("ccts")
     x = ccts.baseline("gpm") * np.array([1.2, 0.8, 0.9, 1.1])
     ev = ccts.evaluate(x)
     assert ev.reason[0] == "" and ev.feasible[0]
