@@ -43,7 +43,8 @@ SAMPLED = ("cs_lqi_qtp", "robust_cs_folqi_qtp")
 # A TITO experiment run on the continuous loop's fixed step too ([scenario] loop = "continuous"
 # with dt; the experiment itself runs it to a tolerance).
 CONTINUOUS = ("ga_pi_ccts",)
-_VARIANTS = {"sampled": "[controller]\nsample_time = 0.01\n", "continuous": '[scenario]\nloop = "continuous"\ndt = 0.5\n'}
+_VARIANTS = {"sampled": "[controller]\nsample_time = 0.01\n",
+             "continuous": '[scenario]\nloop = "continuous"\ndt = 0.5\n'}
 
 
 DEVICES = ("cpu", "cpu-batch")

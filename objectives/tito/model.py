@@ -571,7 +571,8 @@ def _check_filter(what: str, name: str, derivative, Tf) -> None:
     if not (tf >= 0.0 and math.isfinite(tf)):
         raise ConfigError(f"{what}: the derivative filter Tf must be finite and >= 0, got {Tf!r}")
     if tf == 0.0 and d != 0.0:
-        raise ConfigError(f"{what}: a derivative ({name} = {derivative!r}) needs a derivative filter Tf > 0, got Tf = 0")
+        raise ConfigError(f"{what}: a derivative ({name} = {derivative!r}) needs a derivative filter Tf > 0, "
+                          "got Tf = 0")
 
 
 @dataclasses.dataclass(frozen=True)

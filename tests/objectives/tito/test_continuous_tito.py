@@ -27,11 +27,11 @@ from tito_dde_reference import DDELoop
 
 import heurtune
 from heurtune.core.errors import ConfigError
-from heurtune.runner.config import experiments_dir
 from heurtune.objectives.tito.continuous import ContinuousTITOLoop, ContinuousTITOSimulator
 from heurtune.objectives.tito.design import parallel_controller
 from heurtune.objectives.tito.papers import simulated
 from heurtune.objectives.tito.sim import TITOSimulator, input_noise, measurement_noise, simulate_tito
+from heurtune.runner.config import experiments_dir
 
 
 def _run(prob, sc, gains, h, times):
@@ -209,8 +209,8 @@ def test_a_sampled_loop_coarser_than_its_derivative_filters_is_a_one_line_error(
     assert shipped.scenario("nominal").allow_coarse_sampling
     assert "allow_coarse_sampling" not in shipped.identity()["scenario"]
     cont = tmp_path / "cont.toml"  # the same problem without its sample_time: the continuous loop
-    cont.write_text((experiments_dir() / "optimal_pid_qts.toml").read_text()
-                    .replace("sample_time = 0.1\n", "").replace("allow_coarse_sampling = true", "allow_coarse_sampling = false"))
+    text = (experiments_dir() / "optimal_pid_qts.toml").read_text().replace("sample_time = 0.1\n", "")
+    cont.write_text(text.replace("allow_coarse_sampling = true", "allow_coarse_sampling = false"))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         assert heurtune.load_experiment(str(cont)).problem("qts").scenario("nominal").loop == "continuous"
@@ -268,7 +268,7 @@ def test_error_cubics_integrate_a_cubic_exactly_through_its_sign_changes():
     errors = np.array([[c(NODES), -0.5 * c(NODES)] for c in cubics])  # steps x loops x nodes
     ec = ErrorCubics(errors, h)
     for loop, scale in ((0, 1.0), (1, -0.5)):
-        def e(t):
+        def e(t, scale=scale):
             k = min(int(t // h), len(cubics) - 1)
             return scale * cubics[k]((t - k * h) / h)
         kinks = [k * h + r * h for k, c in enumerate(cubics) for r in np.real(c.r) if 0 < r < 1] \
@@ -276,7 +276,7 @@ def test_error_cubics_integrate_a_cubic_exactly_through_its_sign_changes():
         for t0, t1 in ((0.0, 8.0), (1.3, 6.1)):
             pts = sorted(p for p in kinks if t0 < p < t1)
             ref = [quad(f, t0, t1, points=pts, epsabs=1e-14, epsrel=1e-13, limit=200)[0] for f in
-                   (lambda t: abs(e(t)), lambda t: e(t) ** 2, lambda t: (t - t0) * abs(e(t)))]
+                   (lambda t: abs(e(t)), lambda t: e(t) ** 2, lambda t, t0=t0: (t - t0) * abs(e(t)))]
             np.testing.assert_allclose(ec.integrals(loop, t0, t1), ref, rtol=1e-11, atol=1e-13)
     # |e| last leaves 0.35 inside the third step (the last one stays within 0.1 .. 0.3)
     band = 0.35
