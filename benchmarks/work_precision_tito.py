@@ -1,15 +1,23 @@
-"""Work-precision of the TITO loop on the CCTS: output error against milliseconds per simulation,
+"""Work-precision of the TITO loop on the CCTS, and the cost of an IAE evaluation on either loop:
 the continuous loop and the sampled one side by side in this process.
 
 Run with ``python benchmarks/work_precision_tito.py`` (part of ``make bench``). BLAS is pinned to
 one thread. The case is ``ga_pi_ccts``'s tuning scenario (CCTS behind its inverted decoupler,
-1,200 s: unit set-point steps, input and output disturbances of 0.1 at 500 s and 800 s) under
-its GPM PI. The reference is the independent method-of-steps solution of
-``tests/tito_dde_reference.py`` (LSODA, rtol 1e-10). Per method and step: milliseconds of one
-simulation (the continuous loop: building its path matrices, which a new candidate pays, and
-running it, apart), the largest output difference from the reference on a 10 s grid, and the
-relative difference of IAE1 + IAE2 (each loop's trapezoid rule on its own samples, as the
-tuning problems compute it, against the reference's on a 0.01 s grid).
+1,200 s: unit set-point steps, input and output disturbances of 0.1 at 500 s and 800 s).
+
+1. Work and precision under the CCTS's GPM PI. The reference is the independent method-of-steps
+   solution of ``tests/tito_dde_reference.py`` (LSODA, rtol 1e-10). Per loop and step: the
+   milliseconds of one simulation (the continuous loop: building its path matrices, which a PI
+   problem pays once per step and scenario, and running it, apart), the largest output
+   difference from the reference on a 10 s grid, and the relative difference of IAE1 + IAE2
+   against the reference's (trapezoid on a 0.01 s grid). The continuous loop's IAE is exact on
+   its error cubics; the sampled loop's is the trapezoid rule on its samples, as the tuning
+   problems compute each. The tolerance rows are the loop a config gets by default: each run's
+   step chosen to ``tolerance`` (the run at twice the step included in its time).
+2. ``TITOProblem.evaluate`` per candidate (stability check, exact loop margins, simulation,
+   metrics), the sampled loop at ``dt = 0.5`` s (``ga_pi_ccts`` of the release) against the
+   continuous loop to 1e-3 (``ga_pi_ccts`` now), on the same candidates: the GPM PI and random
+   stable candidates of the problem's bounds; median of the repeats, per candidate.
 """
 
 from __future__ import annotations
@@ -30,7 +38,7 @@ import numpy as np  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
 import heurtune  # noqa: E402
-from heurtune.objectives.tito.continuous import ContinuousTITOLoop  # noqa: E402
+from heurtune.objectives.tito.continuous import ContinuousTITOLoop, ContinuousTITOSimulator, ErrorCubics  # noqa: E402
 from heurtune.runner.machine import cpu_name  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
@@ -42,55 +50,96 @@ def _median_ms(fn, repeats):
     return 1e3 * median_seconds(fn, repeats)
 
 
-def _iae(t, r, y):
-    e = np.abs(r - y)
+def _iae(t, y):
+    e = np.abs(1.0 - y)
     return float(np.sum(0.5 * (e[1:] + e[:-1]) * np.diff(t)[:, None]))
+
+
+def _problem(sample_time=None):
+    text = "" if sample_time is None else f"[scenario]\nsample_time = {sample_time}\n"
+    path = Path(os.environ.get("TMPDIR", "/tmp")) / f"wp_tito_{os.getpid()}_{sample_time}.toml"
+    path.write_text(f'extends = "ga_pi_ccts"\n{text}')
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        prob = heurtune.load_experiment(str(path)).problem("ccts")
+    path.unlink()
+    return prob
+
+
+def work_precision(prob, repeats):
+    x = prob.baseline("gpm")
+    gains = ((x[0], x[1], 0.0), (x[2], x[3], 0.0))
+    controllers = prob.controllers(x)
+    sc = prob.scenario(prob.tuning_scenario)
+    grid = np.arange(0.0, sc.horizon + 1e-9, 10.0)
+    fine = np.arange(0.0, sc.horizon + 1e-9, 0.01)
+    t0 = time.perf_counter()
+    ref = DDELoop(prob.chain.plant, prob.chain.decoupler, gains, prob.N, sc).solve(rtol=1e-10, atol=1e-12,
+                                                                                   method="LSODA")
+    ref_s = time.perf_counter() - t0
+    y_ref = ref.outputs(grid)
+    iae_ref = _iae(fine, ref.outputs(fine))
+    print(f"1. work-precision, CCTS under its GPM PI, 1,200 s, BLAS threads = 1, {cpu_name()}")
+    print(f"reference: method of steps (LSODA, rtol 1e-10), {ref_s:.1f} s; IAE1 + IAE2 = {iae_ref:.6f}")
+    print(f"{'loop':22} {'step s':>7} {'build ms':>9} {'run ms':>8} {'output err':>11} {'IAE rel err':>12}")
+
+    def row(label, h, build, run, t, y, iae):
+        err = float(np.abs(y[np.rint(grid / h).astype(int)] - y_ref).max())
+        b = f"{build:9.2f}" if build == build else f"{'':>9}"
+        print(f"{label:22} {h:7.3f} {b} {run:8.2f} {err:11.2e} {abs(iae / iae_ref - 1):12.2e}")
+
+    base = dataclasses.replace(sc, loop="continuous", dt=0.5)
+    for h in (100 / 9, 50 / 9, 25 / 9, 1.0, 0.5, 0.1):
+        scenario = dataclasses.replace(base, dt=h)
+        build = _median_ms(lambda s=scenario: ContinuousTITOLoop.from_gains(
+            prob.chain.plant, prob.chain.decoupler, gains, prob.N, s), repeats)
+        loop = ContinuousTITOLoop.from_gains(prob.chain.plant, prob.chain.decoupler, gains, prob.N, scenario)
+        run = _median_ms(lambda lp=loop: lp.run(None, "yu"), repeats)
+        t, y, _, _ = loop.run()
+        cubics = ErrorCubics(loop.errors, h)
+        row("continuous", h, build, run, t, y, sum(cubics.integrals(i)[0] for i in (0, 1)))
+    for tol in (1e-2, 1e-3, 1e-4):
+        sim = ContinuousTITOSimulator(prob.chain.plant, prob.chain.decoupler,
+                                      dataclasses.replace(base, tolerance=tol), controller_outputs=False)
+        res = sim.run(controllers)  # builds the ladder's loops (once per problem and scenario)
+        run = _median_ms(lambda s=sim: s.run(controllers), repeats)
+        row(f"continuous, tol {tol:g}", res.step, np.nan, run, res.t, res.y,
+            sum(res.errors.integrals(i)[0] for i in (0, 1)))
+    for dt in (0.5, 0.1, 0.02):
+        scenario = dataclasses.replace(sc, dt=dt, loop="sampled", tolerance=None)
+        sim = prob._simulator(scenario)
+        run = _median_ms(lambda s=sim: s.arrays(controllers), repeats)
+        status, y, _, _, _ = sim.arrays(controllers)
+        row("sampled", dt, np.nan, run, sim.t, y, _iae(sim.t, y))
+
+
+def evaluation_cost(repeats, n_random):
+    sampled, continuous = _problem(0.5), _problem()
+    rng = np.random.default_rng(0)
+    X = sampled.lower + rng.random((20 * n_random, sampled.dim)) * (sampled.upper - sampled.lower)
+    X = X[sampled.evaluate(X).reason == ""][:n_random]
+    X = np.vstack([sampled.baseline("gpm")[None, :], X])
+    print(f"\n2. TITOProblem.evaluate per candidate, CCTS IAE (1,200 s): the GPM PI and {len(X) - 1} random stable "
+          f"candidates, {cpu_name()}")
+    print(f"{'loop':30} {'ms per candidate':>17} {'IAE1 + IAE2 (GPM)':>18}")
+    out = {}
+    for label, prob in (("sampled, dt = 0.5 s", sampled), ("continuous, tolerance 1e-3", continuous)):
+        assert (prob.evaluate(X).reason == "").all()  # builds the PI loops once
+        ms = _median_ms(lambda p=prob: p.evaluate(X), repeats) / len(X)
+        out[label] = ms
+        print(f"{label:30} {ms:17.2f} {prob.evaluate(X[:1]).f[0]:18.6f}")
+    a, b = out.values()
+    print(f"continuous / sampled: {b / a:.2f}")
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--candidates", type=int, default=20, help="random stable candidates of part 2")
     args = parser.parse_args(argv)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        prob = heurtune.load_experiment("ga_pi_ccts").problem("ccts")
-    x = prob.baseline("gpm")
-    gains = ((x[0], x[1], 0.0), (x[2], x[3], 0.0))
-    sc = prob.scenario(prob.tuning_scenario)
-    grid = np.arange(0.0, sc.horizon + 1e-9, 10.0)
-    fine = np.arange(0.0, sc.horizon + 1e-9, 0.01)
     with threadpool_limits(1):
-        t0 = time.perf_counter()
-        ref = DDELoop(prob.chain.plant, prob.chain.decoupler, gains, prob.N, sc).solve(
-            rtol=1e-10, atol=1e-12, method="LSODA")
-        ref_s = time.perf_counter() - t0
-        y_ref = ref.outputs(grid)
-        r_fine = np.ones((fine.size, 2))
-        iae_ref = _iae(fine, r_fine, ref.outputs(fine))
-        print(f"TITO work-precision, CCTS under its GPM PI, 1,200 s, BLAS threads = 1, {cpu_name()}")
-        print(f"reference: method of steps (LSODA, rtol 1e-10), {ref_s:.1f} s; IAE1 + IAE2 = {iae_ref:.6f}")
-        print(f"{'method':11} {'step s':>7} {'build ms':>9} {'run ms':>8} {'output err':>11} {'IAE rel err':>12}")
-        for h in (5.0, 2.5, 1.0, 0.5, 0.1):
-            scenario = dataclasses.replace(sc, dt=h)
-            build = _median_ms(lambda s=scenario: ContinuousTITOLoop.from_gains(
-                prob.chain.plant, prob.chain.decoupler, gains, prob.N, s), args.repeats)
-            loop = ContinuousTITOLoop.from_gains(prob.chain.plant, prob.chain.decoupler, gains, prob.N, scenario)
-            run = _median_ms(loop.run, args.repeats)
-            t, y, _, _ = loop.run()
-            rows = np.rint(grid / h).astype(int)
-            err = float(np.abs(y[rows] - y_ref).max())
-            iae = _iae(t, np.ones_like(y), y)
-            print(f"{'continuous':11} {h:7.2f} {build:9.2f} {run:8.2f} {err:11.2e} {abs(iae / iae_ref - 1):12.2e}")
-        for dt in (0.5, 0.1, 0.02):
-            scenario = dataclasses.replace(sc, dt=dt)
-            sim = prob._simulator(scenario)
-            ctrls = prob.controllers(x)
-            run = _median_ms(lambda s=sim, c=ctrls: s.arrays(c), args.repeats)
-            status, y, _, _, _ = sim.arrays(ctrls)
-            rows = np.rint(grid / dt).astype(int)
-            err = float(np.abs(y[rows] - y_ref).max())
-            iae = _iae(sim.t, np.ones_like(y), y)
-            print(f"{'sampled':11} {dt:7.2f} {'':>9} {run:8.2f} {err:11.2e} {abs(iae / iae_ref - 1):12.2e}")
+        work_precision(_problem(), args.repeats)
+        evaluation_cost(args.repeats, args.candidates)
     return 0
 
 

@@ -145,6 +145,26 @@ def _multiple(value: float, h: float, what: str) -> int:
     return int(k)
 
 
+def _freqresp(system, w):
+    A, B, C, D = system
+    n = A.shape[0]
+    if n == 0:
+        return np.full(w.size, D, complex)
+    return np.array([C @ np.linalg.solve(1j * wk * np.eye(n) - A, B[:, 0]) + D for wk in w]).reshape(-1)
+
+
+def _cancel(first, second) -> bool:
+    """Whether two routes ``(system, dead time)`` into one output from one error sum to zero:
+    the same dead time and opposite frequency responses (to 1e-9 of their size) on a grid from
+    1e-5 to 1e3 rad/s."""
+    (s1, L1), (s2, L2) = first, second
+    if abs(L1 - L2) > _COMMENSURATE_TOL * max(1.0, abs(L1)):
+        return False
+    w = np.geomspace(1e-5, 1e3, 17)
+    h1, h2 = _freqresp(s1, w), _freqresp(s2, w)
+    return bool(np.all(np.abs(h1 + h2) <= 1e-9 * (np.abs(h1) + np.abs(h2))))
+
+
 def check_continuous_plant(plant) -> None:
     """Raise a one-line ConfigError unless every element of ``plant`` is strictly proper with a
     dead time > 0, as the continuous loop needs (a direct feedthrough would put the jumps of the
@@ -237,10 +257,51 @@ class _Path:
         return E, H
 
 
+_MATRICES = ("Ox", "O1", "O2", "Sx", "S1", "S2")
+
+
+class _PIPath:
+    """The two paths of one signal route under a PI ``Kp + Ki/s``: ``a`` through the basis 1 and
+    ``b`` through the basis ``1/s`` (its state ``[z, x]``: the integral ``z`` of the source and
+    the route's own states ``x``, those of ``a``). Their weighted sum ``Kp a + Ki b`` is one path
+    with state ``[z, Kp x_a + Ki x_b]``, whose matrices are ``F + Kp A + Ki B`` (:meth:`parts`):
+    one path per route whatever the gains, built once."""
+
+    def __init__(self, a: _Path, b: _Path, loop: int):
+        if b.n != a.n + 1 or (a.split, a.lag, a.target, a.out, a.src) != (b.split, b.lag, b.target, b.out, b.src):
+            raise ValueError("a PI route's two paths must share their route, with one more state in b")
+        self.a, self.b, self.loop = a, b, loop
+        self.n, self.split, self.lag, self.target, self.out, self.src = b.n, b.split, b.lag, b.target, b.out, b.src
+
+    def parts(self):
+        """``(F, A, B)``: dicts of the matrices in ``b``'s state layout."""
+        a, b, n = self.a, self.b, self.n
+        F = {k: np.zeros_like(getattr(b, k)) for k in _MATRICES}
+        A = {k: np.zeros_like(getattr(b, k)) for k in _MATRICES}
+        B = {k: np.zeros_like(getattr(b, k)) for k in _MATRICES}
+        # outputs: C x (x = Kp x_a + Ki x_b, x_a's rows), Ki times b's integral column, inputs by gain
+        F["Ox"][:, 1:] = a.Ox
+        B["Ox"][:, 0] = b.Ox[:, 0]
+        for k in ("O1", "O2"):
+            A[k][:] = getattr(a, k)
+            B[k][:] = getattr(b, k)
+        # states: z as in b (gain-free); x by its own transition, fed by Ki z and the inputs by gain
+        F["Sx"][0] = b.Sx[0]
+        F["Sx"][1:, 1:] = a.Sx
+        B["Sx"][1:n, 0] = b.Sx[1:n, 0]
+        for k in ("S1", "S2"):
+            F[k][0] = getattr(b, k)[0]
+            A[k][1:] = getattr(a, k)
+            B[k][1:] = getattr(b, k)[1:]
+        return F, A, B
+
+
 def _stack(paths):
     """The paths' matrices as the zero-padded arrays of :func:`continuous_kernels.run_loop`,
     ordered by target (outputs, decoupler outputs, controller outputs): ``bounds[s]`` to
-    ``bounds[s + 1]`` are the paths of stage ``s``."""
+    ``bounds[s + 1]`` are the paths of stage ``s``. ``arrays`` holds the gain-free parts,
+    ``by_kp`` and ``by_ki`` the parts that a PI route's gains scale (zeros elsewhere), ``loop``
+    the controller whose gains scale each path (-1: none)."""
     order = sorted(range(len(paths)), key=lambda k: paths[k].target)
     paths = [paths[k] for k in order]
     P, q = len(paths), NODES.size
@@ -249,21 +310,31 @@ def _stack(paths):
     def ints(name):
         return np.array([getattr(p, name) for p in paths], np.int64)
 
-    arrays = dict(
-        out=ints("out"), src=ints("src"), split=ints("split"), lag=ints("lag"), nst=ints("n"),
-        bounds=np.searchsorted(ints("target"), np.arange(4)).astype(np.int64),
-        Ox=np.zeros((P, q, nm)), O1=np.zeros((P, q, q)), O2=np.zeros((P, q, q)),
-        Sx=np.zeros((P, nm, nm)), S1=np.zeros((P, nm, q)), S2=np.zeros((P, nm, q)),
-    )
+    def zeros():
+        return dict(Ox=np.zeros((P, q, nm)), O1=np.zeros((P, q, q)), O2=np.zeros((P, q, q)),
+                    Sx=np.zeros((P, nm, nm)), S1=np.zeros((P, nm, q)), S2=np.zeros((P, nm, q)))
+
+    arrays = dict(out=ints("out"), src=ints("src"), split=ints("split"), lag=ints("lag"), nst=ints("n"),
+                  bounds=np.searchsorted(ints("target"), np.arange(4)).astype(np.int64), **zeros())
+    by_kp, by_ki = zeros(), zeros()
+    loop = np.full(P, -1, np.int64)
     for k, p in enumerate(paths):
         n = p.n
-        arrays["Ox"][k, :, :n] = p.Ox
-        arrays["O1"][k] = p.O1
-        arrays["O2"][k] = p.O2
-        arrays["Sx"][k, :n, :n] = p.Sx
-        arrays["S1"][k, :n] = p.S1
-        arrays["S2"][k, :n] = p.S2
-    return arrays, nm, np.array(order, np.int64)
+        if isinstance(p, _PIPath):
+            parts = p.parts()
+            loop[k] = p.loop
+        else:
+            parts = ({m: getattr(p, m) for m in _MATRICES}, None, None)
+        for target, part in zip((arrays, by_kp, by_ki), parts):
+            if part is None:
+                continue
+            target["Ox"][k, :, :n] = part["Ox"]
+            target["O1"][k] = part["O1"]
+            target["O2"][k] = part["O2"]
+            target["Sx"][k, :n, :n] = part["Sx"]
+            target["S1"][k, :n] = part["S1"]
+            target["S2"][k, :n] = part["S2"]
+    return arrays, by_kp, by_ki, loop, nm, np.array(order, np.int64)
 
 
 class ContinuousTITOLoop:
@@ -295,13 +366,7 @@ class ContinuousTITOLoop:
         self._hold = _multiple(float(scenario.dt), h, "the noise sample time (dt)") if _noisy(scenario) else 1
         unit = _ss([1.0], [1.0])
         self.pi = _pi_gains(controllers) is not None
-        if self.pi:
-            # a PI is Kp + Ki/s: every path is linear in the gains, so the loop is built from the
-            # bases 1 and 1/s once, and a new PI only rescales the paths' outputs (run(controllers))
-            integrator = _ss([1.0], [1.0, 0.0])
-            bases = [[(unit, 2 * j), (integrator, 2 * j + 1)] for j in range(2)]
-        else:
-            bases = [[(_ss(*controller_tf(controllers[j], j + 1)), -1)] for j in range(2)]
+        integrator = _ss([1.0], [1.0, 0.0])
         if decoupler is None:
             D = {(0, 0): (unit, 0.0), (1, 1): (unit, 0.0)}
         else:
@@ -321,30 +386,38 @@ class ContinuousTITOLoop:
                 e = plant.element(i + 1, k + 1)
                 sys_g = _element(e)
                 G[(i, k)] = (sys_g, _shift(e.L, h, f"the dead time of g{i + 1}{k + 1}"), e.L)
-        # paths: e_j -> y_i through c_j, D_kj, g_ik; d_in_k -> y_i through g_ik; e_j -> u_k; e_j -> v_j
-        paths, weights = [], []  # weights: which gain scales a path's output (-1: none)
+
+        def route(system, shift, target, out, j):
+            """The path(s) of one route from the error ``e_j`` through ``c_j`` and ``system``."""
+            if not self.pi:
+                return _Path(_series(_ss(*controller_tf(controllers[j], j + 1)), system), h, shift, target, out, j)
+            # a PI is Kp + Ki/s: built from the bases 1 and 1/s once; a new PI only recombines
+            # the two (run(controllers))
+            return _PIPath(_Path(_series(unit, system), h, shift, target, out, j),
+                           _Path(_series(integrator, system), h, shift, target, out, j), j)
+
+        # e_j -> y_i through c_j, D_kj, g_ik; d_in_k -> y_i through g_ik; e_j -> u_k; e_j -> v_j
+        paths, to_y = [], {}
         for (k, j), (sys_d, Ld) in D.items():
-            for basis, weight in bases[j]:
-                dc = _series(basis, sys_d)
-                # the decoupler outputs follow the step's own errors: any delay will do
-                paths.append(_Path(dc, h, _shift(Ld, h, "a decoupler dead time", 0.0), kern.TARGET_U, k, j))
-                weights.append(weight)
-                for i in range(2):
-                    sys_g, _, Lg = G[(i, k)]
-                    paths.append(_Path(_series(dc, sys_g), h, _shift(Lg + Ld, h, "a path's dead time"),
-                                       kern.TARGET_Y, i, j))
-                    weights.append(weight)
+            # the decoupler outputs follow the step's own errors: any delay will do
+            paths.append(route(sys_d, _shift(Ld, h, "a decoupler dead time", 0.0), kern.TARGET_U, k, j))
+            for i in range(2):
+                sys_g, _, Lg = G[(i, k)]
+                to_y.setdefault((i, j), []).append((_series(sys_d, sys_g), Lg + Ld))
+        for (i, j), routes in to_y.items():
+            # the decoupler's purpose: y_i's two routes from e_j (i != j) cancel on the plant it
+            # inverts (same dead time, opposite rational parts); both are left out then
+            if len(routes) == 2 and _cancel(*routes):
+                continue
+            for system, L in routes:
+                paths.append(route(system, _shift(L, h, "a path's dead time"), kern.TARGET_Y, i, j))
         for (i, k), (sys_g, ng, _) in G.items():
             paths.append(_Path(sys_g, h, ng, kern.TARGET_Y, i, 2 + k))
-            weights.append(-1)
         for j in range(2):
-            for basis, weight in bases[j]:
-                paths.append(_Path(basis, h, 0, kern.TARGET_V, j, j))
-                weights.append(weight)
-        self._arrays, self._nmax, order = _stack(paths)
+            paths.append(route(unit, 0, kern.TARGET_V, j, j))
+        self._arrays, self._by_kp, self._by_ki, self._loop_of, self._nmax, order = _stack(paths)
         self.paths = [paths[k] for k in order]
-        self._weights = np.array(weights, dtype=np.int64)[order]
-        self._gains = None if not self.pi else np.array([g for pair in _pi_gains(controllers) for g in pair])
+        self._gains = None if not self.pi else np.array(_pi_gains(controllers))
         self.n = _multiple(scenario.horizon, h, "the horizon")
         for steps in scenario.setpoints:
             for t, _ in steps:
@@ -352,6 +425,17 @@ class ContinuousTITOLoop:
         _multiple(scenario.input_disturbance[0], h, "the input disturbance time")
         _multiple(scenario.output_disturbance[0], h, "the output disturbance time")
         self._inputs = self._signals()
+
+    def _combined(self, gains) -> dict:
+        """The PI routes' matrices for ``gains`` (rows ``(Kp, Ki)`` per loop): ``F + Kp A + Ki B``."""
+        has = self._loop_of >= 0
+        kp = np.where(has, gains[np.maximum(self._loop_of, 0), 0], 0.0)
+        ki = np.where(has, gains[np.maximum(self._loop_of, 0), 1], 0.0)
+        out = {}
+        for m in _MATRICES:
+            out[m] = np.empty_like(self._arrays[m])
+            kern.combine(self._arrays[m], self._by_kp[m], self._by_ki[m], kp, ki, out[m])
+        return out
 
     def _signals(self):
         """Set-points less the measurement noise and output disturbances per step, and the
@@ -387,7 +471,8 @@ class ContinuousTITOLoop:
             the gains, so nothing is rebuilt); default: the loop's own.
         signals : {"yuv", "yu", "y"}
             Which signals to compute; the others are returned as zeros (the outputs need
-            neither ``u`` nor ``v``: skipping them saves their paths).
+            neither ``u`` nor ``v``: skipping them saves their paths; :meth:`complete` adds
+            them later).
 
         Returns
         -------
@@ -402,29 +487,42 @@ class ContinuousTITOLoop:
         r, dout, hist = self._inputs
         hist = hist.copy()
         y, u, v = (np.zeros((n + 1, 2)) for _ in range(3))
-        x = np.zeros((len(self.paths), self._nmax))
         a = self._arrays
-        scale = np.ones(len(self.paths))
         if self.pi:
             gains = self._gains
             if controllers is not None:
                 pairs = _pi_gains(controllers)
                 if pairs is None:
                     raise ConfigError("continuous loop: a loop built for PI controllers runs PI controllers only")
-                gains = np.array([g for pair in pairs for g in pair])
-            scale = np.where(self._weights >= 0, gains[np.maximum(self._weights, 0)], 1.0)
+                gains = np.array(pairs)
+            a = dict(a, **self._combined(gains))
         elif controllers is not None:
             raise ConfigError("continuous loop: only a loop built for PI controllers takes others")
+        self._last = (a, r, dout, hist, y, u, v)
+        self._stages(0, len(signals))
+        # r - y at every step's nodes (the stored errors carry the measurement noise)
+        self.errors = hist[:n, :2] + self.noise[:n, :, None]
+        return np.arange(n + 1) * self.h, y, u, v
+
+    def complete(self, signals="uv"):
+        """Add ``u`` (and ``v``) to the last :meth:`run` of ``signals = "y"``: their paths read
+        the errors that run stored. Returns ``(t, y, u, v)`` as :meth:`run`."""
+        if signals:
+            self._stages(1 if "u" in signals else 2, 3 if "v" in signals else 2)
+        _, _, _, _, y, u, v = self._last
+        return np.arange(self.n + 1) * self.h, y, u, v
+
+    def _stages(self, first: int, last: int) -> None:
+        n = self.n
+        a, r, dout, hist, y, u, v = self._last
+        x = np.zeros((len(self.paths), self._nmax))
         done = kern.run_loop(n, hist, r, dout, a["bounds"], a["out"], a["src"], a["split"], a["lag"], a["nst"],
-                             a["Ox"], a["O1"], a["O2"], a["Sx"], a["S1"], a["S2"], scale, x, y, u, v,
-                             SIGNAL_LIMIT, len(signals))
+                             a["Ox"], a["O1"], a["O2"], a["Sx"], a["S1"], a["S2"], x, y, u, v,
+                             SIGNAL_LIMIT, first, last)
         if done < n:  # left the signal limit in step `done`: the rest is not computed
             for arr in (y, u, v):
                 arr[done:] = np.nan
             hist[done:, :2] = np.nan
-        # r - y at every step's nodes (the stored errors carry the measurement noise)
-        self.errors = hist[:n, :2] + self.noise[:n, :, None]
-        return np.arange(n + 1) * self.h, y, u, v
 
 
 # the monomial coefficients of the cubic through the values at NODES
@@ -447,6 +545,11 @@ class ErrorCubics:
         self.h = float(h)
         self.n = errors.shape[0]
         self.coef = [np.ascontiguousarray(errors[:, i, :] @ _TO_MONOMIAL.T) for i in range(2)]
+        # per loop, the running sums over whole steps of int |e|, int t |e|, int e^2 (row k: steps < k)
+        self._sums = []
+        for c in self.coef:
+            table = kern.step_table(c, self.h) if self.n else np.zeros((0, 3))
+            self._sums.append(np.vstack([np.zeros((1, 3)), np.cumsum(table, axis=0)]))
 
     def _span(self, t0: float, t1: float):
         """``(k0, a0, k1, b1)``: the window ``[t0, t1]`` as steps and fractions (clipped)."""
@@ -456,12 +559,24 @@ class ErrorCubics:
         k1 = min(max(int(math.ceil(t1 / self.h - 1e-9)) - 1, k0), self.n - 1)
         return k0, t0 / self.h - k0, k1, t1 / self.h - k1
 
+    def _partial(self, loop: int, k: int, a: float, b: float) -> np.ndarray:
+        """``int |e|``, ``int t |e|`` (``t`` from 0) and ``int e^2`` over fractions ``[a, b]`` of step ``k``."""
+        if b <= a:
+            return np.zeros(3)
+        s0, s1, s2 = kern.step_integrals(self.coef[loop][k], a, b)
+        return self.h * np.array([s0, k * self.h * s0 + self.h * s1, s2])
+
     def integrals(self, loop: int, t0: float = 0.0, t1: float = math.inf):
         """``(IAE, ISE, ITAE)`` of loop ``loop`` (0 or 1) over ``[t0, t1]``, with ``t`` counted
         from ``t0`` in the ITAE."""
         k0, a0, k1, b1 = self._span(t0, t1)
-        iae, tae, ise = kern.window_integrals(self.coef[loop], self.h, k0, a0, k1, b1)
-        return iae, ise, tae - a0 * self.h * iae  # tae counts t from step k0's start
+        sums = self._sums[loop]
+        if k0 == k1:
+            tot = self._partial(loop, k0, a0, b1)
+        else:  # the first and last steps in part, those between whole
+            tot = self._partial(loop, k0, a0, 1.0) + (sums[k1] - sums[k0 + 1]) + self._partial(loop, k1, 0.0, b1)
+        iae, tae, ise = tot
+        return float(iae), float(ise), float(tae - (k0 + a0) * self.h * iae)
 
     def settling_time(self, loop: int, band: float, t0: float = 0.0, t1: float = math.inf) -> float:
         """Time from ``t0`` to the last instant at which ``|e| > band`` in ``[t0, t1]`` (0 if
@@ -588,15 +703,16 @@ class ContinuousTITOSimulator:
         if self.tolerance is None:
             loop, (t, y, u, v) = self._loop(controllers, 0, self._signals)
             return self._record(loop, t, y, u, v, math.nan)
+        # the outputs alone until a step is kept; its u (and v) then, from its stored errors
         _, (_, coarse, _, _) = self._loop(controllers, 0, "y")
         for level in range(1, len(self.steps)):
-            loop, (t, y, u, v) = self._loop(controllers, level, self._signals)
+            loop, (t, y, u, v) = self._loop(controllers, level, "y")
             if not np.isfinite(y).all():  # diverged at the finer step: so it is
-                return self._record(loop, t, y, u, v, math.nan)
+                return self._record(loop, *loop.complete(self._signals[1:]), math.nan)
             diff = np.abs(y[::2] - coarse)
             estimate = float(diff.max()) if np.isfinite(diff).all() else math.inf
             if estimate <= self.tolerance * max(1.0, float(np.abs(y).max())) or level == len(self.steps) - 1:
-                return self._record(loop, t, y, u, v, estimate)
+                return self._record(loop, *loop.complete(self._signals[1:]), estimate)
             coarse = y
 
     def arrays(self, controllers):

@@ -17,19 +17,20 @@ from numba import njit
 TARGET_Y = 0
 TARGET_U = 1
 TARGET_V = 2
+# nodes per step (a cubic): a constant, so that the compiler unrolls the loops over them
+Q = 4
 
 
 @njit(cache=True, inline="always")
-def _path_step(p, k, hist, src, split, lag, nst, Ox, O1, O2, Sx, S1, S2, scale, x, xn, acc):
-    """Add path ``p``'s outputs over step ``k`` (scaled by ``scale[p]``) to ``acc`` and advance its
-    state ``x[p]`` to the step's end."""
-    q = acc.size
+def _path_step(p, k, hist, src, split, lag, nst, Ox, O1, O2, Sx, S1, S2, x, xn, acc):
+    """Add path ``p``'s outputs over step ``k`` to ``acc`` and advance its state ``x[p]`` to the
+    step's end."""
+    q = Q
     n = nst[p]
     s = src[p]
     m1 = k - lag[p]
     two = split[p] == 1
     m2 = m1 + 1
-    c = scale[p]
     for i in range(q):
         a = 0.0
         for r in range(n):
@@ -40,7 +41,7 @@ def _path_step(p, k, hist, src, split, lag, nst, Ox, O1, O2, Sx, S1, S2, scale, 
         if two and m2 >= 0:
             for j in range(q):
                 a += O2[p, i, j] * hist[m2, s, j]
-        acc[i] += c * a
+        acc[i] += a
     for r in range(n):
         a = 0.0
         for j in range(n):
@@ -57,15 +58,31 @@ def _path_step(p, k, hist, src, split, lag, nst, Ox, O1, O2, Sx, S1, S2, scale, 
 
 
 @njit(cache=True)
-def run_loop(n, hist, r_step, dout_step, bounds, out, src, split, lag, nst, Ox, O1, O2, Sx, S1, S2, scale,
-             x, y_rec, u_rec, v_rec, limit, stages):
-    """Run ``n`` steps; records ``y``, ``u``, ``v`` at the step boundaries (rows ``0 .. n``).
+def combine(F, A, B, kp, ki, out):
+    """``out[p] = F[p] + kp[p] A[p] + ki[p] B[p]`` for every path ``p`` (a PI route's matrices
+    for its gains)."""
+    flat_f = F.reshape(F.shape[0], -1)
+    flat_a = A.reshape(A.shape[0], -1)
+    flat_b = B.reshape(B.shape[0], -1)
+    flat_o = out.reshape(out.shape[0], -1)
+    for p in range(flat_f.shape[0]):
+        for i in range(flat_f.shape[1]):
+            flat_o[p, i] = flat_f[p, i] + kp[p] * flat_a[p, i] + ki[p] * flat_b[p, i]
+
+
+@njit(cache=True)
+def run_loop(n, hist, r_step, dout_step, bounds, out, src, split, lag, nst, Ox, O1, O2, Sx, S1, S2,
+             x, y_rec, u_rec, v_rec, limit, first, last):
+    """Run ``n`` steps of stages ``first`` to ``last - 1`` (0: the outputs ``y``, which give the
+    errors; 1: the decoupler outputs ``u``; 2: the controller outputs ``v``); records each
+    computed signal at the step boundaries (rows ``0 .. n``).
 
     ``r_step``, ``dout_step``: (n, 2) set-points (less the measurement noise) and output
     disturbances on each step (constant there); ``x``: (paths, max states) zero on entry, updated
     in place; ``hist`` holds the input disturbances (signals 2, 3) on entry and gets the errors
     (signals 0, 1). Stops at the first step whose outputs leave ``limit`` (or are not finite) and
-    returns its index (``n`` when none did): the rows from there on are not valid."""
+    returns its index (``n`` when none did): the rows from there on are not valid. A call with
+    ``first > 0`` reads the errors a call with ``first = 0`` left in ``hist``."""
     q = hist.shape[2]
     nmax = x.shape[1]
     xn = np.zeros(nmax)
@@ -79,17 +96,15 @@ def run_loop(n, hist, r_step, dout_step, bounds, out, src, split, lag, nst, Ox, 
                 y[i, j] = dout_step[k, i]
                 u[i, j] = 0.0
                 v[i, j] = 0.0
-        for stage in range(3):
-            if stage == 1:  # the errors of this step, now that y is known at its nodes
+        for stage in range(first, last):
+            if stage == 1 and first == 0:  # the errors of this step, now that y is known at its nodes
                 for i in range(2):
                     for j in range(q):
                         hist[k, i, j] = r_step[k, i] - y[i, j]
-            if stage >= stages:
-                break
             for p in range(bounds[stage], bounds[stage + 1]):
                 for j in range(q):
                     acc[j] = 0.0
-                _path_step(p, k, hist, src, split, lag, nst, Ox, O1, O2, Sx, S1, S2, scale, x, xn, acc)
+                _path_step(p, k, hist, src, split, lag, nst, Ox, O1, O2, Sx, S1, S2, x, xn, acc)
                 o = out[p]
                 for j in range(q):
                     if stage == 0:
@@ -98,14 +113,21 @@ def run_loop(n, hist, r_step, dout_step, bounds, out, src, split, lag, nst, Ox, 
                         u[o, j] += acc[j]
                     else:
                         v[o, j] += acc[j]
+        if first == 0 and last == 1:  # the errors, which the stages after read
+            for i in range(2):
+                for j in range(q):
+                    hist[k, i, j] = r_step[k, i] - y[i, j]
         big = 0.0
         for i in range(2):
-            y_rec[k, i] = y[i, 0]
-            u_rec[k, i] = u[i, 0]
-            v_rec[k, i] = v[i, 0]
-            y_rec[k + 1, i] = y[i, q - 1]
-            u_rec[k + 1, i] = u[i, q - 1]
-            v_rec[k + 1, i] = v[i, q - 1]
+            if first == 0:
+                y_rec[k, i] = y[i, 0]
+                y_rec[k + 1, i] = y[i, q - 1]
+            if first <= 1 < last:
+                u_rec[k, i] = u[i, 0]
+                u_rec[k + 1, i] = u[i, q - 1]
+            if last == 3:
+                v_rec[k, i] = v[i, 0]
+                v_rec[k + 1, i] = v[i, q - 1]
             for j in range(q):
                 big += abs(y[i, j]) + abs(u[i, j])
         if not big < limit:
@@ -182,22 +204,27 @@ def _root(c, lo, hi, level):
 @njit(cache=True, inline="always")
 def _moments(c, a, b):
     """``(int p, int tau p, int p^2)`` over ``[a, b]``."""
-    m0 = 0.0
-    m1 = 0.0
-    m2 = 0.0
-    for j in range(4):
-        m0 += c[j] * (b ** (j + 1) - a ** (j + 1)) / (j + 1)
-        m1 += c[j] * (b ** (j + 2) - a ** (j + 2)) / (j + 2)
-        for i in range(4):
-            m2 += c[i] * c[j] * (b ** (i + j + 1) - a ** (i + j + 1)) / (i + j + 1)
+    # dm = (b^m - a^m) / m, m = 1 .. 7
+    a2, b2 = a * a, b * b
+    a3, b3 = a2 * a, b2 * b
+    a4, b4 = a2 * a2, b2 * b2
+    d1 = b - a
+    d2 = (b2 - a2) / 2.0
+    d3 = (b3 - a3) / 3.0
+    d4 = (b4 - a4) / 4.0
+    d5 = (b4 * b - a4 * a) / 5.0
+    d6 = (b4 * b2 - a4 * a2) / 6.0
+    d7 = (b4 * b3 - a4 * a3) / 7.0
+    c0, c1, c2, c3 = c[0], c[1], c[2], c[3]
+    m0 = c0 * d1 + c1 * d2 + c2 * d3 + c3 * d4
+    m1 = c0 * d2 + c1 * d3 + c2 * d4 + c3 * d5
+    m2 = (c0 * c0 * d1 + 2.0 * c0 * c1 * d2 + (c1 * c1 + 2.0 * c0 * c2) * d3 + 2.0 * (c0 * c3 + c1 * c2) * d4
+          + (c2 * c2 + 2.0 * c1 * c3) * d5 + 2.0 * c2 * c3 * d6 + c3 * c3 * d7)
     return m0, m1, m2
 
 
 @njit(cache=True)
-def step_integrals(c, a, b):
-    """``(int |p|, int tau |p|, int p^2)`` of the cubic ``c`` over ``[a, b]`` in ``[0, 1]``, exact:
-    split at its extrema and at its sign changes."""
-    cuts = np.empty(4)
+def _integrals(c, a, b, cuts):
     m = _pieces(c, a, b, cuts)
     s0 = 0.0
     s1 = 0.0
@@ -205,13 +232,10 @@ def step_integrals(c, a, b):
     for k in range(m - 1):
         lo, hi = cuts[k], cuts[k + 1]
         flo, fhi = _cubic(c, lo), _cubic(c, hi)
+        mid = hi
         if flo * fhi < 0.0:
-            r = _root(c, lo, hi, 0.0)
-            segs = ((lo, r), (r, hi))
-        else:
-            segs = ((lo, hi), (hi, hi))
-        for s in range(2):
-            x0, x1 = segs[s]
+            mid = _root(c, lo, hi, 0.0)
+        for x0, x1 in ((lo, mid), (mid, hi)):
             if x1 <= x0:
                 continue
             m0, m1, m2 = _moments(c, x0, x1)
@@ -223,23 +247,25 @@ def step_integrals(c, a, b):
 
 
 @njit(cache=True)
-def window_integrals(coef, h, k0, a0, k1, b1):
-    """IAE, ``int t |e| dt`` (``t`` from the first step's start) and ISE of one loop's error
-    cubics ``coef[k, :]`` from fraction ``a0`` of step ``k0`` to fraction ``b1`` of step ``k1``."""
-    iae = 0.0
-    tae = 0.0
-    ise = 0.0
-    for k in range(k0, k1 + 1):
-        a = a0 if k == k0 else 0.0
-        b = b1 if k == k1 else 1.0
-        if b <= a:
-            continue
-        s0, s1, s2 = step_integrals(coef[k], a, b)
-        t0 = (k - k0) * h
-        iae += h * s0
-        tae += h * (t0 * s0 + h * s1)
-        ise += h * s2
-    return iae, tae, ise
+def step_integrals(c, a, b):
+    """``(int |p|, int tau |p|, int p^2)`` of the cubic ``c`` over ``[a, b]`` in ``[0, 1]``, exact:
+    split at its extrema and at its sign changes."""
+    return _integrals(c, a, b, np.empty(4))
+
+
+@njit(cache=True)
+def step_table(coef, h):
+    """Per step ``k`` of one loop's error cubics: ``int |e| dt``, ``int t |e| dt`` (``t`` from 0)
+    and ``int e^2 dt`` over the whole step, as the rows of an ``(n, 3)`` array."""
+    n = coef.shape[0]
+    out = np.empty((n, 3))
+    cuts = np.empty(4)
+    for k in range(n):
+        s0, s1, s2 = _integrals(coef[k], 0.0, 1.0, cuts)
+        out[k, 0] = h * s0
+        out[k, 1] = h * (k * h * s0 + h * s1)
+        out[k, 2] = h * s2
+    return out
 
 
 @njit(cache=True)
