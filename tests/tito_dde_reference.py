@@ -239,6 +239,28 @@ class DDELoop:
         of the output disturbance are not distinguished (the value from the right)."""
         return np.array([self._y(self._state(s), s) for s in times])
 
+    def error_integrals(self, step=0.01):
+        """Per loop ``(IAE, ISE, ITAE)`` of ``e = r - y`` over the horizon (after :meth:`solve`):
+        the trapezoid rule on a grid of about ``step`` s in each piece between the set-point
+        steps and the output disturbance, whose jumps it must not straddle (each piece is
+        evaluated just inside its ends). Shape ``(2, 3)``."""
+        T = float(self.sc.horizon)
+        cuts = {0.0, T, float(self.sc.output_disturbance[0])}
+        cuts |= {float(t) for steps in self.sc.setpoints for t, _ in steps}
+        cuts = sorted(c for c in cuts if 0.0 <= c <= T)
+        out = np.zeros((2, 3))
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            t = np.linspace(a, b, max(2, int(round((b - a) / step)) + 1))
+            inside = t.copy()
+            inside[0] += 1e-9 * max(1.0, b)
+            inside[-1] -= 1e-9 * max(1.0, b)
+            r = np.array([[sum(v for ts, v in steps if ts <= s) for steps in self.sc.setpoints] for s in inside])
+            e = r - self.outputs(inside)
+            for i in range(2):
+                ae = np.abs(e[:, i])
+                out[i] += [np.trapezoid(ae, t), np.trapezoid(e[:, i] ** 2, t), np.trapezoid(t * ae, t)]
+        return out
+
     def inputs(self, times):
         """``u`` (decoupler output plus input disturbance) at ``times``."""
         return np.array([self._u(self._state(s), s, self._v_past) for s in times])

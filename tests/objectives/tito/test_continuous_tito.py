@@ -228,31 +228,48 @@ def test_a_sampled_loop_coarser_than_its_derivative_filters_is_a_one_line_error(
     assert len(simulate_tito(prob.chain.plant, pi, prob.chain.decoupler, coarse))
 
 
+# paper 001's printed QTS controllers do not stabilise its QTS behind the decoupler (nor do they
+# scaled down 20 times), and its loop 1 has no GPM design: the best of 3,000 random PIs of the
+# QTS IAE problem (log-uniform magnitudes, 302 feasible; IAE 181.7) stands in, and a PID with
+# derivative gains about its proportional ones.
+QTS_TUNED = {"random-search PI": ((-0.4029, -0.0119, 0.0), (-0.2506, -0.0066, 0.0)),
+             "random-search PID": ((-0.4029, -0.0119, -0.4), (-0.2506, -0.0066, -0.25))}
+
+
 @pytest.mark.long
-@pytest.mark.parametrize("case", ["ccts", "csts"])
-def test_paper_001_plants_agree_with_the_reference_under_printed_and_gpm_controllers(case):
-    """Paper 001's CCTS (dead times 11.5-19.2 s, some off the 0.5 s step) and CSTS (1 s and
-    82.3 s), with the paper's printed PI and PID and heurtune's GPM PI, 300 s of set-point
-    steps and disturbances at h = 0.5 s, against the method-of-steps reference (LSODA, rtol
-    1e-10). Measured: CCTS GPM 1.5e-6, CSTS 6.7e-8 (PI), 4.2e-7 (PID), 3.7e-5 (GPM, gains in
-    the hundreds); the printed CCTS controllers make the loop grow to about 3,000 and agree to
-    5e-3 there (1.6e-6 relative). Asserted: 1e-4 of the larger of 1 and the outputs' peak."""
+@pytest.mark.parametrize("case", ["ccts", "csts", "qts"])
+def test_paper_001_plants_agree_with_the_reference_under_printed_and_tuned_controllers(case):
+    """Paper 001's CCTS (dead times 11.5-19.2 s, some off the 0.5 s step), CSTS (1 s and
+    82.3 s) and QTS (5-9 s), 300 s of set-point steps and disturbances at h = 0.5 s, against
+    the method-of-steps reference (LSODA, rtol 1e-10): the CCTS and CSTS with the paper's
+    printed PI and PID and heurtune's GPM PI, the QTS with a tuned PI and PID (QTS_TUNED).
+    Measured: CCTS GPM 1.5e-6, CSTS 6.7e-8 (PI), 4.2e-7 (PID), 3.7e-5 (GPM, gains in the
+    hundreds); the printed CCTS controllers make the loop grow to about 3,000 and agree to 5e-3
+    there (1.6e-6 relative); QTS PI 3.9e-10, PID 1.1e-4 (its 4-10 ms derivative filters:
+    second order in the step). Asserted: 1e-4 of the larger of 1 and the outputs' peak (QTS
+    PID: 3e-4)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         prob = heurtune.load_experiment("paper_001").problem(case)
-    designs = {label: tuple(tuple(map(float, g)) for g in gains)
-               for label, gains in simulated.printed_controllers("001", case).items()}
-    x = prob.baseline("gpm")
-    designs["GPM"] = ((x[0], x[1], 0.0), (x[3], x[4], 0.0))
+    if case == "qts":
+        designs = dict(QTS_TUNED)
+    else:
+        designs = {label: tuple(tuple(map(float, g)) for g in gains)
+                   for label, gains in simulated.printed_controllers("001", case).items()}
+        x = prob.baseline("gpm")
+        designs["GPM"] = ((x[0], x[1], 0.0), (x[3], x[4], 0.0))
     sc = dataclasses.replace(prob.scenario("nominal"), horizon=300.0, dt=0.5, loop="continuous",
                              input_disturbance=(100.0, (0.1, 0.1)), output_disturbance=(200.0, (0.1, 0.1)))
-    assert len(designs) == 3
+    assert len(designs) >= 2
     for label, gains in designs.items():
+        if case == "qts":  # stable by the tuning problem's own check
+            assert prob.evaluate(np.array([g for pair in gains for g in pair])).reason[0] == ""
         t, y, _, _ = ContinuousTITOLoop.from_gains(prob.chain.plant, prob.chain.decoupler, gains, prob.N, sc).run()
         ref = DDELoop(prob.chain.plant, prob.chain.decoupler, gains, prob.N, sc).solve(rtol=1e-10, atol=1e-12,
                                                                                         method="LSODA")
         err = float(np.abs(y - ref.outputs(t)).max())
-        assert err <= 1e-4 * max(1.0, float(np.abs(y).max())), (label, err)
+        limit = 3e-4 if label == "random-search PID" else 1e-4
+        assert err <= limit * max(1.0, float(np.abs(y).max())), (label, err)
 
 
 def test_error_cubics_integrate_a_cubic_exactly_through_its_sign_changes():
@@ -290,12 +307,10 @@ def test_error_cubics_integrate_a_cubic_exactly_through_its_sign_changes():
 def test_metrics_are_exact_on_the_continuous_trajectory():
     """The tuning problem's IAE, ISE, ITAE and settling time on the continuous loop (ga_pi_ccts,
     to its tolerance 1e-3, steps of 5.6 s) against an independent quadrature of the
-    method-of-steps reference (LSODA, rtol 1e-10; trapezoid on a 0.01 s grid). Measured: IAE
-    within 1.9e-5, ITAE 9.6e-5, ISE 7.9e-4 (the outputs' own error, 5.5e-4, early on, where e
-    is near 1), settling times within 0.02 s. The sampled loop at 0.5 s, by the trapezoid rule:
-    IAE 2.5e-3 off."""
-    from scipy.integrate import trapezoid
-
+    method-of-steps reference (LSODA, rtol 1e-10; trapezoid on a 0.01 s grid between the jumps,
+    settling on a 0.05 s grid). Measured: IAE within 5.1e-6, ITAE 4.1e-5, ISE 8.0e-4 (the
+    outputs' own error, 5.5e-4, early on, where e is near 1), settling times within 0.033 s.
+    The sampled loop at 0.5 s, by the trapezoid rule: IAE 2.5e-3 off."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         prob = heurtune.load_experiment("ga_pi_ccts").problem("ccts")
@@ -305,16 +320,15 @@ def test_metrics_are_exact_on_the_continuous_trajectory():
     sc = prob.scenario("nominal")
     ref = DDELoop(prob.chain.plant, prob.chain.decoupler, ((x[0], x[1], 0.0), (x[2], x[3], 0.0)), prob.N,
                   sc).solve(rtol=1e-10, atol=1e-12, method="LSODA")
-    t = np.linspace(0.0, sc.horizon, 120001)
-    e = 1.0 - ref.outputs(t)
+    integrals = ref.error_integrals(0.01)
+    t = np.linspace(0.0, sc.horizon, 24001)
     for i in (0, 1):
-        ae = np.abs(e[:, i])
-        assert m[f"IAE{i + 1}"] == pytest.approx(trapezoid(ae, t), rel=1e-4)
-        assert m[f"ITAE{i + 1}"] == pytest.approx(trapezoid(t * ae, t), rel=3e-4)
-        assert m[f"ISE{i + 1}"] == pytest.approx(trapezoid(e[:, i] ** 2, t), rel=2e-3)
-        last = t[np.flatnonzero(ae > 0.02)[-1]]
-        assert m[f"ts{i + 1}"] == pytest.approx(last, abs=0.05)
-        assert m[f"IAE_servo{i + 1}"] == pytest.approx(trapezoid(ae[t <= 500.0], t[t <= 500.0]), rel=1e-4)
+        iae, ise, itae = integrals[i]
+        assert m[f"IAE{i + 1}"] == pytest.approx(iae, rel=5e-5)
+        assert m[f"ITAE{i + 1}"] == pytest.approx(itae, rel=2e-4)
+        assert m[f"ISE{i + 1}"] == pytest.approx(ise, rel=2e-3)
+        ae = np.abs(1.0 - ref.outputs(t)[:, i])
+        assert m[f"ts{i + 1}"] == pytest.approx(t[np.flatnonzero(ae > 0.02)[-1]], abs=0.06)
 
 
 @pytest.mark.parametrize("text, words", [
