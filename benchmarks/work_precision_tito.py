@@ -10,9 +10,9 @@ one thread. The case is ``ga_pi_ccts``'s tuning scenario (CCTS behind its invert
    milliseconds of one simulation (the continuous loop: building its path matrices, which a PI
    problem pays once per step and scenario, and running it, apart), the largest output
    difference from the reference at the loop's own samples, and the relative difference of
-   IAE1 + IAE2 against the reference's (trapezoid on a 0.01 s grid between the jumps). The continuous loop's IAE is exact on
-   its error cubics; the sampled loop's is the trapezoid rule on its samples, as the tuning
-   problems compute each. The tolerance rows are the loop a config gets by default: each run's
+   IAE1 + IAE2 against the reference's (trapezoid on a 0.01 s grid between the jumps). The
+   continuous loop's IAE is exact on its error cubics; the sampled loop's is the trapezoid rule
+   on its samples, as the tuning problems compute each. The tolerance rows are the loop a config gets by default: each run's
    step chosen to ``tolerance`` (the run at twice the step included in its time).
 2. ``TITOProblem.evaluate`` per candidate (stability check, exact loop margins, simulation,
    metrics), the sampled loop at ``dt = 0.5`` s (``ga_pi_ccts`` of the release) against the
@@ -51,6 +51,7 @@ def _median_ms(fn, repeats):
 
 
 def _iae(t, y):
+    """IAE1 + IAE2 of unit set-points by the trapezoid rule on the samples ``t``."""
     e = np.abs(1.0 - y)
     return float(np.sum(0.5 * (e[1:] + e[:-1]) * np.diff(t)[:, None]))
 
