@@ -12,8 +12,9 @@ one thread. The case is ``ga_pi_ccts``'s tuning scenario (CCTS behind its invert
    difference from the reference at the loop's own samples, and the relative difference of
    IAE1 + IAE2 against the reference's (trapezoid on a 0.01 s grid between the jumps). The
    continuous loop's IAE is exact on its error cubics; the sampled loop's is the trapezoid rule
-   on its samples, as the tuning problems compute each. The tolerance rows are the loop a config gets by default: each run's
-   step chosen to ``tolerance`` (the run at twice the step included in its time).
+   on its samples, as the tuning problems compute each. The tolerance rows are the loop a
+   config gets by default: each run's step chosen to ``tolerance`` (the runs at the coarser
+   steps that checked it included in its time).
 2. ``TITOProblem.evaluate`` per candidate (stability check, exact loop margins, simulation,
    metrics), the sampled loop at ``dt = 0.5`` s (``ga_pi_ccts`` of the release) against the
    continuous loop to 1e-3 (``ga_pi_ccts`` now), on the same candidates: the GPM PI and random
