@@ -39,10 +39,10 @@ measurement ``ym = y + n``. Checked against the method of steps with ``solve_ivp
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
-import scipy.linalg
 import scipy.signal
 
 from heurtune.core.errors import ConfigError
@@ -99,6 +99,11 @@ def _ratio(num, den):
 
 def _lagrange_matrix(points) -> np.ndarray:
     """``P`` with ``P @ values`` the cubic through ``values`` at the nodes, evaluated at ``points``."""
+    return _lagrange_cached(tuple(float(p) for p in points)).copy()
+
+
+@functools.lru_cache(maxsize=4096)
+def _lagrange_cached(points: tuple) -> np.ndarray:
     P = np.empty((len(points), NODES.size))
     for r, tau in enumerate(points):
         for c in range(NODES.size):
@@ -150,7 +155,8 @@ def _freqresp(system, w):
     n = A.shape[0]
     if n == 0:
         return np.full(w.size, D, complex)
-    return np.array([C @ np.linalg.solve(1j * wk * np.eye(n) - A, B[:, 0]) + D for wk in w]).reshape(-1)
+    X = np.linalg.solve(1j * w[:, None, None] * np.eye(n) - A, np.broadcast_to(B, (w.size, n, 1)))
+    return X[:, :, 0] @ C.reshape(-1) + D
 
 
 def _cancel(first, second) -> bool:
@@ -251,7 +257,7 @@ class _Path:
         E = np.empty((len(offsets), n, n))
         H = np.empty((len(offsets), n, q))
         for i, tau in enumerate(offsets):
-            F = scipy.linalg.expm(M * tau)
+            F = kern.expm(M * tau)
             E[i] = F[:n, :n]
             H[i] = F[:n, n:] @ Vinv
         return E, H

@@ -57,6 +57,43 @@ def _path_step(p, k, hist, src, split, lag, nst, Ox, O1, O2, Sx, S1, S2, x, xn, 
         x[p, r] = xn[r]
 
 
+# Pade(13) coefficients and the norm bound below which it needs no scaling (Higham 2005,
+# "The scaling and squaring method for the matrix exponential revisited", Table 2.3)
+_PADE13 = np.array([64764752532480000.0, 32382376266240000.0, 7771770303897600.0, 1187353796428800.0,
+                    129060195264000.0, 10559470521600.0, 670442572800.0, 33522128640.0, 1323241920.0,
+                    40840800.0, 960960.0, 16380.0, 182.0, 1.0])
+_THETA13 = 5.371920351148152
+
+
+@njit(cache=True)
+def expm(M):
+    """``exp(M)`` by scaling and squaring with the [13/13] Pade approximant (double precision
+    for every norm, Higham 2005): the path matrices of the continuous loop, whose stiff
+    filters make scipy's general routine slow on these small matrices."""
+    n = M.shape[0]
+    norm = 0.0
+    for c in range(n):
+        col = 0.0
+        for r in range(n):
+            col += abs(M[r, c])
+        norm = max(norm, col)
+    s = 0
+    if norm > _THETA13:
+        s = int(np.ceil(np.log2(norm / _THETA13)))
+    A = M / 2.0 ** s
+    b = _PADE13
+    eye = np.eye(n)
+    A2 = A @ A
+    A4 = A2 @ A2
+    A6 = A4 @ A2
+    U = A @ (A6 @ (b[13] * A6 + b[11] * A4 + b[9] * A2) + b[7] * A6 + b[5] * A4 + b[3] * A2 + b[1] * eye)
+    V = A6 @ (b[12] * A6 + b[10] * A4 + b[8] * A2) + b[6] * A6 + b[4] * A4 + b[2] * A2 + b[0] * eye
+    R = np.ascontiguousarray(np.linalg.solve(V - U, V + U))
+    for _ in range(s):
+        R = R @ R
+    return R
+
+
 @njit(cache=True)
 def combine(F, A, B, kp, ki, out):
     """``out[p] = F[p] + kp[p] A[p] + ki[p] B[p]`` for every path ``p`` (a PI route's matrices

@@ -360,3 +360,30 @@ def test_a_biproper_plant_on_the_continuous_loop_and_an_unfiltered_derivative_ar
         with pytest.raises(ConfigError) as err:
             make()
         assert "\n" not in str(err.value) and "Tf" in str(err.value)
+
+
+def test_the_path_matrix_exponential_matches_scipy_and_closed_forms():
+    """continuous_kernels.expm (scaling and squaring, Pade 13) against scipy.linalg.expm on the
+    path matrices' shape (a state block with one stiff pole up to 1e6 times the others, a chain
+    of integrators): measured 9e-11 of max(1, |exp(M)|) at the stiffest, 1e-15 below 1e2; and
+    against closed forms: a diagonal with one stiff entry, whose 11 squarings cost the others
+    about 2^11 rounding errors (measured 2.3e-13), and a Jordan block."""
+    import scipy.linalg
+
+    from heurtune.objectives.tito import continuous_kernels as kern
+
+    rng = np.random.default_rng(0)
+    for scale, tol in ((1e-3, 1e-14), (1.0, 1e-14), (1e2, 1e-13), (1e4, 1e-11), (1e6, 1e-9)):
+        for _ in range(20):
+            M = np.zeros((8, 8))
+            M[:4, :4] = 0.3 * rng.normal(size=(4, 4))
+            M[3, 3] = -scale
+            M[:4, 4] = rng.normal(size=4)
+            M[4:7, 5:8] = np.eye(3)
+            ref = scipy.linalg.expm(M)
+            assert np.abs(kern.expm(M) - ref).max() <= tol * max(1.0, np.abs(ref).max()), scale
+    d = np.array([-1e4, -3.0, 0.0, 0.5])
+    np.testing.assert_allclose(kern.expm(np.diag(d)), np.diag(np.exp(d)), rtol=1e-12, atol=0)
+    lam, J = -2.0, np.array([[-2.0, 1.0, 0.0], [0.0, -2.0, 1.0], [0.0, 0.0, -2.0]])
+    closed = np.exp(lam) * np.array([[1.0, 1.0, 0.5], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]])
+    np.testing.assert_allclose(kern.expm(J), closed, rtol=1e-14)
