@@ -19,6 +19,10 @@ one thread. The case is ``ga_pi_ccts``'s tuning scenario (CCTS behind its invert
    metrics), the sampled loop at ``dt = 0.5`` s (``ga_pi_ccts`` of the release) against the
    continuous loop to 1e-3 (``ga_pi_ccts`` now), on the same candidates: the GPM PI and random
    stable candidates of the problem's bounds; median of the repeats, per candidate.
+3. The same for PID candidates (``gpm_pid_ccts``'s problem, its derivative gains drawn in
+   its bounds): a PID's loop is built per candidate and step, and large derivative gains need
+   short steps; the sampled loop at 0.5 s (``allow_coarse_sampling``, as that config ships)
+   beside it, with the steps the continuous runs kept.
 """
 
 from __future__ import annotations
@@ -40,6 +44,7 @@ from threadpoolctl import threadpool_limits  # noqa: E402
 
 import heurtune  # noqa: E402
 from heurtune.objectives.tito.continuous import ContinuousTITOLoop, ContinuousTITOSimulator, ErrorCubics  # noqa: E402
+from heurtune.runner.config import experiments_dir  # noqa: E402
 from heurtune.runner.machine import cpu_name  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
@@ -57,10 +62,16 @@ def _iae(t, y):
     return float(np.sum(0.5 * (e[1:] + e[:-1]) * np.diff(t)[:, None]))
 
 
-def _problem(sample_time=None):
+def _problem(sample_time=None, base="ga_pi_ccts"):
     text = "" if sample_time is None else f"[scenario]\nsample_time = {sample_time}\n"
     path = Path(os.environ.get("TMPDIR", "/tmp")) / f"wp_tito_{os.getpid()}_{sample_time}.toml"
-    path.write_text(f'extends = "ga_pi_ccts"\n{text}')
+    if base == "ga_pi_ccts":
+        path.write_text(f'extends = "ga_pi_ccts"\n{text}')
+    else:  # a shipped config with sample_time = 0.5 and allow_coarse_sampling: its text, edited
+        src = (experiments_dir() / f"{base}.toml").read_text()
+        if sample_time is None:
+            src = src.replace("sample_time = 0.5\n", "").replace("allow_coarse_sampling = true\n", "")
+        path.write_text(src)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         prob = heurtune.load_experiment(str(path)).problem("ccts")
@@ -119,14 +130,13 @@ def work_precision(prob, repeats):
         row("sampled", dt, np.nan, run, sim.t, y, _iae(sim.t, y))
 
 
-def evaluation_cost(repeats, n_random):
-    sampled, continuous = _problem(0.5), _problem()
+def evaluation_cost(repeats, n_random, base="ga_pi_ccts", title="2. TITOProblem.evaluate per candidate, CCTS IAE"):
+    sampled, continuous = _problem(0.5, base), _problem(None, base)
     rng = np.random.default_rng(0)
     X = sampled.lower + rng.random((20 * n_random, sampled.dim)) * (sampled.upper - sampled.lower)
     X = X[sampled.evaluate(X).reason == ""][:n_random]
     X = np.vstack([sampled.baseline("gpm")[None, :], X])
-    print(f"\n2. TITOProblem.evaluate per candidate, CCTS IAE (1,200 s): the GPM PI and {len(X) - 1} random stable "
-          f"candidates, {cpu_name()}")
+    print(f"\n{title} (1,200 s): the GPM design and {len(X) - 1} random stable candidates, {cpu_name()}")
     print(f"{'loop':30} {'ms per candidate':>17} {'IAE1 + IAE2 (GPM)':>18}")
     out = {}
     for label, prob in (("sampled, dt = 0.5 s", sampled), ("continuous, tolerance 1e-3", continuous)):
@@ -136,6 +146,9 @@ def evaluation_cost(repeats, n_random):
         print(f"{label:30} {ms:17.2f} {prob.evaluate(X[:1]).f[0]:18.6f}")
     a, b = out.values()
     print(f"continuous / sampled: {b / a:.2f}")
+    sim = continuous._simulator(continuous.scenario(continuous.tuning_scenario))
+    steps = [sim.run(continuous.controllers(x)).step for x in X]
+    print("steps kept (s):", ", ".join(f"{h:.3g}" for h in steps))
 
 
 def main(argv=None) -> int:
@@ -146,6 +159,8 @@ def main(argv=None) -> int:
     with threadpool_limits(1):
         work_precision(_problem(), args.repeats)
         evaluation_cost(args.repeats, args.candidates)
+        evaluation_cost(max(1, args.repeats // 2), args.candidates // 2, "gpm_pid_ccts",
+                        "3. TITOProblem.evaluate per candidate, CCTS PID IAE")
     return 0
 
 

@@ -353,13 +353,20 @@ def test_a_biproper_plant_on_the_continuous_loop_and_an_unfiltered_derivative_ar
         _config(tmp_path, "biproper", src).problem("my_rig")
     msg = str(err.value)
     assert "\n" not in msg and "g22 is biproper" in msg and "sample_time" in msg, msg
+    # a derivative without its filter, or a negative filter: refused by both loops (sim.controller_tf)
     from heurtune.objectives.tito.model import ParallelPID, PIDController
 
-    for make in (lambda: ParallelPID(1.0, 0.1, 0.5, 0.0), lambda: PIDController(1.0, 10.0, 2.0, 0.0),
-                 lambda: ParallelPID(1.0, 0.1, 0.0, -1.0)):
-        with pytest.raises(ConfigError) as err:
-            make()
-        assert "\n" not in str(err.value) and "Tf" in str(err.value)
+    prob = heurtune.load_experiment("ga_pi_ccts").problem("ccts")
+    sc = prob.scenario("nominal")
+    good = ParallelPID(1.0, 0.01, 0.0, 0.0)
+    bads = (ParallelPID(1.0, 0.01, 0.5, 0.0), PIDController(1.0, 10.0, 2.0, 0.0), ParallelPID(1.0, 0.01, 0.0, -1.0))
+    for bad in bads:
+        for make in (lambda c=bad: ContinuousTITOLoop(prob.chain.plant, prob.chain.decoupler, (good, c), sc, 5.0),
+                     lambda c=bad: simulate_tito(prob.chain.plant, (c, good), prob.chain.decoupler,
+                                                 dataclasses.replace(sc, loop="sampled", tolerance=None, dt=0.5))):
+            with pytest.raises(ConfigError) as err:
+                make()
+            assert "\n" not in str(err.value) and "Tf" in str(err.value), str(err.value)
 
 
 def test_the_path_matrix_exponential_matches_scipy_and_closed_forms():
