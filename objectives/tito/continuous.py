@@ -1,40 +1,51 @@
-"""The continuous-time TITO closed loop with exact dead times, on a step that divides them.
+"""The continuous-time TITO closed loop with exact dead times: on a fixed step, or to a tolerance.
 
 Every signal path of the loop is linear and time-invariant, so the output of loop ``i`` is a sum
-of paths from the errors, each a series of rational parts with one total dead time::
+of routes from the errors, each a series of rational parts with one total dead time::
 
     y_i(t) = sum_{k,j} (g_ik D_kj c_j)(e_j(t - Lg_ik - Ld_kj)) + sum_k g_ik(d_in_k(t - Lg_ik)) + d_out_i
 
 (``c_j`` controller, ``D_kj`` decoupler entry, ``g_ik`` plant element, each with its own state;
-the controller's and the decoupler's states are copied into every path that carries them, which
-changes nothing in a linear loop). Every plant element is strictly proper with a dead time, so
-the error ``e_j = r_j - y_j`` is piecewise smooth, and its breakpoints (set-point and disturbance
-steps, and their images through the delays) fall on the step grid when the step ``h`` divides
-every dead time and every breakpoint time. Over one step each path's input is then the error of
-an earlier step, known in full: the errors are kept as their values at the four Gauss-Lobatto
-nodes of every step (a cubic), each path's state is advanced exactly for that cubic input
-(matrix exponential of the path with a chain of integrators, Van Loan), and the new step's
-errors follow from the outputs at its nodes. The only approximation is the cubic on each step
-(a local error of order ``h^4``); fast modes (a derivative filter shorter than ``h``) are
-integrated exactly. The decoupler outputs ``u`` and controller outputs ``v`` are recorded the
-same way, from paths ``D_kj c_j`` and ``c_j`` driven by the stored errors.
+the controller's and the decoupler's states are copied into every route that carries them,
+which changes nothing in a linear loop). Every plant element is strictly proper with a dead
+time, so the error ``e_j = r_j - y_j`` is piecewise smooth, and its breakpoints (set-point and
+disturbance steps, and their images through the delays) fall on the step grid when the step
+``h`` divides every dead time and every breakpoint time. Over one step each route's input is
+then the error of an earlier step, known in full: the errors are kept as their values at the
+four Gauss-Lobatto nodes of every step (a cubic), each route's state is advanced exactly for
+that cubic input (matrix exponential of the route with a chain of integrators, Van Loan), and
+the new step's errors follow from the outputs at its nodes. Per route, the outputs at the nodes
+and the end state are one precomputed affine map of the start state and the stored node values
+(:class:`_Path`). The only approximation is the cubic on each step (a local error of order
+``h^4``); fast modes (a derivative filter shorter than ``h``) are integrated exactly. The
+decoupler outputs ``u`` and controller outputs ``v`` are recorded the same way, from routes
+``D_kj c_j`` and ``c_j`` driven by the stored errors.
 
-A dead time that is not a multiple of the step (it must not be shorter than the step) puts a
-stored step boundary at the same fraction ``theta`` of every step; the path is advanced over the
-two sub-steps, each with its own stored cubic as input, so a jump of the delayed signal (the
-input disturbance, a set-point step) is integrated exactly. The breakpoints it creates in the
-errors then fall inside steps, where the cubics smooth their kinks: second order in ``h``. With a
-derivative in the controllers the order is about 2 as well (the derivative acts on the cubics'
-slope jumps at the step boundaries). Set-point and disturbance times must be multiples of the
-step; linear plants only.
+A PI route is one path whatever the gains (:class:`_PIPath`: the routes through the bases 1 and
+``1/s`` share their states, and their gain-weighted sum is the state of one path whose matrices
+are ``F + Kp A + Ki B``), built once per step and scenario. The two routes that an inverted
+decoupler makes cancel (``e_j`` into ``y_i``, ``i != j``, on the plant it inverts) are left out.
 
-Noise is a zero-order-held signal on the step: the sampled loop's draws (the same generators,
-variance ``P / dt`` per sample), sample ``k`` held over ``[k h, (k + 1) h)``. The measurement
-noise enters the errors (``e = r - y - n``) and the input noise the plant inputs beside the
-input disturbance; both are constant within a step and jump at its boundaries, where the stored
-cubics already break, so the loop stays exact for them. The outputs ``y`` are the plant's, the
-measurement ``ym = y + n``. Checked against the method of steps with ``solve_ivp``
-(``tests/tito_dde_reference.py``, ``tests/objectives/tito/test_continuous_tito.py``).
+A dead time that is not a multiple of the step (into the outputs it must not be shorter than
+the step) puts a stored step boundary at the same fraction ``theta`` of every step; the route is
+advanced over the two sub-steps, each with its own stored cubic as input, so a jump of the
+delayed signal (the input disturbance, a set-point step) is integrated exactly. The breakpoints
+it creates in the errors then fall inside steps, where the cubics smooth their kinks: second
+order in ``h``. With a derivative in the controllers the order is about 2 as well (the
+derivative acts on the cubics' slope jumps at the step boundaries). Set-point and disturbance
+times must be multiples of the step; linear plants only.
+
+:class:`ContinuousTITOSimulator` runs a scenario's loop to ``scenario.tolerance`` (the step
+ladder of :func:`coarsest_step`, each run checked against the run at twice its step) or on its
+fixed step ``dt``; :class:`ErrorCubics` integrates a run's errors exactly.
+
+Noise is a zero-order-held signal at the sample time ``dt``, a whole number of steps: the
+sampled loop's draws (the same generators, variance ``P / dt`` per sample), sample ``k`` held
+over ``[k dt, (k + 1) dt)``. The measurement noise enters the errors (``e = r - y - n``) and the
+input noise the plant inputs beside the input disturbance; both jump only at step boundaries,
+where the stored cubics already break, so the loop stays exact for them. The outputs ``y`` are
+the plant's, the measurement ``ym = y + n``. Checked against the method of steps with
+``solve_ivp`` (``tests/tito_dde_reference.py``, ``tests/objectives/tito/test_continuous_tito.py``).
 """
 
 from __future__ import annotations
@@ -52,7 +63,8 @@ from .design import parallel_controller
 from .model import ParallelPID, PIController
 from .sim import _poly, controller_tf, input_noise, measurement_noise, vary_plant
 
-__all__ = ["ContinuousTITOLoop", "ContinuousTITOSimulator"]
+__all__ = ["DEFAULT_TOLERANCE", "ContinuousRun", "ContinuousTITOLoop", "ContinuousTITOSimulator", "ErrorCubics",
+           "check_continuous_plant", "coarsest_step"]
 
 # Gauss-Lobatto nodes on [0, 1] (cubic through both ends and two interior points)
 NODES = np.array([0.0, 0.5 - 0.5 / math.sqrt(5.0), 0.5 + 0.5 / math.sqrt(5.0), 1.0])
@@ -355,8 +367,12 @@ class ContinuousTITOLoop:
     controllers : pair
         ``PIController``, ``PIDController`` or ``ParallelPID`` (a derivative needs its filter).
     scenario : TITOScenario
-        Set-points, disturbances, noise and horizon; its ``dt`` is the step ``h``, the output
-        sample time and the noise's hold period.
+        Set-points, disturbances, noise and horizon; its ``dt`` is the noise's hold period (and
+        the step when ``step`` is not given). ``tolerance`` is not read here.
+    step : float, optional
+        The step ``h`` (s), also the output sample time: no longer than the shortest dead time
+        into the outputs, dividing the horizon, the set-point and disturbance times and (with
+        noise) ``dt``; one-line ConfigError otherwise.
     """
 
     @classmethod
