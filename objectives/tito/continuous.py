@@ -54,6 +54,7 @@ import functools
 import math
 
 import numpy as np
+import scipy.linalg
 import scipy.signal
 
 from heurtune.core.errors import ConfigError
@@ -268,8 +269,12 @@ class _Path:
         Vinv = np.linalg.inv(V)
         E = np.empty((len(offsets), n, n))
         H = np.empty((len(offsets), n, q))
+        # balanced first (M = D Mb D^-1, D a diagonal of powers of 2, exact): a stiff filter's
+        # realisation can put 1/Tf^2 beside 1 in M, and its norm (1e8 for a 10 us filter) would
+        # cost the small entries of exp(M) their relative accuracy in the squarings
+        Mb, (scale, _) = scipy.linalg.matrix_balance(M, permute=False, separate=True)
         for i, tau in enumerate(offsets):
-            F = kern.expm(M * tau)
+            F = scale[:, None] * kern.expm(Mb * tau) / scale[None, :]
             E[i] = F[:n, :n]
             H[i] = F[:n, n:] @ Vinv
         return E, H

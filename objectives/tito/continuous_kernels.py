@@ -71,12 +71,7 @@ def expm(M):
     for every norm, Higham 2005): the path matrices of the continuous loop, whose stiff
     filters make scipy's general routine slow on these small matrices."""
     n = M.shape[0]
-    norm = 0.0
-    for c in range(n):
-        col = 0.0
-        for r in range(n):
-            col += abs(M[r, c])
-        norm = max(norm, col)
+    norm = np.max(np.sum(np.abs(M), axis=0))  # the 1-norm
     s = 0
     if norm > _THETA13:
         s = int(np.ceil(np.log2(norm / _THETA13)))

@@ -394,3 +394,29 @@ def test_the_path_matrix_exponential_matches_scipy_and_closed_forms():
     lam, J = -2.0, np.array([[-2.0, 1.0, 0.0], [0.0, -2.0, 1.0], [0.0, 0.0, -2.0]])
     closed = np.exp(lam) * np.array([[1.0, 1.0, 0.5], [0.0, 1.0, 1.0], [0.0, 0.0, 1.0]])
     np.testing.assert_allclose(kern.expm(J), closed, rtol=1e-14)
+
+
+def test_a_stiff_filters_path_matrices_match_scipy_after_balancing(monkeypatch):
+    """Paper 001's printed CCTS PID has filters of 10 us: its routes' matrices have norms near
+    1e8 (the realisation puts 1/Tf^2 beside 1), where the squarings would cost the small entries
+    of exp(M) their accuracy (1.4e-5 relative without balancing); balanced first, the loop's
+    matrices agree with scipy.linalg.expm's to 1e-9 of their size (measured 8e-11), and its
+    run, which grows to about 3,000, to 1e-8 of the peak (measured 5.5e-10)."""
+    import scipy.linalg
+
+    from heurtune.objectives.tito import continuous as cont
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        prob = heurtune.load_experiment("paper_001").problem("ccts")
+    gains = simulated.printed_controllers("001", "ccts")["Proposed PID"]
+    sc = dataclasses.replace(prob.scenario("nominal"), horizon=300.0, dt=0.5, loop="continuous",
+                             input_disturbance=(100.0, (0.1, 0.1)), output_disturbance=(200.0, (0.1, 0.1)))
+    own = cont.ContinuousTITOLoop.from_gains(prob.chain.plant, prob.chain.decoupler, gains, prob.N, sc)
+    monkeypatch.setattr(cont.kern, "expm", scipy.linalg.expm)
+    ref = cont.ContinuousTITOLoop.from_gains(prob.chain.plant, prob.chain.decoupler, gains, prob.N, sc)
+    for key in ("Ox", "O1", "O2", "Sx", "S1", "S2"):
+        a, b = own._arrays[key], ref._arrays[key]
+        assert np.abs(a - b).max() <= 1e-9 * max(1.0, np.abs(b).max()), key
+    ya, yb = own.run()[1], ref.run()[1]
+    assert np.abs(ya - yb).max() <= 1e-8 * np.abs(yb).max()
