@@ -579,6 +579,34 @@ class TITOProblem(TuningProblem):
         df.attrs["status"] = status
         return df
 
+    def simulation_accuracy(self, x, scenario="nominal") -> dict | None:
+        """How accurately the loop simulates one candidate: on the continuous loop with a
+        tolerance, the step its run kept, that run's error estimate (the largest output
+        difference from the run at twice the step) and the tolerance it was held to; None on
+        the sampled loop and on a fixed step (no estimate).
+
+        Parameters
+        ----------
+        x : array_like or dict
+            Gains (see ``names``).
+        scenario : str or TITOScenario
+
+        Returns
+        -------
+        dict or None
+            ``step``, ``error_estimate``, ``tolerance``, ``within`` (the estimate within
+            ``tolerance * max(1, max|y|)``, what the run was kept for) and ``status``.
+        """
+        sc = self.scenario(scenario)
+        sim = self._simulator(sc)
+        if not isinstance(sim, ContinuousTITOSimulator) or sim.tolerance is None:
+            return None
+        res = sim.run(self.controllers(np.array([self.values(x)[n] for n in self.names])))
+        peak = float(np.nanmax(np.abs(res.y))) if np.isfinite(res.y).any() else math.inf
+        within = bool(res.error_estimate <= sim.tolerance * max(1.0, peak))
+        return dict(step=float(res.step), error_estimate=float(res.error_estimate), tolerance=float(sim.tolerance),
+                    within=within, status=res.status)
+
     def simulated_metrics(self, x, scenario="nominal") -> tuple[str, dict]:
         """The time-domain metrics of one candidate from its simulation alone, without the
         stability check that :meth:`evaluate` runs first (a frequency-domain verdict, which can

@@ -242,6 +242,8 @@ def test_runner_writes_tito_outputs_and_resumes(tmp_path, capsys):
         assert col in runs.columns
     table = (out / "performance.md").read_text()
     assert "| ccts | gpm |" in table and "| ccts | ga (best of runs) |" in table
+    # the continuous loop's accuracy for each reported design: the step kept, its estimate
+    assert "to tolerance 0.001 on the outputs" in table and "| ccts | gpm | 5.556 |" in table, table
     robust = pd.read_parquet(out / "robustness.parquet")
     assert set(robust["algorithm"]) == {"ga", "gpm"}
     capsys.readouterr()
