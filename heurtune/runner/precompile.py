@@ -4,8 +4,8 @@
 candidates of every case of every shipped experiment on each CPU device (``cpu``,
 ``cpu-batch``), and of the QTP experiments also with the sampled loop (``[controller]
 sample_time``) and under all their scenarios at once; a TITO problem, which simulates only the
-candidates its frequency check passes, also simulates one, and ``ga_pi_ccts`` runs on the
-continuous loop too (``[scenario] loop = "continuous"``). Every kernel those evaluations call
+candidates its frequency check passes, also simulates one, and ``ga_pi_ccts`` (on the
+continuous loop to its tolerance) runs on that loop's fixed step too. Every kernel those evaluations call
 is compiled and written to numba's cache (``__pycache__`` beside the sources, or
 ``NUMBA_CACHE_DIR``), so a later run, test or worker process loads it instead of compiling.
 ``make setup`` and ``make test`` call it; with a filled cache it takes seconds.
