@@ -86,6 +86,7 @@ from heurtune.runner.resultdir import (
     set_aside_file,
 )
 from heurtune.runner.workplan import (
+    CompileNotice,
     borrow_step_cost,
     calibrate,
     check_evaluation_time,
@@ -721,7 +722,8 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
         check_parts(parts, specs, fingerprints, dry=True).refuse_mismatch(out_dir)
     done = set() if fresh or not parts.is_dir() else {s.part_name for s in specs} & _finished(parts)
     # Measured before anything is written: a config too costly to evaluate is refused here.
-    calibrations, shapes = _calibrate(exp, config, [s for s in specs if s.part_name not in done], force=force)
+    with CompileNotice(exp.name, progress_stream):
+        calibrations, shapes = _calibrate(exp, config, [s for s in specs if s.part_name not in done], force=force)
     _make_folder(out_dir)
     lock = FolderLock(out_dir)
     lock.acquire()

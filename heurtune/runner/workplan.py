@@ -26,6 +26,7 @@ import dataclasses
 import functools
 import json
 import math
+import threading
 import time
 
 import numpy as np
@@ -38,6 +39,7 @@ from heurtune.core.evaluator import Evaluator
 
 __all__ = [
     "Calibration",
+    "CompileNotice",
     "calibrate",
     "borrow_step_cost",
     "check_evaluation_time",
@@ -284,6 +286,65 @@ def calibrate(prob, n: int = CALIBRATION_CANDIDATES, steps: int = CALIBRATION_ST
     else:  # timings disturbed by other load: the longer one, all of it per step (an upper bound)
         step_s, fixed_s = t_long / (m * k_long), 0.0
     return Calibration(prob.case, total, fixed_s, step_s, distinct, drawn, f"{k_long} and {k_short} steps")
+
+
+# seconds of calibration after which the wait is explained (numba compiling on a first run)
+COMPILE_NOTICE_S = 5.0
+
+
+class CompileNotice:
+    """Explain a long calibration while it lasts: numba compiling the experiment's kernels.
+
+    A first run on a machine (or after an edit of a kernel) compiles each kernel the
+    evaluations call, in the calibration, before the plan line: a minute or more of silence
+    otherwise. Used as a context manager around the calibration: when it is still running after
+    ``after_s`` seconds one line says why and what avoids it (``make setup`` /
+    ``python -m heurtune.precompile``), and at its end one line gives the time it took; a
+    calibration that loads its kernels from numba's cache finishes first and prints nothing.
+    The workers of the run then load the compiled kernels from the cache.
+
+    Parameters
+    ----------
+    name : str
+        The experiment, named in the lines.
+    stream : file-like
+        Where the lines go (the run's progress stream).
+    after_s : float, optional
+        Seconds before the first line (default :data:`COMPILE_NOTICE_S`).
+    """
+
+    def __init__(self, name: str, stream, after_s: float | None = None):
+        self.name, self.stream = name, stream
+        self.after_s = COMPILE_NOTICE_S if after_s is None else float(after_s)
+        self.shown = False
+        self._lock = threading.Lock()
+
+    def _show(self):
+        with self._lock:
+            if self._done:
+                return
+            self.shown = True
+            print(f"{self.name}: calibrating; numba is compiling the kernels its evaluations call into its cache "
+                  f"(a first run on this machine, or after an edit: a minute or two once; `make setup` or "
+                  f"`python -m heurtune.precompile` compiles every shipped experiment's in advance)",
+                  file=self.stream, flush=True)
+
+    def __enter__(self):
+        self._done = False
+        self._start = time.perf_counter()
+        self._timer = threading.Timer(self.after_s, self._show)
+        self._timer.daemon = True
+        self._timer.start()
+        return self
+
+    def __exit__(self, *exc):
+        self._timer.cancel()
+        with self._lock:
+            self._done = True
+            if self.shown:
+                print(f"{self.name}: calibrated in {time.perf_counter() - self._start:.0f} s, the kernels compiled "
+                      f"and cached (the workers load them)", file=self.stream, flush=True)
+        return False
 
 
 def borrow_step_cost(calibrations: dict) -> dict:

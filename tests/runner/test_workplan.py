@@ -226,3 +226,29 @@ def test_force_takes_the_costly_configuration_anyway(tmp_path, monkeypatch):
     seen = {}
     monkeypatch.setattr(runner, "run_experiment", lambda name, **kw: seen.update(kw))
     assert run([str(config_file), "--force"]) == 0 and seen["force"] is True
+
+
+def test_a_long_calibration_says_why_and_a_short_one_says_nothing():
+    """CompileNotice: the line explaining the wait (numba compiling on a first run) comes once
+    the calibration outlasts its threshold, and a closing line gives the time; under the
+    threshold nothing is printed. No timing is assumed: the first case waits for the line
+    itself, the second has a threshold no test reaches."""
+    import io
+    import threading
+
+    from heurtune.runner.workplan import CompileNotice
+
+    stream = io.StringIO()
+    seen = threading.Event()
+    notice = CompileNotice("exp", stream, after_s=0.0)
+    original = notice._show
+    notice._show = lambda: (original(), seen.set())
+    with notice:
+        assert seen.wait(60.0)
+    lines = stream.getvalue().splitlines()
+    assert len(lines) == 2 and "numba is compiling" in lines[0] and "make setup" in lines[0], lines
+    assert lines[1].startswith("exp: calibrated in ") and "compiled and cached" in lines[1], lines
+    quiet = io.StringIO()
+    with CompileNotice("exp", quiet, after_s=1e6):
+        pass
+    assert quiet.getvalue() == ""
