@@ -423,3 +423,26 @@ def test_a_stiff_filters_path_matrices_match_scipy_after_balancing(monkeypatch):
         assert np.abs(a - b).max() <= 1e-9 * max(1.0, np.abs(b).max()), key
     ya, yb = own.run()[1], ref.run()[1]
     assert np.abs(ya - yb).max() <= 1e-8 * np.abs(yb).max()
+
+
+@pytest.mark.parametrize("name, case", [("ga_pi_ccts", "ccts"), ("pso_pi_csts", "csts")])
+def test_the_ladders_estimate_covers_the_error_of_random_candidates(name, case):
+    """The tolerance's estimate (the kept run's difference from the run at twice its step) on
+    random stable PIs of the shipped continuous problems, against the same loop at a 16 times
+    finer step: the error below the estimate and the tolerance for every one (measured: 0.1 to
+    0.8 of the estimate; docs/tito.md, "Which loop")."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        prob = heurtune.load_experiment(name).problem(case)
+    rng = np.random.default_rng(7)
+    X = prob.lower + rng.random((60, prob.dim)) * (prob.upper - prob.lower)
+    X = X[prob.evaluate(X).reason == ""][:6]
+    assert len(X) >= 4
+    sc = prob.scenario("nominal")
+    sim = prob._simulator(sc)
+    for x in X:
+        ctrl = prob.controllers(x)
+        res = sim.run(ctrl)
+        _, fine, _, _ = ContinuousTITOLoop(sim.plant, prob.chain.decoupler, ctrl, sc, res.step / 16).run(None, "y")
+        err = np.abs(res.y - fine[::16]).max()
+        assert err <= res.error_estimate and err <= sc.tolerance * max(1.0, np.abs(res.y).max()), (x, err)
