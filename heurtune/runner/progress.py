@@ -21,6 +21,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import sys
 import threading
 import time
@@ -200,10 +201,20 @@ class Progress:
             return None
         return (spent - spent_first) / (now - t_first)
 
+    def _columns(self) -> int:
+        """The terminal's width (its own when the stream has one; ``COLUMNS`` or 80 else)."""
+        try:
+            return os.get_terminal_size(self.stream.fileno()).columns
+        except (AttributeError, OSError, ValueError):
+            return shutil.get_terminal_size(fallback=(80, 24)).columns
+
     def _write(self) -> None:
         line = self._line()
         if self.tty:
-            self.stream.write("\r" + line[:200].ljust(200))
+            # one column short of the width, padded over the previous frame: a line as long as
+            # the terminal would wrap, and each redraw would leave a copy above
+            width = max(self._columns() - 1, 20)
+            self.stream.write("\r" + line[:width].ljust(width))
         else:
             self.stream.write(line + "\n")
         self.stream.flush()

@@ -3,6 +3,7 @@ updated from inside running runs through their heartbeats."""
 
 import io
 import json
+import os
 import pickle
 import time
 
@@ -132,3 +133,20 @@ def test_a_terminal_sees_the_line_move_inside_a_run(tmp_path, jobs):
     inside = [f for f in frames if " 0/" in f and " runs, " in f and not f.split(" runs, ")[1].startswith("0/")]
     assert inside, frames
     assert "best min: " in inside[-1]
+
+
+@pytest.mark.parametrize("columns", [100, 60])
+def test_a_terminal_line_fits_its_width(monkeypatch, columns):
+    """Each redraw is one column shorter than the terminal (a full-width line would wrap and
+    every redraw leave a copy: 12 stacked lines in a 100-column tmux, issue 53)."""
+    import shutil
+
+    monkeypatch.setattr(shutil, "get_terminal_size", lambda fallback=None: os.terminal_size((columns, 24)))
+    stream = _Terminal()  # a StringIO: no file descriptor, so the shutil width
+    bar = Progress(total=3, done=0, stream=stream)
+    for k in range(3):
+        bar.update(dict(case="min" * 20, algorithm="cs", feasible=True, best_f=1234.5 + k, violation=0.0,
+                        n_evals=100), name=f"r{k}")
+    bar.close()
+    frames = [f for f in stream.getvalue().split("\r") if f]
+    assert frames and all(len(f.rstrip("\n")) == columns - 1 for f in frames), [len(f) for f in frames]
