@@ -121,11 +121,12 @@ class _Terminal(io.StringIO):
 
 
 @pytest.mark.parametrize("jobs", [1, 2])
-def test_a_terminal_sees_the_line_move_inside_a_run(tmp_path, jobs):
+def test_a_terminal_sees_the_line_move_inside_a_run(tmp_path, jobs, monkeypatch):
     """In this process (one worker) and from the workers' heartbeats (two workers, whole runs),
     the line counts evaluations before any run has finished. The line is read every second and
     a heartbeat written at most every second, so each run is given 60 generations (3,000
     evaluations, several seconds; a loaded machine only makes it longer)."""
+    monkeypatch.setenv("COLUMNS", "200")  # a wide terminal: the whole line, bests included
     stream = _Terminal()
     run_experiment("cs_folqi_qtp", runs=1 if jobs == 1 else 2, max_epochs=60, jobs=jobs, out=tmp_path / "r",
                    progress_stream=stream, figures=False)
