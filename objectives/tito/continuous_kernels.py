@@ -22,37 +22,33 @@ Q = 4
 
 
 @njit(cache=True, inline="always")
+def _affine_row(X, Y, Z, p, r, n, x, hist, s, m1, m2, two):
+    """Row ``r`` of path ``p``'s affine map: ``X[p, r] x + Y[p, r] h1 + Z[p, r] h2`` (``h1``,
+    ``h2`` the stored steps ``m1``, ``m2`` of signal ``s``; ``h2`` only where ``two``)."""
+    a = 0.0
+    for j in range(n):
+        a += X[p, r, j] * x[p, j]
+    if m1 >= 0:
+        for j in range(Q):
+            a += Y[p, r, j] * hist[m1, s, j]
+    if two and m2 >= 0:
+        for j in range(Q):
+            a += Z[p, r, j] * hist[m2, s, j]
+    return a
+
+
+@njit(cache=True, inline="always")
 def _path_step(p, k, hist, src, split, lag, nst, Ox, O1, O2, Sx, S1, S2, x, xn, acc):
     """Add path ``p``'s outputs over step ``k`` to ``acc`` and advance its state ``x[p]`` to the
     step's end."""
-    q = Q
     n = nst[p]
     s = src[p]
     m1 = k - lag[p]
     two = split[p] == 1
-    m2 = m1 + 1
-    for i in range(q):
-        a = 0.0
-        for r in range(n):
-            a += Ox[p, i, r] * x[p, r]
-        if m1 >= 0:
-            for j in range(q):
-                a += O1[p, i, j] * hist[m1, s, j]
-        if two and m2 >= 0:
-            for j in range(q):
-                a += O2[p, i, j] * hist[m2, s, j]
-        acc[i] += a
+    for i in range(Q):
+        acc[i] += _affine_row(Ox, O1, O2, p, i, n, x, hist, s, m1, m1 + 1, two)
     for r in range(n):
-        a = 0.0
-        for j in range(n):
-            a += Sx[p, r, j] * x[p, j]
-        if m1 >= 0:
-            for j in range(q):
-                a += S1[p, r, j] * hist[m1, s, j]
-        if two and m2 >= 0:
-            for j in range(q):
-                a += S2[p, r, j] * hist[m2, s, j]
-        xn[r] = a
+        xn[r] = _affine_row(Sx, S1, S2, p, r, n, x, hist, s, m1, m1 + 1, two)
     for r in range(n):
         x[p, r] = xn[r]
 
