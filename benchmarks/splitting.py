@@ -146,7 +146,7 @@ def main(argv=None) -> int:
     print("| --- | --- | --- | --- |")
     for label, (case, kind, gains) in CASES.items():
         loop = Loop(case, kind, gains)
-        reference = solve_ivp(lambda t, Y: loop.rhs(Y), (0.0, HORIZON - T_DIST), loop.Y0, method="Radau",
+        reference = solve_ivp(lambda t, Y, loop=loop: loop.rhs(Y), (0.0, HORIZON - T_DIST), loop.Y0, method="Radau",
                               rtol=1e-11, atol=1e-12, dense_output=True)
         for h in args.steps:
             cells = []
