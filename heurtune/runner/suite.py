@@ -1,0 +1,673 @@
+"""The suite of controller-tuning problems: problems, instances, targets and the runs.
+
+``experiments/suite/problems.toml`` lists the problems (:class:`SuiteProblem`: a shipped
+experiment's problem for one plant case, with config overrides) and the suite's settings
+(:class:`Suite`: instances per problem, the budget multiplier, runs, the root seed, how instances
+perturb the plant). For each problem and algorithm, :func:`problem_config` writes an experiment
+config whose cases are the problem's instances (``i1`` .. ``iK``, each its plant as
+``plant.custom``) and whose only optimiser is the algorithm with ``budget_multiplier x dim``
+evaluations; the experiment runner runs it into ``OUT/<problem>/<algorithm>/`` (resume,
+fingerprints, atomic writes, as for every experiment). One algorithm per folder: every
+algorithm gets the same seeds (common random numbers), and adding one never touches the others'
+results.
+
+Targets (:func:`make_targets`, ``experiments/suite/targets.csv``): per problem and instance, the
+best value known (the best of long reference runs of strong optimisers) and the median best
+value random search reaches at the budget; :func:`targets_of` spaces ``N_TARGETS`` targets
+logarithmically between the two, as COCO does. The measures and the leaderboard are in
+:mod:`heurtune.analysis.leaderboard`; the command (``python -m heurtune.suite``) is :func:`main`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import datetime
+import io
+import json
+import math
+import subprocess
+import sys
+import tomllib
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from heurtune.core.errors import ConfigError
+from heurtune.runner.config import experiments_dir, list_experiments, load_config
+
+__all__ = ["Suite", "SuiteProblem", "load_suite", "instance_plant", "problem_config", "run_suite", "make_targets",
+           "load_targets", "targets_of", "N_TARGETS", "SMOKE"]
+
+# Targets per problem and instance, log-spaced from the random-search median to the best known
+# value (both included), as COCO's 51 targets.
+N_TARGETS = 51
+# The perturbation keys of an instance and whether their half-width is relative.
+PERTURBED = {"A": True, "a": True, "k": True, "levels": True, "gamma": False}
+# --smoke: two problems, two instances, two runs, a budget of 5 x dim.
+SMOKE = dict(problems=("iolqi-min-limits", "pid-min"), instances=(1, 2), runs=2, budget_multiplier=5.0)
+
+
+def suite_dir() -> Path:
+    """The folder of the suite's tables (``problems.toml``, ``targets.csv``)."""
+    return experiments_dir() / "suite"
+
+
+@dataclasses.dataclass(frozen=True)
+class SuiteProblem:
+    """One problem of the suite: ``experiment``'s problem on plant ``case`` with ``overrides``
+    merged into its config, in ``group`` (for the figures)."""
+
+    name: str
+    experiment: str
+    case: str
+    group: str = ""
+    overrides: dict = dataclasses.field(default_factory=dict)
+
+
+@dataclasses.dataclass(frozen=True)
+class Suite:
+    """The suite's problems and settings (``experiments/suite/problems.toml``)."""
+
+    problems: tuple
+    instances: int
+    budget_multiplier: float
+    runs: int
+    seed: int
+    perturbation: dict
+
+    def problem(self, name: str) -> SuiteProblem:
+        """The problem called ``name`` (ConfigError naming the allowed ones otherwise)."""
+        for p in self.problems:
+            if p.name == name:
+                return p
+        raise ConfigError(f"unknown suite problem {name!r}; allowed: {', '.join(p.name for p in self.problems)}")
+
+
+def load_suite(path=None) -> Suite:
+    """Read and check the suite's table.
+
+    Parameters
+    ----------
+    path : str or Path, optional
+        Default ``experiments/suite/problems.toml``.
+
+    Returns
+    -------
+    Suite
+
+    Raises
+    ------
+    ConfigError
+        One line naming the bad key and what it allows.
+    """
+    path = Path(path) if path is not None else suite_dir() / "problems.toml"
+    src = path.name
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ConfigError(f"{src}: cannot read it: {exc.strerror or exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{src}: not valid TOML: {exc}") from None
+    settings = raw.get("suite", {})
+    unknown = sorted(set(settings) - {"instances", "budget_multiplier", "runs", "seed", "perturbation"})
+    if unknown:
+        raise ConfigError(f"{src}: suite.{unknown[0]}: unknown key; allowed: budget_multiplier, instances, "
+                          f"perturbation, runs, seed")
+    instances = _positive_int(settings.get("instances", 5), f"{src}: suite.instances")
+    runs = _positive_int(settings.get("runs", 5), f"{src}: suite.runs")
+    seed = settings.get("seed", 0)
+    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
+        raise ConfigError(f"{src}: suite.seed must be an integer >= 0, got {seed!r}")
+    multiplier = _multiplier(settings.get("budget_multiplier", 200), f"{src}: suite.budget_multiplier")
+    perturbation = dict(settings.get("perturbation", {}))
+    for key, value in perturbation.items():
+        if key not in PERTURBED:
+            raise ConfigError(f"{src}: suite.perturbation.{key}: unknown key; allowed: {', '.join(PERTURBED)}")
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or not 0 <= value < 1:
+            raise ConfigError(f"{src}: suite.perturbation.{key} must be a number in [0, 1), got {value!r}")
+    problems, seen = [], set()
+    shipped = set(list_experiments())
+    for i, row in enumerate(raw.get("problem", [])):
+        where = f"{src}: problem {i + 1}"
+        unknown = sorted(set(row) - {"name", "experiment", "case", "group", "overrides"})
+        if unknown:
+            raise ConfigError(f"{where}: unknown key {unknown[0]!r}; allowed: case, experiment, group, name, "
+                              f"overrides")
+        for key in ("name", "experiment", "case"):
+            if not isinstance(row.get(key), str) or not row[key]:
+                raise ConfigError(f"{where}: {key} must be a non-empty string")
+        name = row["name"]
+        if name in seen:
+            raise ConfigError(f"{where}: name {name!r} is used twice")
+        if not all(ch.isalnum() or ch in "-_" for ch in name):
+            raise ConfigError(f"{where}: name {name!r} may hold only letters, digits, '-' and '_'")
+        if row["experiment"] not in shipped:
+            raise ConfigError(f"{where} ({name}): unknown experiment {row['experiment']!r}; allowed: "
+                              f"{', '.join(sorted(shipped))}")
+        if not isinstance(row.get("overrides", {}), dict):
+            raise ConfigError(f"{where} ({name}): overrides must be a table")
+        seen.add(name)
+        problems.append(SuiteProblem(name, row["experiment"], row["case"], row.get("group", ""),
+                                     row.get("overrides", {})))
+    if not problems:
+        raise ConfigError(f"{src}: no [[problem]] tables")
+    return Suite(tuple(problems), instances, multiplier, runs, seed, perturbation)
+
+
+def _positive_int(value, where) -> int:
+    if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+        raise ConfigError(f"{where} must be an integer >= 1, got {value!r}")
+    return value
+
+
+def _multiplier(value, where) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+        raise ConfigError(f"{where} must be a number > 0, got {value!r}")
+    return float(value)
+
+
+# -- instances ---------------------------------------------------------------------------------
+def instance_plant(case: str, instance: int, suite: Suite) -> dict:
+    """The plant parameters of ``instance`` (1-based) of a QTP case, as ``plant.custom`` takes them.
+
+    Instance 1 is the preset. Instance k > 1 draws each perturbed parameter uniformly within its
+    half-width around the preset's (``suite.perturbation``: relative for A, a, k, levels;
+    absolute for gamma), from a generator seeded by ``(suite.seed, case, k)``: the same plant for
+    every problem on the case. A draw that moves gamma1 + gamma2 across 1 (the case's phase) or
+    whose operating voltages leave the pump range is drawn again.
+
+    Parameters
+    ----------
+    case : str
+        A QTP preset (``min``, ``nmp``, ``P-``, ``P+``).
+    instance : int
+    suite : Suite
+
+    Returns
+    -------
+    dict
+        ``A, a, k, gamma, levels, height, u_range``.
+    """
+    from heurtune.objectives.qtp.model import operating_point, preset
+
+    base = preset(case)
+    out = dict(A=list(base.A), a=list(base.a), k=list(base.k), gamma=list(base.gamma), levels=list(base.levels),
+               height=list(base.height) if base.height else None, u_range=list(base.u_range) if base.u_range else None)
+    if instance == 1:
+        return {k: v for k, v in out.items() if v is not None}
+    rng = np.random.default_rng([suite.seed, zlib.crc32(case.encode()), instance])
+    phase = sum(base.gamma) > 1.0
+    for _ in range(1000):
+        draw = dict(out)
+        for key, relative in PERTURBED.items():
+            width = float(suite.perturbation.get(key, 0.0))
+            values = np.asarray(getattr(base, key), dtype=float)
+            u = rng.uniform(-1.0, 1.0, values.size)
+            draw[key] = [float(v) for v in (values * (1.0 + width * u) if relative else values + width * u)]
+        if (sum(draw["gamma"]) > 1.0) != phase or not all(0.0 < g < 1.0 for g in draw["gamma"]):
+            continue
+        params = dataclasses.replace(base, A=tuple(draw["A"]), a=tuple(draw["a"]), k=tuple(draw["k"]),
+                                     gamma=tuple(draw["gamma"]), levels=tuple(draw["levels"]))
+        try:
+            u_op = operating_point(params).u
+        except ConfigError:
+            continue
+        lo, hi = base.u_range if base.u_range else (0.0, math.inf)
+        if np.all(u_op > lo) and np.all(u_op < hi) and (base.height is None or max(operating_point(params).h)
+                                                         < min(base.height)):
+            return {k: v for k, v in draw.items() if v is not None}
+    raise ConfigError(f"suite: no valid instance {instance} of plant {case!r} in 1,000 draws; narrow "
+                      f"suite.perturbation")
+
+
+# -- configs -----------------------------------------------------------------------------------
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ValueError(f"TOML cannot hold {value!r}")
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{json.dumps(str(k))} = {_toml_value(v)}" for k, v in value.items()) + " }"
+    raise TypeError(f"no TOML form for {type(value).__name__}")
+
+
+def _toml_table(prefix: str, table: dict, lines: list) -> None:
+    scalars = {k: v for k, v in table.items() if not isinstance(v, dict)}
+    if prefix and scalars:
+        lines.append(f"[{prefix}]")
+    for key, value in scalars.items():
+        lines.append(f"{json.dumps(str(key))} = {_toml_value(value)}")
+    for key, value in table.items():
+        if isinstance(value, dict):
+            _toml_table(f"{prefix}.{json.dumps(str(key))}" if prefix else json.dumps(str(key)), value, lines)
+
+
+def _merge(base: dict, over: dict) -> dict:
+    out = dict(base)
+    for key, value in over.items():
+        out[key] = _merge(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
+
+
+def problem_config(suite: Suite, problem: SuiteProblem, algorithm: str, instances, multiplier: float, runs: int,
+                   path) -> Path:
+    """Write the experiment config of one problem and algorithm (see the module docstring).
+
+    Parameters
+    ----------
+    suite : Suite
+    problem : SuiteProblem
+    algorithm : str
+        A registered optimiser, run with its default settings.
+    instances : sequence of int
+        The instances, 1-based: cases ``i<k>``.
+    multiplier : float
+        Budget per run, in evaluations per dimension.
+    runs : int
+        Runs per instance.
+    path : str or Path
+        The ``.toml`` file to write (its stem is the experiment's name).
+
+    Returns
+    -------
+    Path
+    """
+    path = Path(path)
+    cases = [f"i{k}" for k in instances]
+    table = {"plant": {"cases": cases, "custom": {c: instance_plant(problem.case, k, suite)
+                                                  for c, k in zip(cases, instances)}}}
+    table = _merge(table, problem.overrides)
+    head = [f"extends = {json.dumps(problem.experiment)}",
+            f"description = {json.dumps(f'suite problem {problem.name}: {problem.experiment}, plant {problem.case}')}",
+            f"runs = {runs}", f"seed = {suite.seed}"]
+
+    def write(budget: int) -> None:
+        lines = list(head)
+        _toml_table("", table, lines)
+        lines += ["[[optimisers]]", f"name = {json.dumps(algorithm)}", f"max_evals = {budget}"]
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".toml.tmp")
+        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+        tmp.replace(path)
+
+    write(1)
+    from heurtune.core.families import make_experiment
+
+    dim = make_experiment(load_config(str(path))).problem(cases[0]).dim
+    write(max(1, int(round(multiplier * dim))))
+    return path
+
+
+# -- targets -----------------------------------------------------------------------------------
+TARGET_COLUMNS = ["problem", "instance", "f_best", "f_random", "random_runs", "random_feasible", "reference",
+                  "reference_multiplier", "budget_multiplier", "commit", "date"]
+
+
+def load_targets(path=None) -> pd.DataFrame:
+    """``experiments/suite/targets.csv`` (columns :data:`TARGET_COLUMNS`), empty when absent."""
+    path = Path(path) if path is not None else suite_dir() / "targets.csv"
+    if not path.is_file():
+        return pd.DataFrame(columns=TARGET_COLUMNS)
+    return pd.read_csv(path)
+
+
+def targets_of(f_best: float, f_random: float, n: int = N_TARGETS) -> np.ndarray:
+    """``n`` targets from ``f_random`` down to ``f_best``, equally spaced in log (both included).
+
+    Parameters
+    ----------
+    f_best, f_random : float
+        Positive; ``f_random >= f_best`` (a random-search median below the best known value
+        leaves one target, the best).
+    n : int
+
+    Returns
+    -------
+    ndarray
+    """
+    if not (f_best > 0 and f_random > 0 and math.isfinite(f_best)):
+        raise ValueError(f"targets need positive finite values, got best {f_best!r}, random {f_random!r}")
+    if not math.isfinite(f_random) or f_random <= f_best:
+        return np.array([f_best])
+    out = np.geomspace(f_random, f_best, n)
+    out[0], out[-1] = f_random, f_best
+    return out
+
+
+def _commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                              cwd=Path(__file__).resolve().parent, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def _best_feasible(results_dir: Path) -> pd.DataFrame:
+    """Per case and run: the best feasible value (inf for a run that found none)."""
+    runs = pd.read_parquet(results_dir / "runs.parquet")
+    f = runs["best_f"].astype(float).where(runs["feasible"].astype(bool), np.inf)
+    return pd.DataFrame({"case": runs["case"], "run": runs["run"], "f": f})
+
+
+def make_targets(suite: Suite, problems, instances, out, *, reference=("cmaes_sqp", "lshade", "jso"),
+                 reference_multiplier: float = 50.0, runs: int | None = None, jobs: int = 1, path=None,
+                 stream=None) -> pd.DataFrame:
+    """Run the reference and random-search runs and write the targets table.
+
+    Per problem and instance: ``f_best``, the best feasible value of the ``reference``
+    algorithms' runs at ``reference_multiplier`` times the suite's budget, and ``f_random``, the
+    median of random search's best feasible values at the budget (a run that found none counts
+    as infinite, so the median is infinite when half of them failed). Rows of other problems
+    and instances already in the table are kept.
+
+    Parameters
+    ----------
+    suite : Suite
+    problems : sequence of SuiteProblem
+    instances : sequence of int
+    out : str or Path
+        Where the reference runs' results go (``OUT/reference/...``).
+    reference : sequence of str
+    reference_multiplier : float
+    runs : int, optional
+        Runs per algorithm and instance (default the suite's).
+    jobs : int
+    path : str or Path, optional
+        The table written (default ``experiments/suite/targets.csv``).
+    stream : file-like, optional
+        Progress lines (default stderr).
+
+    Returns
+    -------
+    pandas.DataFrame
+        The table written.
+    """
+    runs = suite.runs if runs is None else runs
+    base = Path(out) / "reference"
+    reference = tuple(reference)
+    rows = []
+    for p in problems:
+        best = {}
+        for alg in reference:
+            d = _run_one(suite, p, alg, instances, suite.budget_multiplier * reference_multiplier, runs, base,
+                         jobs, stream)
+            for case, g in _best_feasible(d).groupby("case"):
+                best[case] = min(best.get(case, np.inf), float(g["f"].min()))
+        d = _run_one(suite, p, "random_search", instances, suite.budget_multiplier, runs, base, jobs, stream)
+        rand = _best_feasible(d)
+        for k in instances:
+            g = rand[rand["case"] == f"i{k}"]["f"].to_numpy(float)
+            rows.append(dict(problem=p.name, instance=k, f_best=best.get(f"i{k}", np.inf),
+                             f_random=float(np.median(g)) if g.size else np.inf, random_runs=int(g.size),
+                             random_feasible=int(np.isfinite(g).sum()), reference="+".join(reference),
+                             reference_multiplier=reference_multiplier, budget_multiplier=suite.budget_multiplier,
+                             commit=_commit(), date=datetime.date.today().isoformat()))
+    new = pd.DataFrame(rows, columns=TARGET_COLUMNS)
+    path = Path(path) if path is not None else suite_dir() / "targets.csv"
+    old = load_targets(path)
+    if not old.empty:
+        keep = ~old.set_index(["problem", "instance"]).index.isin(new.set_index(["problem", "instance"]).index)
+        new = pd.concat([old[keep], new], ignore_index=True)
+    new = new.sort_values(["problem", "instance"], kind="mergesort").reset_index(drop=True)
+    tmp = path.with_suffix(".csv.tmp")
+    new.to_csv(tmp, index=False)
+    tmp.replace(path)
+    return new
+
+
+# -- running -----------------------------------------------------------------------------------
+class _Notices(io.TextIOBase):
+    """A progress stream that passes on only the lines about compiling (a first run's minute)."""
+
+    def __init__(self, stream):
+        self.stream, self._buf = stream, ""
+
+    def writable(self):
+        return True
+
+    def write(self, text):
+        self._buf += text
+        while "\n" in self._buf:
+            line, self._buf = self._buf.split("\n", 1)
+            if "numba is compiling" in line or "calibrated in" in line:
+                print(line, file=self.stream, flush=True)
+        return len(text)
+
+
+def _run_one(suite, problem, algorithm, instances, multiplier, runs, base, jobs, stream) -> Path:
+    """Run (or resume) one problem and algorithm; returns its results folder."""
+    from heurtune.runner.experiment import run_experiment
+
+    stream = sys.stderr if stream is None else stream
+    folder = Path(base) / problem.name / algorithm
+    config = problem_config(suite, problem, algorithm, instances, multiplier, runs,
+                            Path(base) / "configs" / f"{problem.name}__{algorithm}.toml")
+    with contextlib.redirect_stdout(io.StringIO()):  # each experiment's summary table: the leaderboard says it
+        run_experiment(str(config), jobs=jobs, out=folder, figures=False, progress_stream=_Notices(stream))
+    print(f"suite: {problem.name} / {algorithm}: {len(instances)} instance(s) x {runs} run(s) in {folder}",
+          file=stream, flush=True)
+    return folder
+
+
+def run_suite(suite: Suite, problems, algorithms, instances, out, *, multiplier=None, runs=None, jobs: int = 1,
+              stream=None) -> list:
+    """Run (or resume) every problem with every algorithm; returns the results folders.
+
+    Parameters
+    ----------
+    suite : Suite
+    problems : sequence of SuiteProblem
+    algorithms : sequence of str
+    instances : sequence of int
+    out : str or Path
+        ``OUT/<problem>/<algorithm>/`` per pair, ``OUT/configs/`` their configs.
+    multiplier : float, optional
+        Budget per run in evaluations per dimension (default the suite's).
+    runs : int, optional
+        Runs per instance (default the suite's).
+    jobs : int
+    stream : file-like, optional
+
+    Returns
+    -------
+    list of (SuiteProblem, str, Path)
+    """
+    multiplier = suite.budget_multiplier if multiplier is None else multiplier
+    runs = suite.runs if runs is None else runs
+    return [(p, alg, _run_one(suite, p, alg, instances, multiplier, runs, out, jobs, stream))
+            for p in problems for alg in algorithms]
+
+
+# -- the command -------------------------------------------------------------------------------
+DEFAULT_ALGORITHMS = ("cs", "pso", "cmaes", "cmaes_sqp", "lshade", "jso")
+
+
+def _parser():
+    from heurtune.core.cli import OneLineParser, exit_codes
+
+    ap = OneLineParser(
+        prog="python -m heurtune.suite",
+        description="Run optimisers on heurtune's suite of controller-tuning problems and write the leaderboard.",
+        epilog="example: python -m heurtune.suite --algorithms cs,cmaes --problems pid-min,iolqi-min-limits "
+               "--instances 1-3 --jobs 2\n" + exit_codes(c130="interrupted by Ctrl-C (the finished runs are kept; "
+                                                           "the same command resumes)"),
+        formatter_class=__import__("argparse").RawDescriptionHelpFormatter)
+    ap.add_argument("--algorithms", default=",".join(DEFAULT_ALGORITHMS),
+                    help=f"optimisers, comma-separated (default {','.join(DEFAULT_ALGORITHMS)})")
+    ap.add_argument("--problems", help="problems, comma-separated (default all; --list names them)")
+    ap.add_argument("--instances", help="instances, e.g. 1,2 or 1-3 (default 1..K of the suite)")
+    ap.add_argument("--budget-multiplier", type=float, help="evaluations per run per dimension (default the suite's)")
+    ap.add_argument("--runs", type=int, help="runs per algorithm and instance (default the suite's)")
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    ap.add_argument("--out", help="output folder (default results/suite, results/suite-smoke with --smoke)")
+    ap.add_argument("--smoke", action="store_true",
+                    help=f"problems {', '.join(SMOKE['problems'])}, instances 1-2, 2 runs, budget 5 x dimension")
+    ap.add_argument("--make-targets", action="store_true",
+                    help="run the reference algorithms and random search and write experiments/suite/targets.csv")
+    ap.add_argument("--reference", default="cmaes_sqp,lshade,jso",
+                    help="reference algorithms of --make-targets (default cmaes_sqp,lshade,jso)")
+    ap.add_argument("--reference-multiplier", type=float, default=50.0,
+                    help="their budget, in multiples of the suite's (default 50)")
+    ap.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    ap.add_argument("--no-ioh", action="store_true", help="skip the IOHprofiler export")
+    ap.add_argument("--list", action="store_true", help="list the problems and stop")
+    return ap
+
+
+def _instances(text, k_max: int) -> list:
+    if text is None:
+        return list(range(1, k_max + 1))
+    out = []
+    for part in text.split(","):
+        part = part.strip()
+        try:
+            if "-" in part:
+                a, b = (int(v) for v in part.split("-", 1))
+                out.extend(range(a, b + 1))
+            else:
+                out.append(int(part))
+        except ValueError:
+            raise ConfigError(f"--instances: {part!r} is not an instance number or range (e.g. 1,2 or 1-3)") from None
+    bad = [k for k in out if not 1 <= k <= k_max]
+    if bad or not out:
+        raise ConfigError(f"--instances: {bad[0] if bad else text!r} out of range; allowed: 1 to {k_max}")
+    return list(dict.fromkeys(out))
+
+
+def _algorithms(text) -> list:
+    from heurtune.core import registry
+
+    names = [a.strip() for a in text.split(",") if a.strip()]
+    known = registry.available()
+    for name in names:
+        if name not in known:
+            raise ConfigError(f"--algorithms: unknown optimiser {name!r}; allowed: {', '.join(known)}")
+    if not names:
+        raise ConfigError("--algorithms: name at least one optimiser")
+    return list(dict.fromkeys(names))
+
+
+def run(argv=None) -> int:
+    """Command-line entry point; returns the exit code."""
+    from heurtune.core.cli import UsageError
+
+    stream = sys.stderr
+    try:
+        args = _parser().parse_args(argv)
+        suite = load_suite()
+        if args.list:
+            for p in suite.problems:
+                print(f"{p.name:26s} {p.group:8s} {p.experiment} ({p.case})"
+                      + (f", {json.dumps(p.overrides)}" if p.overrides else ""))
+            return 0
+        if args.smoke:
+            names = args.problems.split(",") if args.problems else list(SMOKE["problems"])
+            instances = _instances(args.instances, suite.instances) if args.instances else list(SMOKE["instances"])
+            runs = args.runs or SMOKE["runs"]
+            multiplier = args.budget_multiplier or SMOKE["budget_multiplier"]
+        else:
+            names = args.problems.split(",") if args.problems else [p.name for p in suite.problems]
+            instances = _instances(args.instances, suite.instances)
+            runs = args.runs
+            multiplier = args.budget_multiplier
+        problems = [suite.problem(n.strip()) for n in names]
+        if multiplier is not None:
+            _multiplier(multiplier, "--budget-multiplier")
+        if runs is not None and runs < 1:
+            raise ConfigError(f"--runs must be >= 1, got {runs}")
+        if args.jobs < 1:
+            raise ConfigError(f"--jobs must be >= 1, got {args.jobs}")
+        algorithms = _algorithms(args.algorithms)
+        out = Path(args.out or ("results/suite-smoke" if args.smoke else "results/suite"))
+        if args.make_targets:
+            reference = _algorithms(args.reference)
+            _multiplier(args.reference_multiplier, "--reference-multiplier")
+            table = make_targets(suite, problems, instances, out, reference=reference,
+                                 reference_multiplier=args.reference_multiplier, runs=runs, jobs=args.jobs,
+                                 stream=stream)
+            print(f"suite: targets of {len(problems)} problem(s) x {len(instances)} instance(s) written "
+                  f"({len(table)} rows in experiments/suite/targets.csv)", file=stream)
+            return 0
+        multiplier = suite.budget_multiplier if multiplier is None else multiplier
+        done = run_suite(suite, problems, algorithms, instances, out, multiplier=multiplier, runs=runs,
+                         jobs=args.jobs, stream=stream)
+        written = leaderboard(suite, done, out, multiplier=multiplier, figures=not args.no_figures,
+                              ioh=not args.no_ioh)
+        print(f"suite: leaderboard in {out / 'leaderboard.md'} ({len(written)} files)", file=stream)
+        print((out / "leaderboard.md").read_text(encoding="utf-8"))
+    except (ConfigError, UsageError) as exc:
+        print(f"error: {exc}", file=stream)
+        return 2
+    except BrokenPipeError:  # stdout closed by its reader (--list | head): main() ends quietly
+        raise
+    except OSError as exc:
+        print(f"error: {exc.filename or 'the output folder'}: {exc.strerror or exc}; the finished runs are kept: "
+              f"fix that and run the same command again", file=stream)
+        return 2
+    except KeyboardInterrupt:
+        print("\ninterrupted: the finished runs are kept; run the same command again to resume", file=stream)
+        return 130
+    return 0
+
+
+def leaderboard(suite: Suite, done, out, *, multiplier: float, figures: bool = True, ioh: bool = True) -> list:
+    """Measures, leaderboard and figures of finished suite runs (:func:`run_suite`'s list).
+
+    Parameters
+    ----------
+    suite : Suite
+    done : list of (SuiteProblem, str, Path)
+    out : str or Path
+    multiplier : float
+        The budget per dimension the runs had.
+    figures, ioh : bool
+        Draw the figures; write the IOHprofiler export (``OUT/ioh/<problem>__<algorithm>/``).
+
+    Returns
+    -------
+    list of Path
+    """
+    from heurtune.analysis import leaderboard as lb
+    from heurtune.core.families import make_experiment
+
+    out = Path(out)
+    runs, history = lb.collect([(p.name, alg, folder) for p, alg, folder in done])
+    dims = {}
+    for p, _, folder in done:
+        if p.name not in dims:
+            config = json.loads((folder / "meta.json").read_text(encoding="utf-8")).get("config", {})
+            dims[p.name] = make_experiment(config).problem(sorted(set(runs.loc[runs["problem"] == p.name, "case"]
+                                                                      .str.split("/").str[1]))[0]).dim \
+                if config else None
+    if any(d is None for d in dims.values()):
+        raise ConfigError("suite: a results folder has no config in its meta.json; rerun the suite")
+    targets, sources = lb.targets_table(load_targets(), runs, N_TARGETS)
+    measures = lb.suite_measures(runs, history, targets, dims, multiplier, {p.name: p.group or "all"
+                                                                           for p in suite.problems})
+    written = lb.write_leaderboard(out, runs, measures, lb.friedman_final(runs), sources, multiplier=multiplier,
+                                   figures=figures)
+    if ioh:
+        from heurtune.analysis.export import export_ioh
+
+        for p, alg, folder in done:
+            written += export_ioh(folder, out / "ioh" / f"{p.name}__{alg}")
+    return written
+
+
+def main() -> None:
+    """Run the command line and exit with its code."""
+    from heurtune import _startup
+
+    _startup.release()
+    sys.exit(_startup.run_command(run))
