@@ -14,6 +14,8 @@ worst), with Nemenyi's post-hoc and its critical difference.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pandas as pd
 
@@ -21,7 +23,36 @@ from heurtune.analysis import anytime
 from heurtune.analysis.stats import FriedmanResult, critical_difference
 from heurtune.core.io import atomic_path
 
-__all__ = ["collect", "targets_table", "suite_measures", "friedman_final", "nemenyi_groups", "write_leaderboard"]
+__all__ = ["N_TARGETS", "targets_of", "collect", "targets_table", "suite_measures", "friedman_final",
+           "nemenyi_groups", "write_leaderboard"]
+
+
+# Targets per problem and instance, log-spaced from the random-search median to the best known
+# value (both included), as COCO's 51 targets.
+N_TARGETS = 51
+
+
+def targets_of(f_best: float, f_random: float, n: int = N_TARGETS) -> np.ndarray:
+    """``n`` targets from ``f_random`` down to ``f_best``, equally spaced in log (both included).
+
+    Parameters
+    ----------
+    f_best, f_random : float
+        Positive; ``f_random >= f_best`` (a random-search median below the best known value
+        leaves one target, the best).
+    n : int
+
+    Returns
+    -------
+    ndarray
+    """
+    if not (f_best > 0 and f_random > 0 and math.isfinite(f_best)):
+        raise ValueError(f"targets need positive finite values, got best {f_best!r}, random {f_random!r}")
+    if not math.isfinite(f_random) or f_random <= f_best:
+        return np.array([f_best])
+    out = np.geomspace(f_random, f_best, n)
+    out[0], out[-1] = f_random, f_best
+    return out
 
 
 def collect(folders) -> tuple:
@@ -78,8 +109,6 @@ def targets_table(targets: pd.DataFrame, runs: pd.DataFrame, n_targets: int) -> 
         ``targets.csv``; ``results``: the best final value of these runs, and the median of
         ``random_search``'s where it ran, else the largest final value of a successful run).
     """
-    from heurtune.runner.suite import targets_of
-
     rows, sources = [], []
     known = {(str(p), int(i)): (float(b), float(r)) for p, i, b, r in
              targets[["problem", "instance", "f_best", "f_random"]].itertuples(index=False)} if len(targets) else {}

@@ -29,23 +29,18 @@ import math
 import subprocess
 import sys
 import tomllib
-import zlib
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from heurtune.analysis.leaderboard import N_TARGETS, targets_of
 from heurtune.core.errors import ConfigError
 from heurtune.runner.config import experiments_dir, list_experiments, load_config
 
 __all__ = ["Suite", "SuiteProblem", "load_suite", "instance_plant", "problem_config", "run_suite", "make_targets",
            "load_targets", "targets_of", "N_TARGETS", "SMOKE"]
 
-# Targets per problem and instance, log-spaced from the random-search median to the best known
-# value (both included), as COCO's 51 targets.
-N_TARGETS = 51
-# The perturbation keys of an instance and whether their half-width is relative.
-PERTURBED = {"A": True, "a": True, "k": True, "levels": True, "gamma": False}
 # --smoke: two problems, two instances, two runs, a budget of 5 x dim.
 SMOKE = dict(problems=("iolqi-min-limits", "pid-min"), instances=(1, 2), runs=2, budget_multiplier=5.0)
 
@@ -124,8 +119,6 @@ def load_suite(path=None) -> Suite:
     multiplier = _multiplier(settings.get("budget_multiplier", 200), f"{src}: suite.budget_multiplier")
     perturbation = dict(settings.get("perturbation", {}))
     for key, value in perturbation.items():
-        if key not in PERTURBED:
-            raise ConfigError(f"{src}: suite.perturbation.{key}: unknown key; allowed: {', '.join(PERTURBED)}")
         if not isinstance(value, (int, float)) or isinstance(value, bool) or not 0 <= value < 1:
             raise ConfigError(f"{src}: suite.perturbation.{key} must be a number in [0, 1), got {value!r}")
     problems, seen = [], set()
@@ -170,57 +163,36 @@ def _multiplier(value, where) -> float:
 
 
 # -- instances ---------------------------------------------------------------------------------
-def instance_plant(case: str, instance: int, suite: Suite) -> dict:
-    """The plant parameters of ``instance`` (1-based) of a QTP case, as ``plant.custom`` takes them.
-
-    Instance 1 is the preset. Instance k > 1 draws each perturbed parameter uniformly within its
-    half-width around the preset's (``suite.perturbation``: relative for A, a, k, levels;
-    absolute for gamma), from a generator seeded by ``(suite.seed, case, k)``: the same plant for
-    every problem on the case. A draw that moves gamma1 + gamma2 across 1 (the case's phase) or
-    whose operating voltages leave the pump range is drawn again.
+def instance_plant(case: str, instance: int, suite: Suite, model: str = "qtp") -> dict:
+    """The plant of ``instance`` (1-based) of ``case``, as ``plant.custom`` takes it: the plant
+    family's ``suite_instance`` hook (the QTP's: :mod:`heurtune.objectives.qtp.instances`), with the
+    suite's seed and perturbation.
 
     Parameters
     ----------
     case : str
-        A QTP preset (``min``, ``nmp``, ``P-``, ``P+``).
     instance : int
     suite : Suite
+    model : str
+        The ``[plant] model`` of the problem's experiment.
 
     Returns
     -------
     dict
-        ``A, a, k, gamma, levels, height, u_range``.
-    """
-    from heurtune.objectives.qtp.model import operating_point, preset
 
-    base = preset(case)
-    out = dict(A=list(base.A), a=list(base.a), k=list(base.k), gamma=list(base.gamma), levels=list(base.levels),
-               height=list(base.height) if base.height else None, u_range=list(base.u_range) if base.u_range else None)
-    if instance == 1:
-        return {k: v for k, v in out.items() if v is not None}
-    rng = np.random.default_rng([suite.seed, zlib.crc32(case.encode()), instance])
-    phase = sum(base.gamma) > 1.0
-    for _ in range(1000):
-        draw = dict(out)
-        for key, relative in PERTURBED.items():
-            width = float(suite.perturbation.get(key, 0.0))
-            values = np.asarray(getattr(base, key), dtype=float)
-            u = rng.uniform(-1.0, 1.0, values.size)
-            draw[key] = [float(v) for v in (values * (1.0 + width * u) if relative else values + width * u)]
-        if (sum(draw["gamma"]) > 1.0) != phase or not all(0.0 < g < 1.0 for g in draw["gamma"]):
-            continue
-        params = dataclasses.replace(base, A=tuple(draw["A"]), a=tuple(draw["a"]), k=tuple(draw["k"]),
-                                     gamma=tuple(draw["gamma"]), levels=tuple(draw["levels"]))
-        try:
-            u_op = operating_point(params).u
-        except ConfigError:
-            continue
-        lo, hi = base.u_range if base.u_range else (0.0, math.inf)
-        if np.all(u_op > lo) and np.all(u_op < hi) and (base.height is None or max(operating_point(params).h)
-                                                         < min(base.height)):
-            return {k: v for k, v in draw.items() if v is not None}
-    raise ConfigError(f"suite: no valid instance {instance} of plant {case!r} in 1,000 draws; narrow "
-                      f"suite.perturbation")
+    Raises
+    ------
+    ConfigError
+        A family without instances, or the hook's own errors.
+    """
+    from heurtune.core.families import get_family
+
+    family = get_family(model)
+    hook = getattr(family.cls, "suite_instance", None)
+    if hook is None:
+        raise ConfigError(f"suite: plant family {family.name!r} defines no instances (suite_instance); "
+                          f"its problems cannot join the suite yet")
+    return hook(case, instance, suite.seed, suite.perturbation)
 
 
 # -- configs -----------------------------------------------------------------------------------
@@ -285,7 +257,8 @@ def problem_config(suite: Suite, problem: SuiteProblem, algorithm: str, instance
     """
     path = Path(path)
     cases = [f"i{k}" for k in instances]
-    table = {"plant": {"cases": cases, "custom": {c: instance_plant(problem.case, k, suite)
+    model = load_config(problem.experiment).get("plant", {}).get("model", "qtp")
+    table = {"plant": {"cases": cases, "custom": {c: instance_plant(problem.case, k, suite, model)
                                                   for c, k in zip(cases, instances)}}}
     table = _merge(table, problem.overrides)
     head = [f"extends = {json.dumps(problem.experiment)}",
@@ -320,29 +293,6 @@ def load_targets(path=None) -> pd.DataFrame:
     if not path.is_file():
         return pd.DataFrame(columns=TARGET_COLUMNS)
     return pd.read_csv(path)
-
-
-def targets_of(f_best: float, f_random: float, n: int = N_TARGETS) -> np.ndarray:
-    """``n`` targets from ``f_random`` down to ``f_best``, equally spaced in log (both included).
-
-    Parameters
-    ----------
-    f_best, f_random : float
-        Positive; ``f_random >= f_best`` (a random-search median below the best known value
-        leaves one target, the best).
-    n : int
-
-    Returns
-    -------
-    ndarray
-    """
-    if not (f_best > 0 and f_random > 0 and math.isfinite(f_best)):
-        raise ValueError(f"targets need positive finite values, got best {f_best!r}, random {f_random!r}")
-    if not math.isfinite(f_random) or f_random <= f_best:
-        return np.array([f_best])
-    out = np.geomspace(f_random, f_best, n)
-    out[0], out[-1] = f_random, f_best
-    return out
 
 
 def _commit() -> str:

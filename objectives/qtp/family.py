@@ -313,6 +313,14 @@ class Experiment(ExperimentBase):
             out.setdefault(case, {})[entry["name"]] = np.array([float(values[n]) for n in names])
         return out
 
+    @staticmethod
+    def suite_instance(case: str, instance: int, seed: int, perturbation: dict) -> dict:
+        """Instance ``instance`` of preset ``case`` for the tuning suite, as ``plant.custom`` takes
+        it (:func:`heurtune.objectives.qtp.instances.instance_plant`)."""
+        from heurtune.objectives.qtp.instances import instance_plant
+
+        return instance_plant(case, instance, seed, perturbation)
+
     def baseline_names(self, case: str) -> tuple:
         """Names of the fixed controllers evaluated as runs of their own for ``case``."""
         return tuple(self.baselines.get(case, {}))

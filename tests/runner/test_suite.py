@@ -1,0 +1,184 @@
+"""The tuning suite (``python -m heurtune.suite``): its table, instances, targets, measures and command."""
+
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pandas as pd
+import pytest
+from numerics import assert_same_bits
+
+from heurtune.analysis import leaderboard as lb
+from heurtune.core.errors import ConfigError
+from heurtune.objectives.qtp.instances import PERTURBED
+from heurtune.objectives.qtp.model import operating_point, preset
+from heurtune.runner import suite as S
+from heurtune.runner.config import load_config
+
+
+@pytest.fixture(scope="module")
+def suite():
+    return S.load_suite()
+
+
+def test_the_shipped_table_has_the_problems_the_issue_asks_for(suite):
+    names = {p.name for p in suite.problems}
+    assert len(names) >= 16 and suite.instances >= 5
+    for kind in ("iolqi", "pid", "fopid", "folqi", "lqi"):
+        for case in ("min", "nmp"):
+            assert {f"{kind}-{case}", f"{kind}-{case}-limits"} <= names
+    assert sum(p.group == "robust" for p in suite.problems) >= 2
+
+
+def test_instance_one_is_the_preset_and_the_others_are_seeded_draws_in_range(suite):
+    for case in ("min", "nmp"):
+        base = preset(case)
+        one = S.instance_plant(case, 1, suite)
+        assert one["A"] == list(base.A) and one["gamma"] == list(base.gamma) and one["levels"] == list(base.levels)
+        for k in range(2, suite.instances + 1):
+            p = S.instance_plant(case, k, suite)
+            assert p == S.instance_plant(case, k, suite)  # seeded: the same plant every time
+            for key, relative in PERTURBED.items():
+                width = suite.perturbation[key]
+                new, old = np.array(p[key]), np.array(getattr(base, key))
+                spread = np.abs(new / old - 1.0) if relative else np.abs(new - old)
+                assert np.all(spread <= width + 1e-12), (case, k, key)
+            assert (sum(p["gamma"]) > 1) == (sum(base.gamma) > 1)  # the case keeps its phase
+            params = base.__class__(**{**p, "name": case})
+            u = operating_point(params).u
+            assert np.all((u > 0) & (u < 10))
+        assert S.instance_plant(case, 2, suite) != S.instance_plant(case, 3, suite)
+
+
+def test_a_problem_config_runs_the_instances_as_cases_with_the_budget(tmp_path, suite):
+    p = suite.problem("pid-nmp-limits")
+    path = S.problem_config(suite, p, "cs", [1, 3], 7.0, 2, tmp_path / "x.toml")
+    config = load_config(str(path))
+    assert config["plant"]["cases"] == ["i1", "i3"]
+    assert config["plant"]["custom"]["i3"] == S.instance_plant("nmp", 3, suite)
+    assert config["problem"]["bounds"]["Kp1"] == [0.0, 1.5]  # the row's override
+    assert config["scenario"]["limits"] == "physical"  # the experiment's own
+    assert config["optimisers"] == [{"name": "cs", "max_evals": 42}]  # 7 x 6 dimensions
+    assert config["runs"] == 2 and config["seed"] == suite.seed
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[suite]\ninstances = 0\n[[problem]]\nname='a'\nexperiment='benchmark_qtp'\ncase='min'\n",
+     "suite.instances must be an integer >= 1"),
+    ("[suite]\nbudget_multiplier = -1\n[[problem]]\nname='a'\nexperiment='benchmark_qtp'\ncase='min'\n",
+     "suite.budget_multiplier must be a number > 0"),
+    ("[suite.perturbation]\nA = 1.5\n[[problem]]\nname='a'\nexperiment='benchmark_qtp'\ncase='min'\n",
+     "suite.perturbation.A must be a number in [0, 1)"),
+    ("[[problem]]\nname='a'\nexperiment='nope'\ncase='min'\n", "unknown experiment 'nope'; allowed:"),
+    ("[[problem]]\nname='a'\nexperiment='benchmark_qtp'\ncase='min'\n[[problem]]\nname='a'\n"
+     "experiment='benchmark_qtp'\ncase='nmp'\n", "name 'a' is used twice"),
+    ("[[problem]]\nname='a b'\nexperiment='benchmark_qtp'\ncase='min'\n", "may hold only letters"),
+    ("[[problem]]\nname='a'\nexperiment='benchmark_qtp'\n", "case must be a non-empty string"),
+    ("[suite]\n", "no [[problem]] tables"),
+])
+def test_a_bad_table_is_one_line_naming_the_key(tmp_path, text, message):
+    path = tmp_path / "problems.toml"
+    path.write_text(textwrap.dedent(text))
+    with pytest.raises(ConfigError, match=None) as err:
+        S.load_suite(path)
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_an_unknown_perturbation_is_named_when_the_instances_are_drawn(suite):
+    import dataclasses
+
+    bad = dataclasses.replace(suite, perturbation={"height": 0.1})
+    with pytest.raises(ConfigError, match="suite.perturbation.height: unknown key for the qtp plant; allowed: "
+                                          "A, a, k, levels, gamma"):
+        S.instance_plant("min", 2, bad)
+
+
+def test_targets_are_log_spaced_from_random_search_to_the_best():
+    t = S.targets_of(2.0, 200.0)
+    assert t.size == S.N_TARGETS and t[0] == 200.0 and t[-1] == 2.0
+    np.testing.assert_allclose(np.diff(np.log(t)), np.log(0.01) / 50, rtol=1e-12)
+    assert S.targets_of(3.0, 2.0).tolist() == [3.0]  # random search better than the best known: one target
+    with pytest.raises(ValueError):
+        S.targets_of(0.0, 1.0)
+
+
+def _history(rows):
+    """A suite history: (case, algorithm, run, [(n_evals, best_f, violation), ...])."""
+    out = []
+    for case, alg, run, points in rows:
+        for n, f, v in points:
+            out.append(dict(case=case, algorithm=alg, run=run, n_evals=n, best_f=f, best_violation=v,
+                            optimiser_index=0))
+    return pd.DataFrame(out)
+
+
+def test_measures_count_evaluations_per_dimension_and_the_area_is_exact():
+    # one problem of dimension 2, budget 10 x 2 = 20 evaluations; targets 8 and 2
+    hist = _history([("p/i1", "a", 0, [(2, 8.0, 0.0), (20, 2.0, 0.0)]),
+                     ("p/i1", "b", 0, [(2, 9.0, 1.0), (20, 9.0, 0.0)])])
+    targets = pd.DataFrame({"case": ["p/i1", "p/i1"], "target": [8.0, 2.0]})
+    runs = pd.DataFrame(dict(case="p/i1", algorithm=["a", "b"], run=0, best_f=[2.0, 9.0], feasible=True,
+                             problem="p", instance=1))
+    m = lb.suite_measures(runs, hist, targets, {"p": 2}, 10.0, {"p": "g"})
+    ft = m["fixed_target"].set_index(["algorithm", "target"])["evals_per_dim"]
+    assert ft[("a", 8.0)] == 1.0 and ft[("a", 2.0)] == 10.0 and np.isinf(ft[("b", 8.0)])
+    auc = m["auc"].set_index(["group", "algorithm"])["auc"]
+    # a: one pair at 1 (area 1), one at the budget (area 0); b: none reached
+    assert auc[("all", "a")] == pytest.approx(0.5) and auc[("all", "b")] == 0.0
+    assert auc[("g", "a")] == auc[("all", "a")]
+
+
+def test_friedman_counts_a_failed_algorithm_last_instead_of_leaving_it_out():
+    rows = []
+    for c in range(4):
+        for alg, f in (("good", 1.0), ("mid", 2.0), ("bad", 3.0), ("fails", np.nan)):
+            for r in range(3):
+                rows.append(dict(case=f"p/i{c + 1}", algorithm=alg, run=r, best_f=f if np.isfinite(f) else 1e10,
+                                 feasible=bool(np.isfinite(f))))
+    res = lb.friedman_final(pd.DataFrame(rows))
+    assert not res.skipped
+    assert res.mean_ranks.sort_values().index.tolist() == ["good", "mid", "bad", "fails"]
+    assert res.mean_ranks["fails"] == 4.0
+    groups = lb.nemenyi_groups(res)
+    assert groups[0][0] == "good" and groups[-1][-1] == "fails"
+
+
+def _cli(*argv):
+    return subprocess.run([sys.executable, "-m", "heurtune.suite", *argv], capture_output=True, text=True)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--algorithms", "nope"], "--algorithms: unknown optimiser 'nope'; allowed:"),
+    (["--problems", "nope"], "unknown suite problem 'nope'; allowed:"),
+    (["--instances", "7"], "--instances: 7 out of range; allowed: 1 to 5"),
+    (["--instances", "x"], "--instances: 'x' is not an instance number"),
+    (["--budget-multiplier", "0"], "--budget-multiplier must be a number > 0"),
+    (["--runs", "0"], "--runs must be >= 1"),
+])
+def test_bad_input_is_one_line_and_exit_2(argv, message):
+    out = _cli(*argv)
+    assert out.returncode == 2 and out.stderr.startswith(f"error: {message}") and out.stderr.count("\n") == 1
+
+
+def test_list_names_every_problem(suite):
+    out = _cli("--list")
+    assert out.returncode == 0
+    assert [line.split()[0] for line in out.stdout.splitlines()] == [p.name for p in suite.problems]
+
+
+@pytest.mark.long
+def test_smoke_runs_resumes_and_writes_the_leaderboard(tmp_path):
+    out = tmp_path / "suite"
+    first = _cli("--smoke", "--algorithms", "random_search,cs,pso", "--out", str(out), "--jobs", "2")
+    assert first.returncode == 0, first.stderr
+    board = pd.read_csv(out / "leaderboard.csv")
+    assert sorted(board["algorithm"]) == ["cs", "pso", "random_search"]
+    assert board["auc"].between(0, 1).all() and board["runs"].eq(8).all()
+    for name in ("leaderboard.md", "leaderboard.tex", "problems.csv", "ert.csv", "targets_used.csv",
+                 "ecdf_all.png", "cd_diagram.png"):
+        assert (out / name).is_file(), name
+    assert any((out / "ioh").rglob("*.json"))
+    again = _cli("--smoke", "--algorithms", "random_search,cs,pso", "--out", str(out), "--jobs", "2")
+    assert again.returncode == 0
+    assert_same_bits(pd.read_csv(out / "leaderboard.csv"), board, because="resume")
