@@ -395,7 +395,7 @@ class _Notices(io.TextIOBase):
         return len(text)
 
 
-def _run_one(suite, problem, algorithm, instances, multiplier, runs, base, jobs, stream) -> Path:
+def _run_one(suite, problem, algorithm, instances, multiplier, runs, base, jobs, stream, plugins=()) -> Path:
     """Run (or resume) one problem and algorithm; returns its results folder."""
     from heurtune.runner.experiment import run_experiment
 
@@ -404,14 +404,15 @@ def _run_one(suite, problem, algorithm, instances, multiplier, runs, base, jobs,
     config = problem_config(suite, problem, algorithm, instances, multiplier, runs,
                             Path(base) / "configs" / f"{problem.name}__{algorithm}.toml")
     with contextlib.redirect_stdout(io.StringIO()):  # each experiment's summary table: the leaderboard says it
-        run_experiment(str(config), jobs=jobs, out=folder, figures=False, progress_stream=_Notices(stream))
+        run_experiment(str(config), jobs=jobs, out=folder, figures=False, progress_stream=_Notices(stream),
+                       plugins=tuple(plugins))
     print(f"suite: {problem.name} / {algorithm}: {len(instances)} instance(s) x {runs} run(s) in {folder}",
           file=stream, flush=True)
     return folder
 
 
 def run_suite(suite: Suite, problems, algorithms, instances, out, *, multiplier=None, runs=None, jobs: int = 1,
-              stream=None) -> list:
+              stream=None, plugins=()) -> list:
     """Run (or resume) every problem with every algorithm; returns the results folders.
 
     Parameters
@@ -428,6 +429,8 @@ def run_suite(suite: Suite, problems, algorithms, instances, out, *, multiplier=
         Runs per instance (default the suite's).
     jobs : int
     stream : file-like, optional
+    plugins : sequence of str
+        Plugins the runs load first (an optimiser outside the package).
 
     Returns
     -------
@@ -435,7 +438,7 @@ def run_suite(suite: Suite, problems, algorithms, instances, out, *, multiplier=
     """
     multiplier = suite.budget_multiplier if multiplier is None else multiplier
     runs = suite.runs if runs is None else runs
-    return [(p, alg, _run_one(suite, p, alg, instances, multiplier, runs, out, jobs, stream))
+    return [(p, alg, _run_one(suite, p, alg, instances, multiplier, runs, out, jobs, stream, plugins))
             for p in problems for alg in algorithms]
 
 
@@ -471,6 +474,8 @@ def _parser():
                     help="their budget, in multiples of the suite's (default 50)")
     ap.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     ap.add_argument("--no-ioh", action="store_true", help="skip the IOHprofiler export")
+    ap.add_argument("--plugin", action="append", default=[],
+                    help="plugin module or .py file registering an optimiser (repeatable)")
     ap.add_argument("--list", action="store_true", help="list the problems and stop")
     return ap
 
@@ -515,6 +520,10 @@ def run(argv=None) -> int:
     stream = sys.stderr
     try:
         args = _parser().parse_args(argv)
+        from heurtune.core.families import load_registering_plugin
+
+        for spec in args.plugin:
+            load_registering_plugin(spec)
         suite = load_suite()
         if args.list:
             for p in suite.problems:
@@ -551,7 +560,7 @@ def run(argv=None) -> int:
             return 0
         multiplier = suite.budget_multiplier if multiplier is None else multiplier
         done = run_suite(suite, problems, algorithms, instances, out, multiplier=multiplier, runs=runs,
-                         jobs=args.jobs, stream=stream)
+                         jobs=args.jobs, stream=stream, plugins=args.plugin)
         written = leaderboard(suite, done, out, multiplier=multiplier, figures=not args.no_figures,
                               ioh=not args.no_ioh)
         print(f"suite: leaderboard in {out / 'leaderboard.md'} ({len(written)} files)", file=stream)

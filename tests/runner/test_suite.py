@@ -182,3 +182,37 @@ def test_smoke_runs_resumes_and_writes_the_leaderboard(tmp_path):
     again = _cli("--smoke", "--algorithms", "random_search,cs,pso", "--out", str(out), "--jobs", "2")
     assert again.returncode == 0
     assert_same_bits(pd.read_csv(out / "leaderboard.csv"), board, because="resume")
+
+
+PLUGIN = '''
+import dataclasses
+from heurtune.core.engine import Optimizer
+from heurtune.core.registry import register
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    n: int = 4
+
+
+@register("suite_walk", settings=Settings, source="test", description="a plugin optimiser for the suite test")
+class Walk(Optimizer):
+    def ask(self):
+        return self.space.uniform(self.rng, self.settings.n)
+
+    def tell(self, X, f, v):
+        self.X, self.f, self.v = X, f, v
+        return True
+'''
+
+
+@pytest.mark.long
+def test_a_plugin_optimiser_joins_the_suite_with_one_command(tmp_path):
+    plugin = tmp_path / "walk.py"
+    plugin.write_text(PLUGIN)
+    out = tmp_path / "suite"
+    done = _cli("--plugin", str(plugin), "--algorithms", "suite_walk,random_search", "--problems", "pid-min",
+                "--instances", "1", "--runs", "2", "--budget-multiplier", "2", "--out", str(out), "--no-figures",
+                "--no-ioh")
+    assert done.returncode == 0, done.stderr
+    assert set(pd.read_csv(out / "leaderboard.csv")["algorithm"]) == {"suite_walk", "random_search"}
