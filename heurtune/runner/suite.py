@@ -580,7 +580,8 @@ def run(argv=None) -> int:
     return 0
 
 
-def leaderboard(suite: Suite, done, out, *, multiplier: float, figures: bool = True, ioh: bool = True) -> list:
+def leaderboard(suite: Suite, done, out, *, multiplier: float, figures: bool = True, ioh: bool = True,
+                targets_path=None) -> list:
     """Measures, leaderboard and figures of finished suite runs (:func:`run_suite`'s list).
 
     Parameters
@@ -592,6 +593,8 @@ def leaderboard(suite: Suite, done, out, *, multiplier: float, figures: bool = T
         The budget per dimension the runs had.
     figures, ioh : bool
         Draw the figures; write the IOHprofiler export (``OUT/ioh/<problem>__<algorithm>/``).
+    targets_path : str or Path, optional
+        The targets table (default ``experiments/suite/targets.csv``).
 
     Returns
     -------
@@ -611,7 +614,7 @@ def leaderboard(suite: Suite, done, out, *, multiplier: float, figures: bool = T
                 if config else None
     if any(d is None for d in dims.values()):
         raise ConfigError("suite: a results folder has no config in its meta.json; rerun the suite")
-    targets, sources = lb.targets_table(load_targets(), runs, N_TARGETS)
+    targets, sources = lb.targets_table(load_targets(targets_path), runs, N_TARGETS)
     measures = lb.suite_measures(runs, history, targets, dims, multiplier, {p.name: p.group or "all"
                                                                            for p in suite.problems})
     written = lb.write_leaderboard(out, runs, measures, lb.friedman_final(runs), sources, multiplier=multiplier,

@@ -216,3 +216,23 @@ def test_a_plugin_optimiser_joins_the_suite_with_one_command(tmp_path):
                 "--no-ioh")
     assert done.returncode == 0, done.stderr
     assert set(pd.read_csv(out / "leaderboard.csv")["algorithm"]) == {"suite_walk", "random_search"}
+
+
+@pytest.mark.long
+def test_make_targets_writes_the_table_the_leaderboard_reads(tmp_path, suite):
+    table_path = tmp_path / "targets.csv"
+    problem = suite.problem("pid-min")
+    table = S.make_targets(suite, [problem], [1, 2], tmp_path / "ref", reference=("cs",), reference_multiplier=0.05,
+                           runs=2, path=table_path, stream=open(tmp_path / "log", "w"))
+    assert list(table["instance"]) == [1, 2] and set(table["problem"]) == {"pid-min"}
+    assert (table["random_runs"] == 2).all() and table["reference"].eq("cs").all()
+    assert np.isfinite(table["f_best"]).all() and np.isfinite(table["f_random"]).all()
+    done = S.run_suite(suite, [problem], ["cs"], [1, 2], tmp_path / "runs", multiplier=2.0, runs=2,
+                       stream=open(tmp_path / "log2", "w"))
+    S.leaderboard(suite, done, tmp_path / "board", multiplier=2.0, figures=False, ioh=False, targets_path=table_path)
+    used = pd.read_csv(tmp_path / "board" / "targets_used.csv")
+    assert used["source"].eq("table").all()
+    # the best known is the table's unless a run of the suite did better
+    for row in used.itertuples():
+        k = int(row.case.split("/i")[1])
+        assert row.f_best <= table.loc[table["instance"] == k, "f_best"].iloc[0]
