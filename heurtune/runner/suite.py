@@ -118,9 +118,12 @@ def load_suite(path=None) -> Suite:
         raise ConfigError(f"{src}: suite.seed must be an integer >= 0, got {seed!r}")
     multiplier = _multiplier(settings.get("budget_multiplier", 200), f"{src}: suite.budget_multiplier")
     perturbation = dict(settings.get("perturbation", {}))
-    for key, value in perturbation.items():
-        if not isinstance(value, (int, float)) or isinstance(value, bool) or not 0 <= value < 1:
-            raise ConfigError(f"{src}: suite.perturbation.{key} must be a number in [0, 1), got {value!r}")
+    for model, table in perturbation.items():
+        if not isinstance(table, dict):
+            raise ConfigError(f"{src}: suite.perturbation.{model} must be a table of half-widths (one per plant "
+                              f"model: [suite.perturbation.qtp], [suite.perturbation.tito])")
+        for key, value in table.items():
+            _half_width(value, f"{src}: suite.perturbation.{model}.{key}")
     problems, seen = [], set()
     shipped = set(list_experiments())
     for i, row in enumerate(raw.get("problem", [])):
@@ -148,6 +151,11 @@ def load_suite(path=None) -> Suite:
     if not problems:
         raise ConfigError(f"{src}: no [[problem]] tables")
     return Suite(tuple(problems), instances, multiplier, runs, seed, perturbation)
+
+
+def _half_width(value, where) -> None:
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not 0 <= value < 1:
+        raise ConfigError(f"{where} must be a number in [0, 1), got {value!r}")
 
 
 def _positive_int(value, where) -> int:
@@ -192,7 +200,7 @@ def instance_plant(case: str, instance: int, suite: Suite, model: str = "qtp") -
     if hook is None:
         raise ConfigError(f"suite: plant family {family.name!r} defines no instances (suite_instance); "
                           f"its problems cannot join the suite yet")
-    return hook(case, instance, suite.seed, suite.perturbation)
+    return hook(case, instance, suite.seed, suite.perturbation.get(model, {}))
 
 
 # -- configs -----------------------------------------------------------------------------------

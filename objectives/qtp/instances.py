@@ -49,7 +49,7 @@ def instance_plant(case: str, instance: int, seed: int, perturbation: dict) -> d
     """
     unknown = sorted(set(perturbation) - set(PERTURBED))
     if unknown:
-        raise ConfigError(f"suite.perturbation.{unknown[0]}: unknown key for the qtp plant; allowed: "
+        raise ConfigError(f"suite.perturbation.qtp.{unknown[0]}: unknown key for the qtp plant; allowed: "
                           f"{', '.join(PERTURBED)}")
     base = preset(case)
     out = dict(A=list(base.A), a=list(base.a), k=list(base.k), gamma=list(base.gamma), levels=list(base.levels))
@@ -80,4 +80,4 @@ def instance_plant(case: str, instance: int, seed: int, perturbation: dict) -> d
         if np.all(op.u > lo) and np.all(op.u < hi) and (base.height is None or np.all(op.h < base.height)):
             return draw
     raise ConfigError(f"suite: no valid instance {instance} of plant {case!r} in {MAX_DRAWS} draws; narrow "
-                      f"suite.perturbation")
+                      f"suite.perturbation.qtp")

@@ -169,6 +169,14 @@ class TITOExperiment(ExperimentBase):
         for case in cases:
             self._chain(case)  # validate plants and decouplers early
 
+    @staticmethod
+    def suite_instance(case: str, instance: int, seed: int, perturbation: dict) -> dict:
+        """Instance ``instance`` of preset ``case`` for the tuning suite, as ``plant.custom`` takes
+        it (:func:`heurtune.objectives.tito.instances.instance_plant`)."""
+        from heurtune.objectives.tito.instances import instance_plant
+
+        return instance_plant(case, instance, seed, perturbation)
+
     def baseline_names(self, case: str) -> tuple:
         """Names of the analytic designs (``controller.baselines``) run for ``case``: all of them,
         except the GPM design of a case with a loop that no FOPDT model fits (it has none; the

@@ -40,7 +40,7 @@ def test_instance_one_is_the_preset_and_the_others_are_seeded_draws_in_range(sui
             p = S.instance_plant(case, k, suite)
             assert p == S.instance_plant(case, k, suite)  # seeded: the same plant every time
             for key, relative in PERTURBED.items():
-                width = suite.perturbation[key]
+                width = suite.perturbation["qtp"][key]
                 new, old = np.array(p[key]), np.array(getattr(base, key))
                 spread = np.abs(new / old - 1.0) if relative else np.abs(new - old)
                 assert np.all(spread <= width + 1e-12), (case, k, key)
@@ -68,8 +68,10 @@ def test_a_problem_config_runs_the_instances_as_cases_with_the_budget(tmp_path, 
      "suite.instances must be an integer >= 1"),
     ("[suite]\nbudget_multiplier = -1\n[[problem]]\nname='a'\nexperiment='benchmark_qtp'\ncase='min'\n",
      "suite.budget_multiplier must be a number > 0"),
-    ("[suite.perturbation]\nA = 1.5\n[[problem]]\nname='a'\nexperiment='benchmark_qtp'\ncase='min'\n",
-     "suite.perturbation.A must be a number in [0, 1)"),
+    ("[suite.perturbation.qtp]\nA = 1.5\n[[problem]]\nname='a'\nexperiment='benchmark_qtp'\ncase='min'\n",
+     "suite.perturbation.qtp.A must be a number in [0, 1)"),
+    ("[suite.perturbation]\nA = 0.1\n[[problem]]\nname='a'\nexperiment='benchmark_qtp'\ncase='min'\n",
+     "suite.perturbation.A must be a table of half-widths"),
     ("[[problem]]\nname='a'\nexperiment='nope'\ncase='min'\n", "unknown experiment 'nope'; allowed:"),
     ("[[problem]]\nname='a'\nexperiment='benchmark_qtp'\ncase='min'\n[[problem]]\nname='a'\n"
      "experiment='benchmark_qtp'\ncase='nmp'\n", "name 'a' is used twice"),
@@ -88,10 +90,30 @@ def test_a_bad_table_is_one_line_naming_the_key(tmp_path, text, message):
 def test_an_unknown_perturbation_is_named_when_the_instances_are_drawn(suite):
     import dataclasses
 
-    bad = dataclasses.replace(suite, perturbation={"height": 0.1})
-    with pytest.raises(ConfigError, match="suite.perturbation.height: unknown key for the qtp plant; allowed: "
+    bad = dataclasses.replace(suite, perturbation={"qtp": {"height": 0.1}})
+    with pytest.raises(ConfigError, match="suite.perturbation.qtp.height: unknown key for the qtp plant; allowed: "
                                           "A, a, k, levels, gamma"):
         S.instance_plant("min", 2, bad)
+
+
+def test_tito_instances_keep_signs_and_the_sign_of_det_g0(suite):
+    from heurtune.objectives.tito.model import TITOPlant, preset
+
+    for case in ("ccts", "qts", "wood_berry"):
+        base = preset(case)
+        one = S.instance_plant(case, 1, suite, "tito")
+        assert one["g12"]["K"] == base.g12.K and one["g21"]["L"] == base.g21.L
+        for k in range(2, 6):
+            p = S.instance_plant(case, k, suite, "tito")
+            assert p == S.instance_plant(case, k, suite, "tito")
+            plant = TITOPlant.from_config(dict(p, name=case))  # a valid plant.custom table
+            for key in ("g11", "g12", "g21", "g22"):
+                e, b = plant.element(int(key[1]), int(key[2])), getattr(base, key)
+                assert np.sign(e.K) == np.sign(b.K) and abs(e.K / b.K - 1) <= 0.1 + 1e-12
+                assert abs(e.L / b.L - 1) <= 0.1 + 1e-12 if b.L else e.L == 0.0
+                assert e.leads == b.leads
+            det = lambda g: g.g11.K * g.g22.K - g.g12.K * g.g21.K  # noqa: E731
+            assert np.sign(det(plant)) == np.sign(det(base))
 
 
 def test_targets_are_log_spaced_from_random_search_to_the_best():
