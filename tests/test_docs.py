@@ -170,3 +170,23 @@ def test_objectives_guide_new_named_objective_runs_to_its_label(tmp_path, monkey
     m = dict(zip(ev.metric_names, ev.metrics[0]))
     assert ev.f[0] == pytest.approx(m["IAE1"] + m["IAE2"] + m["TV1"] + m["TV2"], rel=1e-12)
     assert prob.objective_label == "iae_tv"
+
+
+def test_model_page_gives_every_preset_as_the_code_has_it():
+    """docs/model.md's preset table: the parameters and the exact equilibrium of each QTP preset."""
+    from heurtune.objectives.qtp.model import PRESETS, operating_point
+
+    page = (ROOT / "docs" / "model.md").read_text()
+    for name, p in PRESETS.items():
+        row = next(line for line in page.splitlines() if line.startswith(f"| `{name}` |"))
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        numbers = lambda cell: [float(v) for v in cell.replace(" each", "").split(",")]  # noqa: E731
+        A = numbers(cells[1])
+        assert (A * 4 if len(A) == 1 else A) == list(p.A), name
+        assert numbers(cells[2]) == list(p.a) and numbers(cells[3]) == list(p.k), name
+        assert numbers(cells[4]) == list(p.gamma) and numbers(cells[5]) == list(p.levels), name
+        op = operating_point(p)
+        # printed to 4 decimals: within half a unit of the last digit
+        assert all(abs(x - y) <= 5e-5 for x, y in zip(numbers(cells[6]), op.h[2:])), name
+        assert all(abs(x - y) <= 5e-5 for x, y in zip(numbers(cells[7]), op.u)), name
+        assert float(cells[8]) == p.height[0] and cells[9] == f"{p.u_range[0]:g}-{p.u_range[1]:g}", name
