@@ -63,7 +63,7 @@ from heurtune.core import registry
 from heurtune.core.cli import exit_codes
 from heurtune.core.engine import Checkpoint, SearchSpace
 from heurtune.core.engine import run as run_optimiser
-from heurtune.core.errors import ConfigError
+from heurtune.core.errors import ConfigError, quiet_config_warnings
 from heurtune.core.evaluator import CHUNKS_PER_WORKER, Evaluator, Objective, Objectives, evaluate_groups
 from heurtune.core.execution import BACKENDS, Pool, WorkerDied, is_worker_death, kill_workers
 from heurtune.core.families import load_registering_plugin, make_experiment
@@ -272,7 +272,8 @@ class Interrupted(Exception):
 def _problem(config: dict, case: str):
     key = (config["name"], json.dumps(config, sort_keys=True, default=str), case)
     if key not in _PROBLEMS:
-        prob = make_experiment(config).problem(case)
+        with quiet_config_warnings():  # the command loaded this config, and warned, before any run
+            prob = make_experiment(config).problem(case)
         prob.set_device(config.get("device", "cpu"))
         _PROBLEMS[key] = prob
     return _PROBLEMS[key]

@@ -10,11 +10,10 @@ IOLQI, LQI, LADR, PID, FOPID and plugins'); :meth:`Experiment.problem` builds it
 from __future__ import annotations
 
 import math
-import sys
 
 import numpy as np
 
-from heurtune.core.errors import ConfigError
+from heurtune.core.errors import ConfigError, config_warning
 from heurtune.core.families import register_family
 from heurtune.core.problem import ExperimentBase
 from heurtune.core.robust import ROBUST_SCHEMA, robust_tuning
@@ -157,9 +156,9 @@ class Experiment(ExperimentBase):
         read = {key for kind in self.controllers for key in structures.structure(kind).options}
         unread = [key for key in ctrl if key not in read and key not in ("type", "sample_time", "pairing")]
         if unread:  # another structure's option (inherited through extends, as unused bounds are)
-            print(f"warning: {self.name}: controller.{', controller.'.join(unread)} not read by "
-                  f"{', '.join(self.controllers)} (it reads: {', '.join(sorted(read)) or 'no options'}); ignored",
-                  file=sys.stderr)
+            config_warning(f"{self.name}: controller.{', controller.'.join(unread)} not read by "
+                           f"{', '.join(self.controllers)} (it reads: {', '.join(sorted(read)) or 'no options'}); "
+                           f"ignored")
         # each type's own options, from the config where given (their defaults otherwise)
         self.controller_options = {
             kind: {key: ctrl[key] for key in structures.structure(kind).options if key in ctrl}
@@ -256,10 +255,10 @@ class Experiment(ExperimentBase):
         both keys (the continuous loop is the default now)."""
         if sample_time is None:
             if "dt" in sc:
-                print(f"warning: {self.name}: scenario.dt = {sc['dt']!r} is read as controller.sample_time = "
-                      f"{sc['dt']!r} (a digital controller, the sampled loop); the continuous-time loop is the "
-                      f"default now: write controller.sample_time to keep the sampled loop, or leave both out",
-                      file=sys.stderr)
+                config_warning(f"{self.name}: scenario.dt = {sc['dt']!r} is read as controller.sample_time = "
+                               f"{sc['dt']!r} (a digital controller, the sampled loop); the continuous-time loop "
+                               f"is the default now: write controller.sample_time to keep the sampled loop, or "
+                               f"leave both out")
             return
         where = f"{self.name}: controller.sample_time"
         if isinstance(sample_time, bool) or not isinstance(sample_time, (int, float)) \

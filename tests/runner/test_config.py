@@ -146,3 +146,24 @@ def test_an_unknown_controller_type_says_how_a_plugin_type_is_loaded(tmp_path):
     message = str(err.value)
     assert "controller.type: got 'my_pid'" in message and "\n" not in message
     assert 'plugins = ["FILE.py"]' in message and "--plugin FILE.py" in message
+
+
+def test_a_config_warning_is_printed_once_by_the_command_not_by_each_worker(tmp_path, capsys):
+    """An inherited option the structure does not read is one warning when the config loads; the
+    workers, which rebuild the same config for their runs, stay silent (issue 52)."""
+    from heurtune.core.families import make_experiment
+    from heurtune.runner.experiment import _problem
+
+    path = tmp_path / "w.toml"
+    path.write_text('extends = "cs_folqi_qtp"\n[controller]\ntype = "pid"\npairing = "auto"\n'
+                    '[problem.bounds]\nKp1 = [0.0, 10.0]\nKp2 = [0.0, 10.0]\nKi1 = [0.0001, 1.0]\n'
+                    'Ki2 = [0.0001, 1.0]\nKd1 = [0.0, 2.0]\nKd2 = [0.0, 2.0]\n')
+    config = load_config(str(path))
+    make_experiment(config)
+    err = capsys.readouterr().err
+    assert err.count("warning:") == 1 and "controller.oustaloup_order, controller.band, controller.realisation " \
+                                              "not read by pid" in err
+    _problem(config, "min")  # what a worker does first
+    assert capsys.readouterr().err == ""
+    make_experiment(config)  # outside a worker's build the warning is still there
+    assert capsys.readouterr().err.count("warning:") == 1
