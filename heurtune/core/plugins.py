@@ -58,6 +58,10 @@ def load_plugin(spec: str):
         _LOADED_FILES[path] = module_name
         try:
             mod_spec.loader.exec_module(module)
+        except Exception as exc:
+            del _LOADED_FILES[path]
+            sys.modules.pop(module_name, None)
+            raise ConfigError(_import_failure(exc, path)) from None
         except BaseException:
             del _LOADED_FILES[path]
             sys.modules.pop(module_name, None)
@@ -67,8 +71,32 @@ def load_plugin(spec: str):
         module = importlib.import_module(spec)
     except ImportError as exc:
         raise ConfigError(f"cannot import plugin module {spec!r}: {exc}") from None
+    except Exception as exc:
+        origin = getattr(importlib.util.find_spec(spec.split(".")[0]), "origin", None)
+        raise ConfigError(f"plugin module {spec!r}: {_import_failure(exc, Path(origin) if origin else None)}") \
+            from None
     _MODULES.setdefault(spec, None)
     return module
+
+
+def _import_failure(exc: Exception, path) -> str:
+    """One line for a plugin whose import raised: the file and line, and what went wrong.
+
+    A syntax error names its own line; any other exception the plugin's line it came through
+    (the last frame in the plugin's file), its type (unless a ConfigError or ValueError, whose
+    message says it) and its message, e.g. ``walk.py:14: TypeError:
+    ControllerStructure.__init__() missing 1 required positional argument: 'design'``."""
+    if isinstance(exc, SyntaxError):
+        name = Path(exc.filename).name if exc.filename else (path.name if path else "plugin")
+        return f"{name}:{exc.lineno}: syntax error: {exc.msg}"
+    line, name = None, path.name if path else "plugin"
+    tb = exc.__traceback__
+    while tb is not None:
+        if path is not None and Path(tb.tb_frame.f_code.co_filename).resolve() == Path(path).resolve():
+            line = tb.tb_lineno
+        tb = tb.tb_next
+    what = str(exc) if isinstance(exc, (ConfigError, ValueError)) and str(exc) else f"{type(exc).__name__}: {exc}"
+    return f"{name}{f':{line}' if line else ''}: {what.splitlines()[0] if what else type(exc).__name__}"
 
 
 def load_plugins(specs) -> None:

@@ -79,6 +79,14 @@ def register(name: str, *, settings: type, description: str, source: str = "",
         raise ValueError(f"kind of {name!r} must be 'population' or 'driver'")
 
     def decorate(cls):
+        # the methods the engine calls, written by the class or a base of its own (not the
+        # engine's Optimizer/Driver stubs, which raise NotImplementedError)
+        needed = ("ask", "tell") if kind == "population" else ("run",)
+        missing = [m for m in needed if getattr(getattr(cls, m, None), "__qualname__", "").split(".")[0]
+                   in ("", "Optimizer", "Driver")]
+        if missing:
+            raise ValueError(f"{name}: the optimiser has no {'() and '.join(missing)}() (a {kind} optimiser implements "
+                             f"{' and '.join(m + '()' for m in needed)}; docs/optimisers.md)")
         if name in _REGISTRY:
             raise ValueError(f"optimiser {name!r} is already registered (by {_REGISTRY[name].cls.__module__})")
         _REGISTRY[name] = AlgorithmInfo(name, cls, settings, description, source, kind, multi_objective)

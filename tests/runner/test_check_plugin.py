@@ -4,7 +4,10 @@ import io
 import os
 from pathlib import Path
 
+import pytest
+
 from heurtune.runner.check_plugin import run
+from heurtune.runner.check_plugin import run as run_check
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -109,3 +112,38 @@ register_bridge("toylib", resolve, "a toy library", checked=("Walk",))
     assert run([str(path)], stream=out) == 0
     lines = out.getvalue().splitlines()
     assert lines[0] == "PASS  toylib:Walk: bounds" and lines[-1] == "6 of 6 checks passed"
+
+
+BROKEN = {
+    "syntax.py": ("def f(:\n    pass\n", "syntax.py:1: syntax error: invalid syntax"),
+    "pi2dof.py": ("from heurtune.core.structures import ControllerStructure\n\n"
+                  "PI2DOF = ControllerStructure(name='pi2dof', family='qtp', variables=(), bounds={},\n"
+                  "                             description='')\n",
+                  "pi2dof.py:3: TypeError: ControllerStructure.__init__() missing 1 required positional argument: "
+                  "'design'"),
+    "walk.py": ("import dataclasses\nfrom heurtune.core.engine import Optimizer\n"
+                "from heurtune.core.registry import register\n\n\n@dataclasses.dataclass(frozen=True)\n"
+                "class Settings:\n    n: int = 4\n\n\n@register('walk_notell', settings=Settings, description='x')\n"
+                "class Walk(Optimizer):\n    def ask(self):\n        return self.space.uniform(self.rng, 4)\n",
+                "walk.py:11: walk_notell: the optimiser has no tell()"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BROKEN))
+def test_broken_plugin_code_is_one_line_with_file_and_line_and_leaves_no_folder(tmp_path, capsys, name):
+    """A syntax error, a structure built without design=, an optimiser without tell(): one line
+    naming the file, the line and what is missing; exit 2; no results folder (issue 52)."""
+    from heurtune.runner.experiment import run
+
+    text, message = BROKEN[name]
+    plugin = tmp_path / name
+    plugin.write_text(text)
+    out = tmp_path / "out"
+    assert run(["cs_pid_qtp", "--smoke", "--plugin", str(plugin), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {message}") and err.count("\n") == 1, err
+    assert not out.exists()
+    # check_plugin says the same in one line
+    stream = io.StringIO()
+    assert run_check([str(plugin)], stream=stream) == 2
+    assert message in stream.getvalue() + capsys.readouterr().err
