@@ -75,7 +75,8 @@ class ControllerStructure:
         Its name in tables and figures (default: the name in capitals).
     extras : dict
         Family-specific declarations (the QTP reads ``step_at_reference``, the continuous loop's
-        step at the reference tolerance, and ``explicit_step``).
+        step at the reference tolerance, ``explicit_step``, and ``unread``, the variables the
+        design keeps but does not read).
     source : str
         Where the structure is defined (module), filled in by :func:`register_structure`.
     """

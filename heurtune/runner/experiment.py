@@ -61,9 +61,10 @@ from heurtune.analysis import figures
 from heurtune.analysis.runs import best_runs, failed_runs, successful_runs
 from heurtune.core import registry
 from heurtune.core.cli import exit_codes
+from heurtune.core.dead_variables import dead_variables
 from heurtune.core.engine import Checkpoint, SearchSpace
 from heurtune.core.engine import run as run_optimiser
-from heurtune.core.errors import ConfigError, quiet_config_warnings
+from heurtune.core.errors import ConfigError, config_warning, quiet_config_warnings
 from heurtune.core.evaluator import CHUNKS_PER_WORKER, Evaluator, Objective, Objectives, evaluate_groups
 from heurtune.core.execution import BACKENDS, Pool, WorkerDied, is_worker_death, kill_workers
 from heurtune.core.families import load_registering_plugin, make_experiment
@@ -835,6 +836,13 @@ def _calibrate(exp, config, pending, *, force: bool) -> dict:
         prob = exp.problem(case)
         prob.set_device(config.get("device", "cpu"))
         calibrations[case] = calibrate(prob)
+        dead = dead_variables(prob)
+        if dead:
+            config_warning(f"{exp.name}: case {case!r}: {', '.join(dead)} change{'s' if len(dead) == 1 else ''} "
+                           f"nothing the problem reports (the structure does not read "
+                           f"{'it' if len(dead) == 1 else 'them'}, or the scenario does not exercise "
+                           f"{'it' if len(dead) == 1 else 'them'}, as a set-point weight without a set-point "
+                           f"step); the optimisers search {'it' if len(dead) == 1 else 'them'} in vain")
         shapes[case] = (prob.dim, len(prob.constraint_names), len(prob.objective_names or ()) or 1)
     calibrations = borrow_step_cost(calibrations)
     if not force:

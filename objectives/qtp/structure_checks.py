@@ -14,7 +14,12 @@ suite on every shipped one). Each returns ``(name, passed, one-line reason)``:
 - ``simulates``: a 60 s disturbance scenario of the centre's loop gives finite metrics, or a
   flagged divergence, on min and nmp;
 - ``batch``: a batched design, where one is declared, equals the design row by row (1e-12);
-- ``pickles``: a loop of the structure survives pickling (workers receive loops by pickle).
+- ``pickles``: a loop of the structure survives pickling (workers receive loops by pickle);
+- ``variables``: each variable, moved towards the far end of its bounds at the centre and at a
+  random point, changes a metric of the 60 s disturbance scenario on min (a variable the design
+  does not read fails, named, unless the structure declares it in ``extras["unread"]``, as LADR
+  does for the gains of its tracking differentiator; the experiment runner warns about such
+  variables too, :mod:`heurtune.core.dead_variables`).
 """
 
 from __future__ import annotations
@@ -120,6 +125,40 @@ def check_pickles(structure):
     assert np.array_equal(again.controller(x).D, loop.controller(x).D), "an unpickled loop designs differently"
 
 
+def check_variables(structure):
+    loop = _loop(structure)
+    scenario = Scenario(horizon=60.0, disturbance_time=10.0)
+    lo = np.array([structure.bounds[v][0] for v in structure.variables], dtype=float)
+    hi = np.array([structure.bounds[v][1] for v in structure.variables], dtype=float)
+    points = [0.5 * (lo + hi), lo + (hi - lo) * np.random.default_rng(0).random(lo.size)]
+
+    def metrics(x):
+        try:
+            sim = loop.run(loop.controller(dict(zip(structure.variables, x))), scenario, record=False)
+        except ControllerDesignError:
+            return None
+        return np.asarray(sim.metrics, dtype=float)
+
+    alive = hi <= lo  # fixed by its bounds: not searched
+    for x in points:
+        before = metrics(x)
+        if before is None:
+            continue
+        for i in np.flatnonzero(~alive):
+            y = x.copy()
+            far = lo[i] if x[i] - lo[i] > hi[i] - x[i] else hi[i]
+            y[i] = x[i] + 0.75 * (far - x[i])
+            after = metrics(y)
+            alive[i] = after is None or not np.array_equal(after, before, equal_nan=True)
+    declared = set(structure.extras.get("unread", ()))
+    dead = [v for v, a in zip(structure.variables, alive) if not a and v not in declared]
+    assert not dead, (f"{', '.join(dead)} change{'s' if len(dead) == 1 else ''} no metric of a disturbance "
+                      "scenario: the design does not read them (a set-point weight needs a set-point step, "
+                      "which QTP scenarios do not have yet), or declare them in extras['unread']")
+    read = [v for v, a in zip(structure.variables, alive) if a and v in declared]
+    assert not read, f"{', '.join(read)} declared unread (extras['unread']) but change a metric"
+
+
 CHECKS = {
     "design": check_design,
     "pairing": check_pairing,
@@ -128,6 +167,7 @@ CHECKS = {
     "simulates": check_simulates,
     "batch": check_batch,
     "pickles": check_pickles,
+    "variables": check_variables,
 }
 
 

@@ -147,3 +147,50 @@ def test_broken_plugin_code_is_one_line_with_file_and_line_and_leaves_no_folder(
     stream = io.StringIO()
     assert run_check([str(plugin)], stream=stream) == 2
     assert message in stream.getvalue() + capsys.readouterr().err
+
+
+PI_B = '''
+import numpy as np
+from heurtune.core.structures import ControllerStructure, register_structure
+from heurtune.objectives.qtp.controllers import LinearController
+
+
+def design(values, plant, options):
+    """A diagonal PI that keeps set-point weights b1, b2 and never reads them."""
+    A = np.zeros((2, 2))
+    B = np.zeros((2, 4))
+    B[0, 0] = B[1, 1] = -1.0
+    D = np.zeros((2, 4))
+    D[0, 0], D[1, 1] = -values["Kp1"], -values["Kp2"]
+    C = np.diag([values["Ki1"], values["Ki2"]])
+    return LinearController(A, B, C, D, ((0, 1), (1, 2)), (0, 1))
+
+
+register_structure(ControllerStructure(
+    name="pi_b_test", family="qtp", variables=("Kp1", "Ki1", "Kp2", "Ki2", "b1", "b2"), design=design,
+    bounds={"Kp1": (0.0, 5.0), "Ki1": (0.001, 0.3), "Kp2": (0.0, 5.0), "Ki2": (0.001, 0.3), "b1": (0.0, 1.0),
+            "b2": (0.0, 1.0)},
+    description="PI with unread set-point weights (a test plugin)", integral_action="full",
+    extras={"step_at_reference": 0.125, "explicit_step": True}))
+'''
+
+
+def test_variables_the_design_does_not_read_fail_their_check_and_warn_before_the_runs(tmp_path, capsys):
+    """check_plugin names the set-point weights that change nothing; an experiment tuning them warns
+    once, naming them (issue 52)."""
+    from heurtune.runner.experiment import run as run_experiment_cli
+
+    plugin = tmp_path / "pi_b.py"
+    plugin.write_text(PI_B)
+    stream = io.StringIO()
+    assert run_check([str(plugin)], stream=stream) == 1
+    fails = [line for line in stream.getvalue().splitlines() if line.startswith("FAIL")]
+    assert len(fails) == 1 and fails[0].startswith("FAIL  qtp structure pi_b_test: variables: b1, b2 change no metric")
+    config = tmp_path / "pi_b.toml"
+    config.write_text(f'plugins = ["{plugin}"]\n[plant]\nmodel = "qtp"\ncases = ["min"]\n'
+                      '[controller]\ntype = "pi_b_test"\n[problem]\nobjective = "iae"\n'
+                      '[[optimisers]]\nname = "cs"\nmax_evals = 50\n')
+    capsys.readouterr()
+    assert run_experiment_cli([str(config), "--smoke", "--out", str(tmp_path / "out"), "--no-figures"]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "change nothing" in line]
+    assert len(warnings) == 1 and "case 'min': b1, b2 change nothing the problem reports" in warnings[0]
