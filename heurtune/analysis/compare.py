@@ -3,7 +3,7 @@
 Usage::
 
     python -m heurtune.compare DIR [DIR ...] [--format md|csv|latex] [--metric best_f]
-                               [--alpha 0.05] [--out FILE] [--cd-diagram PNG]
+                               [--alpha 0.05] [--out FILE] [--cd-diagram PNG] [--by controller]
 
 Each ``DIR`` is an experiment output folder holding ``runs.parquet`` (one row per case,
 algorithm and run; a path to a ``.parquet`` file is accepted too). The folders are merged. Only
@@ -42,6 +42,13 @@ folders in one case, its rows are labelled ``"name [experiment]"`` if the experi
 the folders apart, otherwise ``"name [label]"`` with the folder name as label, or the one given
 by ``--label NAME=DIR`` (``load_runs(dirs, labels={NAME: DIR})``); the variants are compared,
 never pooled.
+
+``--by controller`` compares controller structures instead of optimisers: the treatments are
+the structures (``pid``, ``fopid``, ``folqi``; ``"pid [cs]"`` where a case holds a structure
+under several optimisers), the cases the plant cases (a config with ``type = [...]`` names its
+cases ``<case>-<type>``), with the same statistics. The folders must pose the same problem but
+for the controller and its bounds (plant, scenarios, objective and constraints: their
+``meta.json`` configs are compared, and the first keys that differ are named).
 
 Mistakes (no folders, a missing ``runs.parquet``, an unknown format or metric column) give a
 one-line ``error: ...`` on stderr and exit code 2. All steps are reusable from Python::
@@ -119,6 +126,9 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--out", help="write the report to this file (atomically) instead of stdout")
     ap.add_argument("--cd-diagram", metavar="PNG",
                     help="write the critical-difference diagram across cases to this PNG file")
+    ap.add_argument("--by", default="algorithm", choices=None, metavar="AXIS",
+                    help="what is compared: algorithm (default; the optimisers of each case) or controller (the "
+                         "controller structures of each plant case, folders that pose the same problem otherwise)")
     ap.add_argument("--label", action="append", default=[], metavar="NAME=DIR",
                     help="name the variant in DIR (one of the folders) NAME instead of the folder name; "
                          "repeatable")
@@ -146,7 +156,7 @@ def run(argv=None) -> int:
             raise ConfigError(f"unknown format '{args.format}' (choose from {', '.join(FORMATS)})")
         if not 0 < args.alpha < 1:
             raise ConfigError(f"--alpha must lie in (0, 1), got {args.alpha:g}")
-        runs = load_runs(args.dirs, labels=parse_labels(args.label))
+        runs = load_runs(args.dirs, labels=parse_labels(args.label), by=args.by)
         margins = load_margins(args.dirs, runs)
         text = report(runs, metric=args.metric, alpha=args.alpha, fmt=args.format, margins=margins,
                       cd_path=args.cd_diagram)

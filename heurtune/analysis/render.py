@@ -185,8 +185,12 @@ def report_blocks(runs: pd.DataFrame, metric: str, alpha: float, margins: pd.Dat
     fried = friedman_across_cases(runs, metric, alpha)
 
     experiments = ", ".join(pd.unique(runs["experiment"])) if "experiment" in runs else ""
-    blocks = [("heading", 1, f"Statistical comparison of {metric}"),
-              ("note", f"Experiments: {experiments}. Metric {metric}, lower is better."),
+    by_structure = runs.attrs.get("compared_by") == "controller"
+    optimisers = ", ".join(pd.unique(runs["optimiser"])) if by_structure and "optimiser" in runs else ""
+    blocks = [("heading", 1, f"Statistical comparison of {metric}"
+               + (" between controller structures" if by_structure else "")),
+              ("note", f"Experiments: {experiments}. Metric {metric}, lower is better."
+               + (f" The rows are controller structures, tuned by {optimisers}." if by_structure else "")),
               ("note", _methods_note(alpha))]
     p_fmt = {"p": 3, "p (Holm)": 3, "p Dunn": 3, "p Dunn (Holm)": 3, "A12": 3, "A12 low": 3, "A12 high": 3}
     for case in pd.unique(runs["case"]):

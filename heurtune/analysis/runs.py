@@ -116,7 +116,73 @@ def _variant_labels(dirs, labels) -> tuple[list[str], set[str]]:
     return out, set(given.values())
 
 
-def load_runs(dirs, *, labels: dict | None = None) -> pd.DataFrame:
+# The axes a comparison can be made along: the optimiser (the default) or the controller structure.
+AXES = ("algorithm", "controller")
+# The config keys two folders compared by controller may differ in (everything else, the plant,
+# the scenarios, the objective and constraints, must be the same problem).
+_STRUCTURE_KEYS = ("controller", "optimisers", "name", "source", "description", "runs", "seed", "plugins",
+                   "baselines")
+
+
+def _flat(d, prefix="") -> dict:
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(_flat(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def _problem_config(folder) -> dict | None:
+    """A folder's config without what a structure comparison varies (None without meta.json)."""
+    import json
+
+    meta = experiment_folder(folder) / "meta.json"
+    if not meta.is_file():
+        return None
+    config = dict(json.loads(meta.read_text(encoding="utf-8")).get("config", {}))
+    for key in _STRUCTURE_KEYS:
+        config.pop(key, None)
+    problem = dict(config.get("problem", {}))
+    problem.pop("bounds", None)
+    config["problem"] = problem
+    plant = dict(config.get("plant", {}))
+    plant.pop("cases", None)
+    config["plant"] = plant
+    return _flat(config)
+
+
+def _by_controller(runs: pd.DataFrame, dirs) -> pd.DataFrame:
+    """Runs relabelled for a comparison of controller structures: ``algorithm`` the structure
+    (``"pid [cs]"`` where a case holds it under several optimisers), ``case`` the plant case (a
+    config with ``type = [...]`` names its cases ``<plant case>-<type>``), ``optimiser`` the
+    optimiser; the folders must pose the same problem but for the controller."""
+    if "controller" not in runs.columns:
+        raise ConfigError("--by controller: runs.parquet has no 'controller' column (results of an older heurtune); "
+                          "compare them by algorithm")
+    configs = {str(d): _problem_config(d) for d in dirs}
+    known = {d: c for d, c in configs.items() if c is not None}
+    if len(known) > 1:
+        (d0, c0), *rest = known.items()
+        for d, c in rest:
+            differ = sorted(k for k in set(c0) | set(c) if c0.get(k) != c.get(k))
+            if differ:
+                raise ConfigError(f"--by controller: {d} and {d0} pose different problems, not only other "
+                                  f"controllers: they differ in {', '.join(differ[:5])}"
+                                  + (f" and {len(differ) - 5} more" if len(differ) > 5 else ""))
+    out = runs.copy()
+    kind = out["controller"].astype(str)
+    out["case"] = [c[:-len(k) - 1] if c.endswith("-" + k) else c for c, k in zip(out["case"], kind)]
+    out["optimiser"] = out["algorithm"]
+    several = out.groupby(["case", "controller"])["optimiser"].transform("nunique") > 1
+    out["algorithm"] = np.where(several, kind + " [" + out["optimiser"] + "]", kind)
+    out.attrs["compared_by"] = "controller"
+    return out
+
+
+def load_runs(dirs, *, labels: dict | None = None, by: str = "algorithm") -> pd.DataFrame:
     """Read and merge the ``runs.parquet`` files of experiment output folders.
 
     Every folder is a *variant*: folders of the same experiment run with other settings or
@@ -131,6 +197,12 @@ def load_runs(dirs, *, labels: dict | None = None) -> pd.DataFrame:
         Variant label -> folder (one of ``dirs``). A folder without a label here is labelled by
         its name, or by its name with as many parent folders as needed to tell it apart from
         the others (``seed1/exp``).
+    by : {"algorithm", "controller"}
+        The axis compared. ``"controller"``: the controller structures are the treatments
+        (``algorithm`` holds the structure, ``optimiser`` the optimiser), a case is the plant
+        case, and the folders must pose the same problem but for the controller and its bounds
+        (their ``meta.json`` configs are compared); runs of different structures then have
+        different problem ids, which the comparison allows.
 
     Returns
     -------
@@ -156,6 +228,8 @@ def load_runs(dirs, *, labels: dict | None = None) -> pd.DataFrame:
     dirs = list(dirs)
     if not dirs:
         raise ConfigError("no experiment directories given")
+    if by not in AXES:
+        raise ConfigError(f"--by: unknown axis {by!r}; allowed: {', '.join(AXES)}")
     names, explicit = _variant_labels(dirs, labels)
     frames, sources, keys, variants = [], [], [], []
     for d, name in zip(dirs, names):
@@ -174,8 +248,10 @@ def load_runs(dirs, *, labels: dict | None = None) -> pd.DataFrame:
     source = pd.Series(sources, index=runs.index)
     key = pd.Series(keys, index=runs.index)
     variant = pd.Series(variants, index=runs.index)
-
-    for case, rows in runs.groupby("case", sort=False):
+    if by == "controller":
+        runs = _by_controller(runs, dirs)
+    # runs compared must pose one problem: per case, or per case and structure by controller
+    for case, rows in runs.groupby(["case", "algorithm"] if by == "controller" else "case", sort=False):
         ids = pd.unique(rows["problem_id"])
         if len(ids) > 1:
             parts = []
@@ -184,8 +260,8 @@ def load_runs(dirs, *, labels: dict | None = None) -> pd.DataFrame:
                 exps = ", ".join(pd.unique(rows.loc[same, "experiment"]))
                 where = ", ".join(pd.unique(source[same.index[same]]))
                 parts.append(f"{pid} ({exps}) in {where}")
-            raise ConfigError(f"case '{case}': runs are not comparable, problem_id differs: "
-                              + "; ".join(parts))
+            what = f"case '{case[0]}', controller '{case[1]}'" if by == "controller" else f"case '{case}'"
+            raise ConfigError(f"{what}: runs are not comparable, problem_id differs: " + "; ".join(parts))
 
     dup = runs.assign(_key=key).duplicated(_KEY + ["_key"], keep=False)
     if dup.any():

@@ -730,3 +730,51 @@ def test_a_case_where_every_algorithm_failed_leaves_the_friedman_blocks_not_the_
     assert_same_bits([res.statistic, res.p], [ref.statistic, ref.p], because="same code")
     text = report(pd.concat([runs, dead], ignore_index=True), fmt="md")
     assert "Cases left out (no algorithm has a successful run): dead." in text
+
+
+# ------------------------------------------------------------------------------------------------ --by controller
+
+def _structure_folder(tmp_path, name, controller, values, *, objective="iae", case="min", experiment=None):
+    """A results folder of one structure under cs, with the meta.json config a comparison reads."""
+    import json
+
+    df = make_runs({"cs": values}, experiment=experiment or name, case=case, problem_id=f"{controller}-{case}")
+    df["controller"] = controller
+    d = write(tmp_path, name, df)
+    config = {"name": name, "plant": {"model": "qtp", "cases": [case.split("-")[0]]},
+              "controller": {"type": controller}, "scenario": {"horizon": 350.0, "limits": "physical"},
+              "problem": {"objective": objective, "bounds": {"Kp1": [0, 1]}}, "optimisers": [{"name": "cs"}]}
+    (d / "meta.json").write_text(json.dumps({"config": config}))
+    return d
+
+
+def test_by_controller_compares_structures_with_the_same_statistics(tmp_path, capsys):
+    rng = np.random.default_rng(5)
+    a = _structure_folder(tmp_path, "pid_run", "pid", rng.normal(1.0, 0.05, 12))
+    b = _structure_folder(tmp_path, "fopid_run", "fopid", rng.normal(2.0, 0.05, 12))
+    c = _structure_folder(tmp_path, "folqi_run", "folqi", rng.normal(2.0, 0.05, 12))
+    with pytest.raises(ConfigError, match="problem_id differs"):
+        load_runs([a, b, c])  # by algorithm: cs on three problems
+    runs = load_runs([a, b, c], by="controller")
+    assert sorted(pd.unique(runs["algorithm"])) == ["folqi", "fopid", "pid"]
+    assert set(runs["optimiser"]) == {"cs"} and set(runs["case"]) == {"min"}
+    assert run([str(a), str(b), str(c), "--by", "controller"]) == 0
+    out = capsys.readouterr().out
+    assert "between controller structures" in out and "tuned by cs" in out
+    assert "| pid | fopid |" in out.replace("*", "")  # the pairwise row of two structures
+    assert "Kruskal-Wallis test over 36 successful runs of 3 algorithms" in out
+
+
+def test_by_controller_takes_a_type_list_case_and_refuses_other_problems(tmp_path, capsys):
+    one = _structure_folder(tmp_path, "types", "pid", [1.0, 1.1, 1.2], case="min-pid", experiment="types")
+    df = pd.read_parquet(one / "runs.parquet")
+    other = df.assign(case="min-fopid", controller="fopid", problem_id="fopid-min", best_f=df["best_f"] + 1)
+    pd.concat([df, other]).to_parquet(one / "runs.parquet", index=False)
+    runs = load_runs([one], by="controller")
+    assert set(runs["case"]) == {"min"} and set(runs["algorithm"]) == {"pid", "fopid"}
+    bad = _structure_folder(tmp_path, "effort", "folqi", [3.0, 3.1], objective="effort")
+    assert run([str(one), str(bad), "--by", "controller"]) == 2
+    err = capsys.readouterr().err
+    assert "pose different problems, not only other controllers: they differ in problem.objective" in err
+    assert run([str(one), "--by", "plant"]) == 2
+    assert "--by: unknown axis 'plant'; allowed: algorithm, controller" in capsys.readouterr().err
