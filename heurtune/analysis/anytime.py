@@ -489,7 +489,10 @@ def write_report(history: pd.DataFrame, out, *, n_targets: int = 20, reference=N
 def _parser():
     ap = argparse.ArgumentParser(prog="python -m heurtune.anytime",
                                  description="Anytime measures (ERT, ECDF, AUC) of an experiment's history.",
-                                 epilog=exit_codes())
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog=exit_codes(("python -m heurtune.anytime results/benchmark_qtp",
+                                                    "python -m heurtune.anytime results/thesis_ch5 --targets 51 "
+                                                    "--out anytime")))
     ap.add_argument("dir", help="results folder with history.parquet")
     ap.add_argument("--targets", type=int, default=20, help="targets per case (default 20)")
     ap.add_argument("--reference", type=float, help="easiest target for every case (default: per case, "

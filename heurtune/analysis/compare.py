@@ -118,8 +118,14 @@ __all__ = [
 
 
 def _parser() -> argparse.ArgumentParser:
-    ap = OneLineParser(prog="python -m heurtune.compare", description=__doc__.split("\n")[0], epilog=exit_codes())
-    ap.add_argument("dirs", nargs="*", metavar="DIR", help="experiment output folder containing runs.parquet")
+    ap = OneLineParser(prog="python -m heurtune.compare", description=__doc__.split("\n")[0],
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog=exit_codes(("python -m heurtune.compare results/benchmark_qtp",
+                                          "python -m heurtune.compare results/cs_folqi_qtp results/apso_folqi_qtp "
+                                          "--format latex --out table.tex",
+                                          "python -m heurtune.compare results/cs_pid_qtp results/cs_fopid_qtp "
+                                          "--by controller")))
+    ap.add_argument("dirs", nargs="+", metavar="DIR", help="experiment output folder containing runs.parquet")
     ap.add_argument("--format", default="md", help="output format: md (default), csv or latex")
     ap.add_argument("--metric", default="best_f", help="column to compare, lower is better (default best_f)")
     ap.add_argument("--alpha", type=float, default=0.05, help="significance level (default 0.05)")

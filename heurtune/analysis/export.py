@@ -458,7 +458,10 @@ def export_mat(results_dir, out) -> list:
 # -- command line ----------------------------------------------------------------------------
 def _parser():
     ap = argparse.ArgumentParser(prog="python -m heurtune.export", description=__doc__.split("\n")[0],
-                                 epilog=exit_codes())
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog=exit_codes(("python -m heurtune.export results/cs_folqi_qtp --format ioh",
+                                                    "python -m heurtune.export results/thesis_ch5 --format mat "
+                                                    "--out mat")))
     ap.add_argument("dir", help="results folder (runs.parquet, history.parquet, meta.json)")
     ap.add_argument("--format", required=True, help="ioh (IOHprofiler: IOHanalyzer, iohinspector) or mat")
     ap.add_argument("--out", help="output folder (default DIR/ioh or DIR/mat)")

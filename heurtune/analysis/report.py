@@ -379,8 +379,11 @@ def build_report(dirs, out, *, metric: str = "best_f", alpha: float = 0.05, resp
 
 def _parser() -> argparse.ArgumentParser:
     ap = OneLineParser(prog="python -m heurtune.report", description=__doc__.split("\n")[0],
-                               epilog=exit_codes())
-    ap.add_argument("dirs", nargs="*", metavar="DIR", help="experiment results folder (with runs.parquet)")
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       epilog=exit_codes(("python -m heurtune.report results/thesis_ch5 --out report",
+                                          "python -m heurtune.report results/cs_folqi_qtp results/pso_folqi_qtp "
+                                          "--out report --no-responses")))
+    ap.add_argument("dirs", nargs="+", metavar="DIR", help="experiment results folder (with runs.parquet)")
     ap.add_argument("--out", help="output folder; the report is OUT/index.html")
     ap.add_argument("--metric", default="best_f", help="column compared, lower is better (default best_f)")
     ap.add_argument("--alpha", type=float, default=0.05, help="significance level (default 0.05)")

@@ -15,12 +15,17 @@ EXIT_CODES = {
 }
 
 
-def exit_codes(**extra: str) -> str:
-    """The ``--help`` epilog listing a command's exit codes: :data:`EXIT_CODES` and ``extra``
-    (keyword ``c<code>``, e.g. ``c130="interrupted"``).
+def exit_codes(examples=(), **extra: str) -> str:
+    """The ``--help`` epilog: examples of the command, then its exit codes (:data:`EXIT_CODES`
+    and ``extra``, keyword ``c<code>``, e.g. ``c130="interrupted"``).
+
+    A parser that shows examples keeps the epilog's lines: give it
+    ``formatter_class=argparse.RawDescriptionHelpFormatter``.
 
     Parameters
     ----------
+    examples : sequence of str
+        Command lines, one per line of the epilog.
     **extra : str
         More codes, keyword ``c<code>`` (``c130="interrupted"``).
 
@@ -30,7 +35,12 @@ def exit_codes(**extra: str) -> str:
     """
     codes = dict(EXIT_CODES)
     codes.update({int(k.lstrip("c")): v for k, v in extra.items()})
-    return "exit codes: " + "; ".join(f"{code} {what}" for code, what in sorted(codes.items()))
+    text = "exit codes: " + "; ".join(f"{code} {what}" for code, what in sorted(codes.items()))
+    if examples:
+        import textwrap
+
+        text = "examples:\n" + "\n".join(f"  {e}" for e in examples) + "\n\n" + textwrap.fill(text, 100)
+    return text
 
 
 class UsageError(Exception):

@@ -44,7 +44,11 @@ __all__ = ["run", "main"]
 
 def _parser():
     ap = argparse.ArgumentParser(prog="python -m heurtune.check_plugin", description=__doc__.split("\n")[0],
-                                 epilog=exit_codes(c1="a check of the contract failed"))
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog=exit_codes(("python -m heurtune.check_plugin my_optimiser.py",
+                                                    "python -m heurtune.check_plugin experiments/plugins/mimo_pi.py",
+                                                    "python -m heurtune.check_plugin my_family.py --config my.toml"),
+                                                   c1="a check of the contract failed"))
     ap.add_argument("plugin", help="a .py file or an importable module that registers optimisers or controller "
                                    "structures")
     ap.add_argument("--settings", default="{}", help="settings for the checks, as JSON (default: the optimiser's)")

@@ -38,7 +38,10 @@ from heurtune.runner.config import load_experiment
 
 def _parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m heurtune.evaluate", description=__doc__.split("\n")[0],
-                                 epilog=exit_codes())
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog=exit_codes(('python -m heurtune.evaluate cs_pid_qtp --case min '
+                                                    '--x "Kp1=2,Ki1=0.05,Kd1=0.5,Kp2=2,Ki2=0.05,Kd2=0.5" '
+                                                    '--plot pid.png',)))
     ap.add_argument("experiment", help="experiment name (experiments/<name>.toml) or a .toml path")
     ap.add_argument("--case", required=True, help="plant case, e.g. min or nmp")
     ap.add_argument("--x", required=True, help='decision variables as "NAME=VALUE,NAME=VALUE,..."')

@@ -1163,7 +1163,12 @@ def print_summary(runs: pd.DataFrame, exp, stream=None):
 
 def _parser():
     ap = argparse.ArgumentParser(prog="python -m heurtune.experiment", description=__doc__.split("\n")[0],
-                                 epilog=exit_codes(c130="interrupted by Ctrl-C",
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog=exit_codes(("python -m heurtune.experiment cs_folqi_qtp --jobs 2",
+                                                    "python -m heurtune.experiment thesis_ch5 --smoke --out /tmp/ch5",
+                                                    "python -m heurtune.experiment my_config.toml --plugin my_opt.py",
+                                                    "python -m heurtune.experiment --status"),
+                                                   c130="interrupted by Ctrl-C",
                                                    c143="stopped by SIGTERM (after either, the finished runs are "
                                                         "kept and the same command resumes)"))
     ap.add_argument("name", nargs="?", help="experiment name (experiments/<name>.toml) or a .toml path")

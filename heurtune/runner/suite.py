@@ -20,6 +20,7 @@ logarithmically between the two, as COCO does. The measures and the leaderboard 
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import dataclasses
 import datetime
@@ -460,10 +461,12 @@ def _parser():
     ap = OneLineParser(
         prog="python -m heurtune.suite",
         description="Run optimisers on heurtune's suite of controller-tuning problems and write the leaderboard.",
-        epilog="example: python -m heurtune.suite --algorithms cs,cmaes --problems pid-min,iolqi-min-limits "
-               "--instances 1-3 --jobs 2\n" + exit_codes(c130="interrupted by Ctrl-C (the finished runs are kept; "
-                                                           "the same command resumes)"),
-        formatter_class=__import__("argparse").RawDescriptionHelpFormatter)
+        epilog=exit_codes(("python -m heurtune.suite --list",
+                           "python -m heurtune.suite --smoke --algorithms random_search,cs,pso",
+                           "python -m heurtune.suite --algorithms cs,cmaes --problems pid-min,iolqi-min-limits "
+                           "--instances 1-3 --jobs 2"),
+                          c130="interrupted by Ctrl-C (the finished runs are kept; the same command resumes)"),
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--algorithms", default=",".join(DEFAULT_ALGORITHMS),
                     help=f"optimisers, comma-separated (default {','.join(DEFAULT_ALGORITHMS)})")
     ap.add_argument("--problems", help="problems, comma-separated (default all; --list names them)")

@@ -361,7 +361,7 @@ def test_latex_tables_fit_the_page_and_carry_labels(two_dirs, capsys, tmp_path):
 
 
 @pytest.mark.parametrize("args, message", [
-    ([], "error: no experiment directories given"),
+    ([], "error: the following arguments are required: DIR"),
     (["{a}", "--format", "html"], "error: unknown format 'html' (choose from md, csv, latex)"),
     (["{a}", "--metric", "nope"], "error: unknown metric column 'nope'"),
     (["{a}", "--alpha", "1.5"], "error: --alpha must lie in (0, 1)"),
