@@ -790,7 +790,10 @@ def _abs_moments(e0, em, e1):
 @_kernel(inline="always")
 def _vertex(t0, f0, t1, f1, t2, f2):
     """Extreme value of the parabola through three nodes (``t0 < t1 < t2``), its vertex kept
-    within [t0, t2]; ``f1`` when the three are collinear."""
+    within [t0, t2]; ``f1`` when the three are collinear, or when two of them share a time (a
+    step cut at a switch down to nothing)."""
+    if not (t0 < t1 < t2):
+        return f1
     s0 = (f1 - f0) / (t1 - t0)
     s1 = (f2 - f1) / (t2 - t1)
     curv = (s1 - s0) / (t2 - t0)
@@ -804,9 +807,10 @@ def _vertex(t0, f0, t1, f1, t2, f2):
 @_kernel(inline="always")
 def _crossing(t0, f0, t1, f1, t2, f2, band, has_prev):
     """Time in [t1, t2] where the interpolant of the nodes crosses ``band`` (f1 > band >= f2):
-    the parabola through (t0, t1, t2) when ``has_prev``, else the chord through t1 and t2."""
+    the parabola through (t0, t1, t2) when ``has_prev``, else the chord through t1 and t2 (the
+    chord too where two of the nodes share a time: a step cut at a switch down to nothing)."""
     lin = t1 + (t2 - t1) * (f1 - band) / (f1 - f2) if f1 > f2 else t2
-    if not has_prev:
+    if not has_prev or not (t0 < t1 < t2):
         return lin
     s0 = (f1 - f0) / (t1 - t0)
     s1 = (f2 - f1) / (t2 - t1)

@@ -337,3 +337,30 @@ def test_response_figure_marks_a_run_outside_the_physical_range(tmp_path, monkey
 
 def test_presets_all_have_limits():
     assert all(p.has_limits for p in PRESETS.values())
+
+
+def test_nodes_sharing_a_time_refine_nothing_and_raise_nothing():
+    """A step cut at a switch down to nothing leaves two nodes at one time: the extreme and the
+    band crossing fall back to the nodes and the chord (before, a ZeroDivisionError in the lane)."""
+    from heurtune.objectives.qtp import continuous_kernels as ck
+
+    assert ck._vertex(1.0, 0.2, 1.0, 0.7, 2.0, 0.1) == 0.7
+    assert ck._vertex(1.0, 0.2, 2.0, 0.7, 2.0, 0.1) == 0.7
+    # the chord through (t1, f1) and (t2, f2) where the parabola's first two nodes coincide
+    assert ck._crossing(1.0, 0.5, 1.0, 0.4, 2.0, 0.2, 0.3, True) == pytest.approx(1.5, rel=1e-15)
+    assert ck._crossing(1.0, 0.5, 2.0, 0.4, 2.0, 0.2, 0.3, True) == 2.0
+
+
+def test_the_suite_candidate_that_crashed_the_lane_is_evaluated(tmp_path):
+    """Found by the tuning suite (folqi-min-limits, instance 3, a random-search candidate): its
+    settling-time parabola met two nodes at one time. It is a feasible candidate."""
+    import heurtune
+    from heurtune.runner import suite as S
+
+    suite = S.load_suite()
+    path = S.problem_config(suite, suite.problem("folqi-min-limits"), "cs", [3], 1.0, 1, tmp_path / "x.toml")
+    prob = heurtune.load_experiment(str(path)).problem("i3")
+    x = [2.3952011933479764, 1.8122979982018086, 0.8772805930229726, 1.7253687478273863, 3.125402451329635,
+         1.3939769844481837, 4.381069610313709, 8.421366743759785, 0.5097456803694814, 0.9584651145218597]
+    ev = prob.evaluate(np.array([x]))
+    assert ev.reason[0] == "" and np.all(np.isfinite(ev.metrics))
