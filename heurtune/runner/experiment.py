@@ -836,19 +836,33 @@ def _calibrate(exp, config, pending, *, force: bool) -> dict:
         prob = exp.problem(case)
         prob.set_device(config.get("device", "cpu"))
         calibrations[case] = calibrate(prob)
-        dead = dead_variables(prob)
-        if dead:
-            config_warning(f"{exp.name}: case {case!r}: {', '.join(dead)} change{'s' if len(dead) == 1 else ''} "
-                           f"nothing the problem reports (the structure does not read "
-                           f"{'it' if len(dead) == 1 else 'them'}, or the scenario does not exercise "
-                           f"{'it' if len(dead) == 1 else 'them'}, as a set-point weight without a set-point "
-                           f"step); the optimisers search {'it' if len(dead) == 1 else 'them'} in vain")
         shapes[case] = (prob.dim, len(prob.constraint_names), len(prob.objective_names or ()) or 1)
     calibrations = borrow_step_cost(calibrations)
     if not force:
         for cal in calibrations.values():
             check_evaluation_time(cal)
+    for case in cases:  # after the cost check: a case too costly to evaluate is refused first
+        _warn_dead_variables(exp, case, calibrations[case], shapes[case][0])
     return calibrations, shapes
+
+
+# The dead-variable check (heurtune.core.dead_variables) is left out where its evaluations
+# (8 draws, then about one move per variable and point) would take longer than this.
+DEAD_VARIABLE_CHECK_S = 10.0
+
+
+def _warn_dead_variables(exp, case, cal, dim: int) -> None:
+    """One warning line for the case's variables that change nothing its problem reports."""
+    per_eval = cal.evaluation_s
+    if not (math.isfinite(per_eval) and per_eval * (8 + 2 * dim) <= DEAD_VARIABLE_CHECK_S):
+        return
+    dead = dead_variables(exp.problem(case))
+    if dead:
+        one = len(dead) == 1
+        config_warning(f"{exp.name}: case {case!r}: {', '.join(dead)} change{'s' if one else ''} nothing the problem "
+                       f"reports (the structure does not read {'it' if one else 'them'}, or the scenario does not "
+                       f"exercise {'it' if one else 'them'}, as a set-point weight without a set-point step); the "
+                       f"optimisers search {'it' if one else 'them'} in vain")
 
 
 def _planned_work(pending, calibrations, shapes, workers) -> tuple:
