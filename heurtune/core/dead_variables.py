@@ -5,8 +5,9 @@ does not exercise them (a set-point weight without a set-point step).
 its bounds and compares what the problem reports (every metric where the problem gives them,
 else the objectives and constraint values). A variable whose move changes nothing at any of the
 candidates is dead: the optimiser searches a dimension that does not exist. The experiment
-runner warns about them before the runs (one line per case); ``check_plugin`` checks the QTP's
-structures with it.
+runner warns about them before the runs (one line per case; not in a ``--smoke`` run, nor where
+the check's evaluations would take over 10 s); ``check_plugin``'s structure contract checks the
+QTP's structures the same way.
 """
 
 from __future__ import annotations

@@ -841,8 +841,9 @@ def _calibrate(exp, config, pending, *, force: bool) -> dict:
     if not force:
         for cal in calibrations.values():
             check_evaluation_time(cal)
-    for case in cases:  # after the cost check: a case too costly to evaluate is refused first
-        _warn_dead_variables(exp, case, calibrations[case], shapes[case][0])
+    if not getattr(exp, "smoke", False):  # a smoke run is a quick check; check_plugin checks structures
+        for case in cases:  # after the cost check: a case too costly to evaluate is refused first
+            _warn_dead_variables(exp, case, calibrations[case], shapes[case][0])
     return calibrations, shapes
 
 

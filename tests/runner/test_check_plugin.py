@@ -191,6 +191,6 @@ def test_variables_the_design_does_not_read_fail_their_check_and_warn_before_the
                       '[controller]\ntype = "pi_b_test"\n[problem]\nobjective = "iae"\n'
                       '[[optimisers]]\nname = "cs"\nmax_evals = 50\n')
     capsys.readouterr()
-    assert run_experiment_cli([str(config), "--smoke", "--out", str(tmp_path / "out"), "--no-figures"]) == 0
+    assert run_experiment_cli([str(config), "--runs", "1", "--out", str(tmp_path / "out"), "--no-figures"]) == 0
     warnings = [line for line in capsys.readouterr().err.splitlines() if "change nothing" in line]
     assert len(warnings) == 1 and "case 'min': b1, b2 change nothing the problem reports" in warnings[0]

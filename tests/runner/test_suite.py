@@ -170,6 +170,13 @@ def _cli(*argv):
     return subprocess.run([sys.executable, "-m", "heurtune.suite", *argv], capture_output=True, text=True)
 
 
+def _run(capsys, *argv):
+    """The command in this process: (exit code, stdout, stderr)."""
+    code = S.run(list(argv))
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--algorithms", "nope"], "--algorithms: unknown optimiser 'nope'; allowed:"),
     (["--problems", "nope"], "unknown suite problem 'nope'; allowed:"),
@@ -178,15 +185,15 @@ def _cli(*argv):
     (["--budget-multiplier", "0"], "--budget-multiplier must be a number > 0"),
     (["--runs", "0"], "--runs must be >= 1"),
 ])
-def test_bad_input_is_one_line_and_exit_2(argv, message):
-    out = _cli(*argv)
-    assert out.returncode == 2 and out.stderr.startswith(f"error: {message}") and out.stderr.count("\n") == 1
+def test_bad_input_is_one_line_and_exit_2(capsys, argv, message):
+    code, _, err = _run(capsys, *argv)
+    assert code == 2 and err.startswith(f"error: {message}") and err.count("\n") == 1
 
 
-def test_list_names_every_problem(suite):
-    out = _cli("--list")
-    assert out.returncode == 0
-    assert [line.split()[0] for line in out.stdout.splitlines()] == [p.name for p in suite.problems]
+def test_list_names_every_problem(capsys, suite):
+    code, out, _ = _run(capsys, "--list")
+    assert code == 0
+    assert [line.split()[0] for line in out.splitlines()] == [p.name for p in suite.problems]
 
 
 @pytest.mark.long
