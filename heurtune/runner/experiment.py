@@ -261,6 +261,20 @@ def _raise_terminated(signum, frame):
     raise Terminated
 
 
+def _signal_of(exc: BaseException):
+    """The KeyboardInterrupt or Terminated behind ``exc``: itself, or the cause of the
+    SystemError that a C function raises when a signal handler raised while it ran (``...
+    returned a result with an exception set``); None for anything else."""
+    seen = 0
+    while exc is not None and seen < 8:
+        if isinstance(exc, (KeyboardInterrupt, Terminated)):
+            return exc
+        if not isinstance(exc, SystemError):
+            return None
+        exc, seen = exc.__cause__ or exc.__context__, seen + 1
+    return None
+
+
 class Interrupted(Exception):
     """An experiment stopped by Ctrl-C (``code`` 130) or SIGTERM (143), its workers killed:
     ``kept`` of ``planned`` runs are on disk in ``out_dir`` and a rerun resumes from them."""
@@ -818,10 +832,13 @@ def _run_locked(exp, config, specs, fingerprints, ids, out_dir, parts, *, fresh,
                                   "again to resume") from None
         bar.close()  # the line ends before the summary
         _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, fingerprints, figures=figures)
-    except (KeyboardInterrupt, Terminated) as exc:
+    except (KeyboardInterrupt, Terminated, SystemError) as exc:
+        signal_exc = _signal_of(exc)
+        if signal_exc is None:
+            raise
         kill_workers()
         kept = len(_finished(parts) & {s.part_name for s in specs})
-        raise Interrupted(143 if isinstance(exc, Terminated) else 130, kept, len(specs), out_dir) from None
+        raise Interrupted(143 if isinstance(signal_exc, Terminated) else 130, kept, len(specs), out_dir) from None
     finally:
         bar.close()
     return out_dir
@@ -1274,10 +1291,13 @@ def run(argv=None) -> int:
         print(f"\ninterrupted: {exc.kept} of {exc.planned} runs kept in {exc.out_dir}; "
               "run the same command again to resume", file=sys.stderr)
         return exc.code
-    except (KeyboardInterrupt, Terminated) as exc:
+    except (KeyboardInterrupt, Terminated, SystemError) as exc:
+        signal_exc = _signal_of(exc)
+        if signal_exc is None:
+            raise
         kill_workers()
         print("\ninterrupted before any run started", file=sys.stderr)
-        return 143 if isinstance(exc, Terminated) else 130
+        return 143 if isinstance(signal_exc, Terminated) else 130
     finally:
         if previous_handler is not None:
             signal.signal(signal.SIGTERM, previous_handler)

@@ -241,3 +241,23 @@ def test_the_start_up_guard_keeps_an_ignored_signal_ignored(monkeypatch):
         signal.signal(signal.SIGINT, saved[0])
         signal.signal(signal.SIGTERM, saved[1])
         signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+
+
+def test_a_signal_raised_inside_a_c_call_counts_as_the_signal():
+    """A handler that raises while a C function runs makes it return with an exception set, which
+    Python turns into a SystemError caused by the signal's exception: that is still Ctrl-C or
+    SIGTERM (exit 130 or 143), not a crash (it failed the SIGTERM test once in a few hundred)."""
+    from heurtune.runner.experiment import Terminated, _signal_of
+
+    def wrapped(signal_exc):
+        try:
+            raise signal_exc
+        except BaseException as inner:
+            try:
+                raise SystemError("<built-in function x> returned a result with an exception set") from inner
+            except SystemError as outer:
+                return outer
+
+    assert isinstance(_signal_of(wrapped(Terminated())), Terminated)
+    assert isinstance(_signal_of(wrapped(KeyboardInterrupt())), KeyboardInterrupt)
+    assert _signal_of(SystemError("unrelated")) is None and _signal_of(ValueError()) is None
