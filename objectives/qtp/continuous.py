@@ -110,6 +110,8 @@ class ContinuousController:
     @classmethod
     def _build(cls, ctrl) -> ContinuousController:
         D = np.ascontiguousarray(ctrl.D, dtype=np.float64)
+        if ctrl.reads_reference:
+            return cls._with_reference(ctrl, D)
         if ctrl.modal_arrays is not None:  # every block modal, concatenated by the design
             # writeable, as the kernels' types are: the design's own (shared by the controllers
             # of one layout, never written), else copies
@@ -140,6 +142,54 @@ class ContinuousController:
                    Cm=np.ascontiguousarray(np.hstack(Cm)) if Cm else np.zeros((2, 0)), D=D,
                    channel=np.concatenate(ch_m + ch_q) if ch_m or ch_q else np.zeros(0, dtype=np.int64),
                    **cls._dense_part(dense))
+
+    @classmethod
+    def _with_reference(cls, ctrl, D) -> ContinuousController:
+        """The form of a controller that reads the reference: the blocks the reference drives
+        (rows of ``Be`` not zero, :meth:`LinearController.reference_feed`) move, in their own
+        coordinates, into one dense block beside two reference states ``rho`` (channels
+        ``REF_CHANNEL``, ``REF_CHANNEL + 1``) that hold the set-point deviations: ``z' = A z +
+        B w_k + Be rho``, and ``rho`` drives the pumps by ``De``. The kernel sets ``rho`` at each
+        segment start; the other blocks keep their form."""
+        from heurtune.objectives.qtp.continuous_kernels import REF_CHANNEL
+
+        Be, De = ctrl.reference_feed()
+        plain, driven = [], []
+        for (start, stop), ch in zip(ctrl.blocks, ctrl.block_channel):
+            (driven if np.any(Be[start:stop] != 0.0) else plain).append((start, stop, ch))
+        sub = [(ctrl.A[a:b, a:b], ctrl.B[a:b], ctrl.C[:, a:b], ch) for a, b, ch in plain]
+        lam, b, col, Cm, dense, ch_m, ch_q = [], [], [], [], [], [], []
+        for A, B, C, ch in sub:
+            block = type(ctrl)(A, B, C, np.zeros((2, 4)), ((0, A.shape[0]),), (ch,))
+            for part in block.modal_blocks():
+                if part[0] == "modal":
+                    lam.append(np.real(part[1]))
+                    b.append(np.real(part[2]))
+                    Cm.append(np.real(part[3]))
+                    col.append(np.full(len(part[1]), part[4], dtype=np.int64))
+                    ch_m.append(np.full(len(part[1]), ch, dtype=np.int64))
+                else:
+                    dense.append(part[1:4])
+                    ch_q.append(np.full(part[1].shape[0], ch, dtype=np.int64))
+        m = sum(b_ - a for a, b_, _ in driven)
+        Ar, Br, Cr = np.zeros((m + 2, m + 2)), np.zeros((m + 2, 4)), np.zeros((2, m + 2))
+        k = 0
+        for a, b_, ch in driven:
+            n = b_ - a
+            Ar[k:k + n, k:k + n] = ctrl.A[a:b_, a:b_]
+            Ar[k:k + n, m:] = Be[a:b_]
+            Br[k:k + n] = ctrl.B[a:b_]
+            Cr[:, k:k + n] = ctrl.C[:, a:b_]
+            ch_q.append(np.full(n, ch, dtype=np.int64))
+            k += n
+        Cr[:, m:] = De
+        dense.append((Ar, Br, Cr))
+        ch_q.append(np.array([REF_CHANNEL, REF_CHANNEL + 1], dtype=np.int64))
+        return cls(lam=np.ascontiguousarray(np.concatenate(lam)) if lam else np.zeros(0),
+                   b=np.ascontiguousarray(np.concatenate(b)) if b else np.zeros(0),
+                   col=np.concatenate(col) if col else np.zeros(0, dtype=np.int64),
+                   Cm=np.ascontiguousarray(np.hstack(Cm)) if Cm else np.zeros((2, 0)), D=D,
+                   channel=np.concatenate(ch_m + ch_q), **cls._dense_part(dense))
 
     @staticmethod
     def _dense_part(dense: list) -> dict:
@@ -382,6 +432,7 @@ class StepPlan:
     top: int = 0
     local_rel: float = 0.0
     local_per: float = 0.0
+    ref: np.ndarray | None = None
 
     @property
     def n_steps(self) -> int:
@@ -400,16 +451,18 @@ class StepPlan:
         seg[:, ck.SEG_DIST:ck.SEG_DIST + 2], seg[:, ck.SEG_UIN:ck.SEG_UIN + 2] = self.dist, self.uin
         seg[:, ck.SEG_LOCAL_TOL], seg[:, ck.SEG_TOP] = self.local_tol, self.top
         seg[:, ck.SEG_LOCAL_REL], seg[:, ck.SEG_LOCAL_PER] = self.local_rel, self.local_per
+        seg[:, ck.SEG_REF:ck.SEG_REF + 2] = 0.0 if self.ref is None else self.ref
         return seg
 
 
 def plan_steps(horizon: float, step: float, output_disturbance, disturbance_time: float,
                input_disturbance, input_disturbance_time: float, local_tol: float = 0.0, top: int = 0,
-               local_rel: float = 0.0, local_per: float = 0.0) -> StepPlan:
+               local_rel: float = 0.0, local_per: float = 0.0, setpoint_step=(0.0, 0.0),
+               setpoint_time: float = 0.0) -> StepPlan:
     """Segments between the discontinuities of a scenario, each in equal steps of at most ``step``.
 
-    A breakpoint is a disturbance time inside (0, horizon) whose step is not zero. Each
-    segment after a breakpoint grades its first step.
+    A breakpoint is a disturbance or set-point time inside (0, horizon) whose step is not zero.
+    Each segment after a breakpoint grades its first step.
 
     Parameters
     ----------
@@ -423,6 +476,11 @@ def plan_steps(horizon: float, step: float, output_disturbance, disturbance_time
     local_tol, top, local_rel, local_per : optional
         Adaptive pairs above ``step`` (:data:`ADAPTIVE_LOCAL_FRACTION` and the constants
         beside it; ``local_tol`` 0, the default, keeps every step at ``step``).
+    setpoint_step : array_like (2,), optional
+        The set-points' step in cm. The kernels' measured deviations are taken from the
+        set-points, so it enters each segment's output disturbance with the opposite sign, and
+        the segment's reference (``SEG_REF``) holds it for a structure that reads it.
+    setpoint_time : float, optional
 
     Returns
     -------
@@ -430,25 +488,35 @@ def plan_steps(horizon: float, step: float, output_disturbance, disturbance_time
     """
     d_out = np.asarray(output_disturbance, dtype=np.float64)
     d_in = np.asarray(input_disturbance, dtype=np.float64)
+    d_ref = np.asarray(setpoint_step, dtype=np.float64)
     breaks = {0.0, float(horizon)}
-    if np.any(d_out != 0) and 0.0 < disturbance_time < horizon:
-        breaks.add(float(disturbance_time))
-    if np.any(d_in != 0) and 0.0 < input_disturbance_time < horizon:
-        breaks.add(float(input_disturbance_time))
+    events = []
+    if np.any(d_out != 0):
+        events.append(float(disturbance_time))
+    if np.any(d_ref != 0):
+        events.append(float(setpoint_time))
+    for t_event in events + ([float(input_disturbance_time)] if np.any(d_in != 0) else []):
+        if 0.0 < t_event < horizon:
+            breaks.add(t_event)
+    # overshoot and settling count from the first step of a level or a set-point
+    t_post = min(events) if events else float(disturbance_time)
     edges = sorted(breaks)
-    t0, h, steps, graded, dist, uin, post = [], [], [], [], [], [], []
+    t0, h, steps, graded, dist, uin, post, ref = [], [], [], [], [], [], [], []
     for a, b in zip(edges[:-1], edges[1:]):
         n = max(1, math.ceil((b - a) / step - 1e-9))
         t0.append(a)
         h.append((b - a) / n)
         steps.append(n)
         graded.append(a > 0.0)
-        dist.append(d_out if a >= disturbance_time else np.zeros(2))
+        r = d_ref if a >= setpoint_time else np.zeros(2)
+        d = d_out if a >= disturbance_time else np.zeros(2)
+        dist.append(d - r if r.any() else d)
         uin.append(d_in if a >= input_disturbance_time else np.zeros(2))
-        post.append(a >= disturbance_time)
+        post.append(a >= t_post)
+        ref.append(r)
     return StepPlan(np.array(t0), np.array(h), np.array(steps, dtype=np.int64), np.array(graded, dtype=np.bool_),
                     np.array(dist), np.array(uin), np.array(post, dtype=np.bool_), float(local_tol), int(top),
-                    float(local_rel), float(local_per))
+                    float(local_rel), float(local_per), np.array(ref))
 
 
 def pack_lanes(controllers, plans, tables) -> dict:

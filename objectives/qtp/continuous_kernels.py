@@ -867,7 +867,8 @@ def _mode_arrays(sat, pin, asat, held, lam, bm, Aq, Bq, channel, c, Dc, u_op, ui
         lam_e[i] = 0.0 if frozen else lam[i]
         bm_e[i] = 0.0 if frozen else bm[i]
     for i in range(Aq.shape[0]):
-        frozen = sat[channel[nd + i]] != 0
+        # a reference state (channel REF_CHANNEL + j) has no dynamics to freeze
+        frozen = channel[nd + i] < REF_CHANNEL and sat[channel[nd + i]] != 0
         for j in range(Aq.shape[1]):
             Aq_e[i, j] = 0.0 if frozen else Aq[i, j]
         for j in range(4):
@@ -939,11 +940,16 @@ def _event_values(x, du, u_op, sat, asat, held, saturate, clip, u_min, u_max, h_
 
 # Columns of the segment table ``seg`` (S, N_SEG) of a step plan (continuous.StepPlan.table), one
 # row per segment: start time, step, number of steps, whether the first step is graded (1.0 or
-# 0.0), the output and input disturbances in force (2 each), and whether the segment lies after
-# the output disturbance time (1.0 or 0.0).
+# 0.0), the output and input disturbances in force (2 each; the output one less the set-point
+# step), whether the segment lies after the first level or set-point step (1.0 or 0.0), the
+# adaptive pairs' settings and the set-point deviations in force (2).
 SEG_T0, SEG_H, SEG_STEPS, SEG_GRADED, SEG_DIST, SEG_UIN, SEG_POST = 0, 1, 2, 3, 4, 6, 8
-SEG_LOCAL_TOL, SEG_TOP, SEG_LOCAL_REL, SEG_LOCAL_PER = 9, 10, 11, 12
-N_SEG = 13
+SEG_LOCAL_TOL, SEG_TOP, SEG_LOCAL_REL, SEG_LOCAL_PER, SEG_REF = 9, 10, 11, 12, 13
+N_SEG = 15
+# A dense controller state whose channel is REF_CHANNEL + j holds set-point deviation j: it has
+# no dynamics (its row of Aq and Bq is zero), never freezes, and takes the segment's SEG_REF + j
+# at each segment start (continuous.ContinuousController of a structure that reads the reference).
+REF_CHANNEL = 2
 
 
 @_kernel
@@ -1067,6 +1073,9 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
             t_end = horizon
         h_target = seg[sg, SEG_H]
         graded = seg[sg, SEG_GRADED] > 0.0
+        for i in range(nq):  # the set-points in force, for a structure that reads them
+            if channel[nd + i] >= REF_CHANNEL:
+                z[nd + i] = seg[sg, SEG_REF + channel[nd + i] - REF_CHANNEL]
         # the mode at the segment start: a jump of the measurement may push a pump across a limit
         _pump_voltages(x, z, Cm, Cq, s, d1, d2, h_op, Dc, w, du0)
         if saturate:
@@ -1287,8 +1296,9 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
                           pm[0], pm[1], scr, wst, w, xr, dur, pmc, phw, sqw, vq)
                 _measure(xr, s, d1, d2, h_op, w)
                 _applied(dur, u_op, asat, saturate, u_min, u_max, ua)
-                y_rec[k_rec, 0] = w[0] + h_op[0]
-                y_rec[k_rec, 1] = w[1] + h_op[1]
+                # the measured levels: w is taken from the set-points
+                y_rec[k_rec, 0] = w[0] + h_op[0] + seg[sg, SEG_REF]
+                y_rec[k_rec, 1] = w[1] + h_op[1] + seg[sg, SEG_REF + 1]
                 u_rec[k_rec, 0] = u_op[0] + ua[0]
                 u_rec[k_rec, 1] = u_op[1] + ua[1]
                 for i in range(4):
@@ -1393,8 +1403,8 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
         return STATUS_DIVERGED, n_taken
     # the end point T
     while k_rec < rec:
-        y_rec[k_rec, 0] = s * x[0] + seg[n_seg - 1, SEG_DIST]
-        y_rec[k_rec, 1] = s * x[1] + seg[n_seg - 1, SEG_DIST + 1]
+        y_rec[k_rec, 0] = s * x[0] + seg[n_seg - 1, SEG_DIST] + seg[n_seg - 1, SEG_REF]
+        y_rec[k_rec, 1] = s * x[1] + seg[n_seg - 1, SEG_DIST + 1] + seg[n_seg - 1, SEG_REF + 1]
         u_rec[k_rec, 0] = f1[6]
         u_rec[k_rec, 1] = f1[7]
         for i in range(4):

@@ -77,7 +77,14 @@ class ControllerDesignError(DesignError):
 
 @dataclasses.dataclass(frozen=True)
 class LinearController:
-    """Continuous-time linear controller ``z' = A z + B w``, ``du = C z + D w``.
+    """Continuous-time linear controller ``z' = A z + B w``, ``du = C z + D w``, and for a
+    structure that reads the reference, ``z' = A z + B w + Br r``, ``du = C z + D w + Dr r``.
+
+    ``w`` are the four measured deviations: from the set-points for ``y1``, ``y2`` when the
+    controller does not read the reference (``Br``, ``Dr`` None: it sees the errors), from the
+    operating levels when it does; ``r`` (2,) the set-point deviations from the operating
+    levels, in cm. Stability, margins and the sampled loop use ``A``, ``B``, ``C``, ``D``: the
+    reference is an input from outside the loop.
 
     Attributes
     ----------
@@ -99,6 +106,11 @@ class LinearController:
         the measured signal each state reads and the pump it belongs to (nz,) int64,
         concatenated in block order, shared by every controller of one FOLQI layout (never
         write them). None: taken from :meth:`modal_blocks`.
+    Br : (nz, 2) ndarray or None
+        How the set-point deviations drive the states (a reference filter, set-point weights
+        on an integral); None for a structure that does not read the reference.
+    Dr : (2, 2) ndarray or None
+        How they drive the pumps directly (set-point weights, feedforward).
     """
 
     A: np.ndarray
@@ -110,6 +122,29 @@ class LinearController:
     minimal: bool = True
     modal: tuple | None = dataclasses.field(default=None, compare=False, repr=False)
     modal_arrays: tuple | None = dataclasses.field(default=None, compare=False, repr=False)
+    Br: np.ndarray | None = dataclasses.field(default=None, compare=False, repr=False)
+    Dr: np.ndarray | None = dataclasses.field(default=None, compare=False, repr=False)
+
+    def __post_init__(self):
+        if (self.Br is None) != (self.Dr is None):
+            raise ValueError("LinearController: give both Br and Dr (a structure that reads the reference) or neither")
+        if self.Br is not None:
+            nz = self.A.shape[0]
+            if np.shape(self.Br) != (nz, 2) or np.shape(self.Dr) != (2, 2):
+                raise ValueError(f"LinearController: Br must be ({nz}, 2) and Dr (2, 2), got "
+                                 f"{np.shape(self.Br)} and {np.shape(self.Dr)}")
+
+    @property
+    def reads_reference(self) -> bool:
+        """Whether the controller has a reference path (``Br``, ``Dr``)."""
+        return self.Br is not None
+
+    def reference_feed(self) -> tuple:
+        """``(Be, De)``, (nz, 2) and (2, 2): the reference path in the kernels' form, where the
+        measured deviations of ``y1``, ``y2`` are taken from the set-points (``w_k = w - [r, 0,
+        0]``): ``B w + Br r = B w_k + Be r`` with ``Be = Br + B[:, :2]``, ``De = Dr + D[:, :2]``."""
+        return (np.asarray(self.Br, dtype=np.float64) + self.B[:, :2],
+                np.asarray(self.Dr, dtype=np.float64) + self.D[:, :2])
 
     @property
     def n_states(self) -> int:

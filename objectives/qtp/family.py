@@ -66,6 +66,8 @@ SCHEMA = dict(COMMON_SCHEMA, **{
         "horizon": NUMBER, "dt": NUMBER,
         "output_disturbance": PAIR, "disturbance_time": NUMBER,
         "input_disturbance": PAIR, "input_disturbance_time": NUMBER,
+        # set-point steps (cm from the operating levels) and when they happen
+        "setpoint_step": PAIR, "setpoint_time": NUMBER,
         "noise_sd": NUMBER, "noise_seed": int,
         "saturation": PAIR,
         "limits": ("none", "physical"),

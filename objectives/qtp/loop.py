@@ -84,6 +84,14 @@ class Scenario:
         Additive step on the pump voltages in V (off by default).
     input_disturbance_time : float
         When the input disturbance starts, s.
+    setpoint_step : (float, float)
+        Step of the set-points r1, r2 in cm from the operating levels (off by default; the
+        continuous loop only). A structure that does not read the reference sees the error
+        ``y - r`` (for it a set-point step of ``s`` equals a measured-level step of ``-s``); one
+        that does (``reads_reference``) sees the measured deviations and the set-point
+        deviations apart (docs/controllers_reference.md, "The reference path").
+    setpoint_time : float
+        When the set-point step happens, s.
     noise_sd : float
         Standard deviation in cm of white measurement noise on all four measured levels.
     noise_seed : int
@@ -119,6 +127,8 @@ class Scenario:
     disturbance_time: float = 50.0
     input_disturbance: tuple = (0.0, 0.0)
     input_disturbance_time: float = 0.0
+    setpoint_step: tuple = (0.0, 0.0)
+    setpoint_time: float = 0.0
     noise_sd: float = 0.0
     noise_seed: int = 0
     saturation: tuple | None = None
@@ -136,7 +146,7 @@ class Scenario:
                                       f"continuous loop's) both set; give one")
         elif self.tolerance is None and self.step is None:
             object.__setattr__(self, "tolerance", _continuous.DEFAULT_TOLERANCE)
-        for key in ("horizon", "dt", "disturbance_time", "input_disturbance_time", "noise_sd",
+        for key in ("horizon", "dt", "disturbance_time", "input_disturbance_time", "setpoint_time", "noise_sd",
                     "uncertainty"):
             v = getattr(self, key)
             if v is None and key == "dt":
@@ -145,7 +155,7 @@ class Scenario:
                 raise ConfigError(f"scenario.{key} must be a finite number, got {v!r}")
         if self.horizon <= 0:
             raise ConfigError(f"scenario.horizon must be positive, got {self.horizon}")
-        for key in ("disturbance_time", "input_disturbance_time"):
+        for key in ("disturbance_time", "input_disturbance_time", "setpoint_time"):
             t = getattr(self, key)
             if not 0 <= t <= self.horizon:
                 raise ConfigError(f"scenario.{key} must lie in [0, horizon], got {t}")
@@ -159,6 +169,10 @@ class Scenario:
             raise ConfigError(f"scenario.noise_seed must be a non-negative integer, got {self.noise_seed!r}")
         object.__setattr__(self, "output_disturbance", _pair("output_disturbance", self.output_disturbance))
         object.__setattr__(self, "input_disturbance", _pair("input_disturbance", self.input_disturbance))
+        object.__setattr__(self, "setpoint_step", _pair("setpoint_step", self.setpoint_step))
+        if self.dt is not None and self.has_setpoint_step:
+            raise ConfigError("scenario.setpoint_step needs the continuous-time loop: leave scenario.dt and "
+                              "controller.sample_time unset, or set setpoint_step = [0, 0]")
         if self.saturation is not None:
             lo, hi = _pair("saturation", self.saturation)
             if not lo < hi:
@@ -224,6 +238,50 @@ class Scenario:
                               "noise_sd = 0")
 
     @property
+    def has_setpoint_step(self) -> bool:
+        """Whether the set-points step (a non-zero ``setpoint_step``)."""
+        return self.setpoint_step[0] != 0.0 or self.setpoint_step[1] != 0.0
+
+    @property
+    def windows(self) -> dict:
+        """``{"servo": (t0, t1), "regulatory": (t1, horizon)}`` for a scenario with a set-point
+        step followed by a measured-level or input step (``{"servo": (t0, horizon)}`` without
+        one; ``{}`` without a set-point step): the windows whose integrals
+        :meth:`~heurtune.objectives.qtp.problem.QTPProblem.report` gives apart."""
+        if not self.has_setpoint_step:
+            return {}
+        later = [t for t, step in ((self.disturbance_time, self.output_disturbance),
+                                   (self.input_disturbance_time, self.input_disturbance))
+                 if (step[0] != 0.0 or step[1] != 0.0) and self.setpoint_time < t < self.horizon]
+        if not later:
+            return {"servo": (float(self.setpoint_time), float(self.horizon))}
+        t1 = float(min(later))
+        return {"servo": (float(self.setpoint_time), t1), "regulatory": (t1, float(self.horizon))}
+
+    def cut(self, horizon: float) -> Scenario:
+        """The scenario up to ``horizon`` (steps after it dropped): the same trajectory up
+        to there, on the same step plan (its segments end at the same breakpoints)."""
+        changes = dict(horizon=float(horizon))
+        for step_key, time_key in (("output_disturbance", "disturbance_time"),
+                                   ("input_disturbance", "input_disturbance_time"),
+                                   ("setpoint_step", "setpoint_time")):
+            if getattr(self, time_key) >= horizon:
+                changes[step_key], changes[time_key] = (0.0, 0.0), 0.0
+        return dataclasses.replace(self, **changes)
+
+    @property
+    def event_time(self) -> float:
+        """The time from which overshoot and settling are measured: the earlier of the
+        measured-level step and the set-point step among those that happen; the output
+        disturbance time when neither does (the thesis' scenarios: its 50 s)."""
+        times = []
+        if self.output_disturbance[0] != 0.0 or self.output_disturbance[1] != 0.0:
+            times.append(self.disturbance_time)
+        if self.has_setpoint_step:
+            times.append(self.setpoint_time)
+        return float(min(times)) if times else float(self.disturbance_time)
+
+    @property
     def continuous(self) -> bool:
         """Whether this scenario simulates the continuous-time loop (no sample period ``dt``)."""
         return self.dt is None
@@ -252,7 +310,8 @@ class Scenario:
             adaptive = dict(local_tol=_continuous.ADAPTIVE_LOCAL_FRACTION * float(self.tolerance), top=int(top),
                             local_rel=_continuous.ADAPTIVE_RELATIVE, local_per=_continuous.ADAPTIVE_PERIOD)
         return _continuous.plan_steps(self.horizon, h, self.output_disturbance, self.disturbance_time,
-                                      self.input_disturbance, self.input_disturbance_time, **adaptive)
+                                      self.input_disturbance, self.input_disturbance_time, **adaptive,
+                                      setpoint_step=self.setpoint_step, setpoint_time=self.setpoint_time)
 
     @property
     def kernel_step(self) -> float:
@@ -629,7 +688,7 @@ class ClosedLoop:
         sampled = not scenario.continuous
         P = _kernels.scenario_table(
             coef, u_op, saturate, u_lo, u_hi, clip, h_max, out_dist, scenario.disturbance_index if sampled else -1,
-            in_dist, scenario.input_disturbance_index if sampled else -1, scenario.disturbance_time, scenario.horizon)
+            in_dist, scenario.input_disturbance_index if sampled else -1, scenario.event_time, scenario.horizon)
         self._tables[scenario] = P
         return P
 

@@ -9,6 +9,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 
 import numpy as np
@@ -341,7 +342,8 @@ class Problem(TuningProblem):
             payload["weights"] = self.weights
         if payload["scenario"].get("limits", "none") == "none":
             payload["scenario"].pop("limits", None)
-        for key, default in (("dt", None), ("tolerance", None), ("step", None), ("output_dt", 0.01)):
+        for key, default in (("dt", None), ("tolerance", None), ("step", None), ("output_dt", 0.01),
+                             ("setpoint_step", (0.0, 0.0)), ("setpoint_time", 0.0)):
             if payload["scenario"].get(key, default) == default:
                 payload["scenario"].pop(key, None)
         if self.loop.plant_model != "qtp":
@@ -494,5 +496,35 @@ class Problem(TuningProblem):
             row.update(zip(METRIC_NAMES, ev.metrics[0]))
             row["J"] = row["J1"] + row["J2"]
             row["range"] = "; ".join(physical_range_flags(ev.metrics[0], self.loop.plant))
+            row.update(self.window_metrics(x, name, simulated=ev.reason[0] == ""))
             rows.append(row)
         return pd.DataFrame(rows).set_index("scenario")
+
+    def window_metrics(self, x, scenario="nominal", *, simulated: bool = True) -> dict:
+        """IAE, ISE and ITAE of each loop per window of the scenario (:attr:`Scenario.windows`:
+        servo from the set-point step, regulatory from the later disturbance), as
+        ``IAE_servo1``, ``ITAE_regulatory2``, ...; ITAE counts time from the window's start.
+        ``{}`` for a scenario without windows; NaN for a candidate that was not simulated.
+
+        Each window's integrals are the differences of the whole-run integrals up to its ends:
+        runs cut at the window boundaries follow the same trajectory on the same steps
+        (:meth:`Scenario.cut`), so the windows add up to the run's own IAE, ISE and ITAE."""
+        sc = self.scenario(scenario)
+        windows = sc.windows
+        if not windows:
+            return {}
+        out = {f"{m}_{w}{i}": math.nan for w in windows for m in ("IAE", "ISE", "ITAE") for i in (1, 2)}
+        if not simulated or not sc.continuous:
+            return out
+        ctrl = self.loop.controller(dict(zip(self.names, np.asarray(x, dtype=np.float64).tolist())))
+        idx = [_METRIC_INDEX[f"{m}{i}"] for m in ("IAE", "ISE", "ITAE") for i in (1, 2)]
+        upto = {0.0: np.zeros(len(idx))}
+        for t in sorted({t for w in windows.values() for t in w if t > 0.0}):
+            sim = self.loop.run(ctrl, sc.cut(t), settling_band=self.settling_band, record=False)
+            upto[t] = np.full(len(idx), math.nan) if sim.diverged else sim.metrics[idx]
+        for w, (t0, t1) in windows.items():
+            iae1, iae2, ise1, ise2, itae1, itae2 = upto[t1] - upto[t0]
+            for i, (iae, ise, itae) in enumerate(((iae1, ise1, itae1), (iae2, ise2, itae2)), start=1):
+                out[f"IAE_{w}{i}"], out[f"ISE_{w}{i}"] = float(iae), float(ise)
+                out[f"ITAE_{w}{i}"] = float(itae - t0 * iae)
+        return out

@@ -10,7 +10,8 @@ which every simulation path, the margins and the exports take as it is. The ship
 - :mod:`.ladr`: ``ladr`` (thesis Appendix A);
 - :mod:`.pid`: ``pid``, decentralised PID with a filtered derivative and an optional static
   decoupler;
-- :mod:`.fopid`: ``fopid``, decentralised fractional-order PID (Oustaloup).
+- :mod:`.fopid`: ``fopid``, decentralised fractional-order PID (Oustaloup);
+- :mod:`.pi2dof`: ``pi2dof``, decentralised 2-DOF PI with set-point weights (reads the reference).
 
 A new structure is one module that calls :func:`heurtune.core.structures.register_structure`
 with ``family = "qtp"``: dropped here (and imported below) or loaded as a plugin file
@@ -26,7 +27,7 @@ import numpy as np
 from heurtune.core.errors import ConfigError
 from heurtune.core.structures import get_structure, structure_names, structures_of
 from heurtune.objectives.qtp.controllers import PAIRINGS, LinearController, PlantLinearisation
-from heurtune.objectives.qtp.structures import fopid, ladr, lqi_family, pid  # noqa: F401  (they register)
+from heurtune.objectives.qtp.structures import fopid, ladr, lqi_family, pi2dof, pid  # noqa: F401  (they register)
 
 __all__ = ["FAMILY", "structure", "names", "controller_label", "paired_types", "decision_names", "default_bounds",
            "variable_domain", "build_controller", "loop_options"]
