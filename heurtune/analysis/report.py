@@ -325,7 +325,7 @@ def render_html(runs: pd.DataFrame, *, dirs=(), history: pd.DataFrame | None = N
 
 
 def build_report(dirs, out, *, metric: str = "best_f", alpha: float = 0.05, responses: bool = True,
-                 labels: dict | None = None) -> Path:
+                 labels: dict | None = None, by: str = "algorithm") -> Path:
     """Read experiment folders and write ``out/index.html``.
 
     Parameters
@@ -344,6 +344,9 @@ def build_report(dirs, out, *, metric: str = "best_f", alpha: float = 0.05, resp
     labels : dict, optional
         ``{label: folder}`` for folders of one experiment compared as variants (as
         :func:`heurtune.analysis.compare.load_runs`); default: the folder names.
+    by : {"algorithm", "controller"}
+        What is compared: the optimisers of each case, or the controller structures of each
+        plant case (folders that pose the same problem otherwise; as ``compare --by``).
 
     Returns
     -------
@@ -359,7 +362,7 @@ def build_report(dirs, out, *, metric: str = "best_f", alpha: float = 0.05, resp
     dirs = list(dirs)
     if not 0 < alpha < 1:
         raise ConfigError(f"alpha must lie in (0, 1), got {alpha:g}")
-    runs = load_runs(dirs, labels=labels)
+    runs = load_runs(dirs, labels=labels, by=by)
     check_metric(runs, metric)
     page = render_html(runs, dirs=dirs, history=load_histories(dirs, runs), margins=load_margins(dirs, runs),
                        metas=_read_meta(dirs), metric=metric, alpha=alpha, responses=responses)
@@ -382,7 +385,9 @@ def _parser() -> argparse.ArgumentParser:
                        formatter_class=argparse.RawDescriptionHelpFormatter,
                        epilog=exit_codes(("python -m heurtune.report results/thesis_ch5 --out report",
                                           "python -m heurtune.report results/cs_folqi_qtp results/pso_folqi_qtp "
-                                          "--out report --no-responses")))
+                                          "--out report --no-responses",
+                                          "python -m heurtune.report results/cs_pid_qtp results/cs_fopid_qtp "
+                                          "--by controller --out report")))
     ap.add_argument("dirs", nargs="+", metavar="DIR", help="experiment results folder (with runs.parquet)")
     ap.add_argument("--out", help="output folder; the report is OUT/index.html")
     ap.add_argument("--metric", default="best_f", help="column compared, lower is better (default best_f)")
@@ -390,6 +395,9 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--no-responses", action="store_true", help="skip the response figures (no simulation)")
     ap.add_argument("--label", action="append", default=[], metavar="NAME=DIR",
                     help="label of a folder's runs when folders of one experiment are compared as variants")
+    ap.add_argument("--by", default="algorithm", metavar="AXIS",
+                    help="what is compared: algorithm (default) or controller (the structures of each plant "
+                         "case, as compare --by controller)")
     return ap
 
 
@@ -415,7 +423,7 @@ def run(argv=None) -> int:
             if not Path(d).exists():
                 raise ConfigError(f"{d}: no such folder")
         path = build_report(args.dirs, args.out, metric=args.metric, alpha=args.alpha,
-                            responses=not args.no_responses, labels=parse_labels(args.label))
+                            responses=not args.no_responses, labels=parse_labels(args.label), by=args.by)
     except (ConfigError, UsageError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

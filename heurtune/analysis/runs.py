@@ -248,6 +248,8 @@ def load_runs(dirs, *, labels: dict | None = None, by: str = "algorithm") -> pd.
     source = pd.Series(sources, index=runs.index)
     key = pd.Series(keys, index=runs.index)
     variant = pd.Series(variants, index=runs.index)
+    # the case and algorithm each file names: histories and margins are found by them
+    file_case, file_algorithm = runs["case"].copy(), runs["algorithm"].copy()
     if by == "controller":
         runs = _by_controller(runs, dirs)
     # runs compared must pose one problem: per case, or per case and structure by controller
@@ -286,9 +288,11 @@ def load_runs(dirs, *, labels: dict | None = None, by: str = "algorithm") -> pd.
         else:  # a folder holding several experiments of this algorithm
             tag = variant[idx] + ": " + runs.loc[idx, "experiment"]
         runs.loc[idx, "algorithm"] = original[idx] + " [" + tag + "]"
-    mapping = pd.DataFrame({"k": key, "e": runs["experiment"], "c": runs["case"], "a": original,
-                            "l": runs["algorithm"]}).drop_duplicates(["k", "e", "c", "a"])
-    runs.attrs["algorithm_labels"] = {(k, e, c, a): lab for k, e, c, a, lab in mapping.itertuples(index=False)}
+    mapping = pd.DataFrame({"k": key, "e": runs["experiment"], "c": file_case, "a": file_algorithm,
+                            "l": runs["algorithm"], "nc": runs["case"]}).drop_duplicates(["k", "e", "c", "a"])
+    runs.attrs["algorithm_labels"] = {(k, e, c, a): lab for k, e, c, a, lab, _ in mapping.itertuples(index=False)}
+    if by == "controller":  # the plant case a structure's case belongs to
+        runs.attrs["case_labels"] = {(k, e, c, a): nc for k, e, c, a, _, nc in mapping.itertuples(index=False)}
     return runs
 
 
@@ -357,8 +361,11 @@ def _load_labelled(dirs, runs, filename: str, required) -> pd.DataFrame:
         m[col] = m[col].astype(str)
     known = runs.attrs.get("algorithm_labels") if runs is not None else None
     if known and len(m):
-        m["algorithm"] = [known.get((k, e, c, a), a)
-                          for k, e, c, a in zip(m["_source"], m["experiment"], m["case"], m["algorithm"])]
+        keys = list(zip(m["_source"], m["experiment"], m["case"], m["algorithm"]))
+        m["algorithm"] = [known.get(k, k[3]) for k in keys]
+        cases = runs.attrs.get("case_labels")
+        if cases:  # compared by controller: the plant case
+            m["case"] = [cases.get(k, k[2]) for k in keys]
     elif runs is not None and len(m):  # rows without the labels of load_runs: follow "name [experiment]"
         labels = set(zip(runs["case"], runs["algorithm"]))
         relabel = [(c, f"{a} [{e}]") in labels for e, c, a in zip(m["experiment"], m["case"], m["algorithm"])]

@@ -58,6 +58,12 @@ def check_design(structure):
     assert [a for a, _ in ctrl.blocks] == stops[:-1] and stops[-1] == nz, "blocks must cover the states in order"
     assert len(ctrl.block_channel) == len(ctrl.blocks) and set(ctrl.block_channel) <= {0, 1}, \
         "block_channel needs a pump (0 or 1) per block"
+    declared = bool(structure.extras.get("reads_reference"))
+    assert ctrl.reads_reference == declared, (
+        "the design returns Br and Dr but the structure does not declare extras['reads_reference']" if not declared
+        else "extras['reads_reference'] is declared but the design returns no Br, Dr")
+    if declared:
+        assert np.all(np.isfinite(ctrl.Br)) and np.all(np.isfinite(ctrl.Dr)), "Br or Dr is not finite"
 
 
 def check_pairing(structure):
@@ -127,7 +133,10 @@ def check_pickles(structure):
 
 def check_variables(structure):
     loop = _loop(structure)
-    scenario = Scenario(horizon=60.0, disturbance_time=10.0)
+    reads = bool(structure.extras.get("reads_reference"))
+    # a structure that reads the reference is moved by a set-point step as well
+    scenario = (Scenario(horizon=60.0, disturbance_time=30.0, setpoint_step=(1.0, 1.0), setpoint_time=5.0) if reads
+                else Scenario(horizon=60.0, disturbance_time=10.0))
     lo = np.array([structure.bounds[v][0] for v in structure.variables], dtype=float)
     hi = np.array([structure.bounds[v][1] for v in structure.variables], dtype=float)
     points = [0.5 * (lo + hi), lo + (hi - lo) * np.random.default_rng(0).random(lo.size)]
@@ -152,9 +161,10 @@ def check_variables(structure):
             alive[i] = after is None or not np.array_equal(after, before, equal_nan=True)
     declared = set(structure.extras.get("unread", ()))
     dead = [v for v, a in zip(structure.variables, alive) if not a and v not in declared]
-    assert not dead, (f"{', '.join(dead)} change{'s' if len(dead) == 1 else ''} no metric of a disturbance "
-                      "scenario: the design does not read them (a set-point weight needs a set-point step, "
-                      "which QTP scenarios do not have yet), or declare them in extras['unread']")
+    what = "a set-point and a disturbance step" if reads else "a disturbance scenario"
+    hint = "" if reads else " (a set-point weight needs extras['reads_reference'] and Br, Dr)"
+    assert not dead, (f"{', '.join(dead)} change{'s' if len(dead) == 1 else ''} no metric of {what}: the design "
+                      f"does not read them{hint}, or declare them in extras['unread']")
     read = [v for v, a in zip(structure.variables, alive) if a and v in declared]
     assert not read, f"{', '.join(read)} declared unread (extras['unread']) but change a metric"
 

@@ -778,3 +778,24 @@ def test_by_controller_takes_a_type_list_case_and_refuses_other_problems(tmp_pat
     assert "pose different problems, not only other controllers: they differ in problem.objective" in err
     assert run([str(one), "--by", "plant"]) == 2
     assert "--by: unknown axis 'plant'; allowed: algorithm, controller" in capsys.readouterr().err
+
+
+def test_by_controller_relabels_histories_and_the_report_compares_structures(tmp_path):
+    """A type-list folder's histories follow its runs (plant case, structure), and the report
+    takes --by controller as compare does."""
+    from heurtune.analysis.report import build_report, run as report_run
+    from heurtune.analysis.runs import load_histories
+
+    one = _structure_folder(tmp_path, "types", "pid", [1.0, 1.1, 1.2], case="min-pid", experiment="types")
+    df = pd.read_parquet(one / "runs.parquet")
+    other = df.assign(case="min-fopid", controller="fopid", problem_id="fopid-min", best_f=df["best_f"] + 1)
+    pd.concat([df, other]).to_parquet(one / "runs.parquet", index=False)
+    hist = pd.DataFrame(dict(experiment="types", case=["min-pid", "min-fopid"], algorithm="cs", run=0, epoch=0,
+                             n_evals=10, best_f=[1.0, 2.0], best_violation=0.0))
+    hist.to_parquet(one / "history.parquet", index=False)
+    runs = load_runs([one], by="controller")
+    h = load_histories([one], runs)
+    assert sorted(zip(h["case"], h["algorithm"])) == [("min", "fopid"), ("min", "pid")]
+    page = build_report([one], tmp_path / "rep", responses=False, by="controller").read_text()
+    assert "between controller structures" in page
+    assert report_run([str(one), "--out", str(tmp_path / "rep2"), "--by", "plant"]) == 2

@@ -194,3 +194,54 @@ def test_variables_the_design_does_not_read_fail_their_check_and_warn_before_the
     assert run_experiment_cli([str(config), "--runs", "1", "--out", str(tmp_path / "out"), "--no-figures"]) == 0
     warnings = [line for line in capsys.readouterr().err.splitlines() if "change nothing" in line]
     assert len(warnings) == 1 and "case 'min': b1, b2 change nothing the problem reports" in warnings[0]
+
+
+PI_2DOF = '''
+import numpy as np
+from heurtune.core.structures import ControllerStructure, register_structure
+from heurtune.objectives.qtp.controllers import LinearController
+
+
+def design(values, plant, options):
+    """A diagonal 2-DOF PI written from docs/controllers_reference.md, "The reference path"."""
+    A = np.zeros((2, 2))
+    B, Br = np.zeros((2, 4)), np.zeros((2, 2))
+    D, Dr = np.zeros((2, 4)), np.zeros((2, 2))
+    for j in range(2):
+        kp, ki, b = values[f"Kp{j + 1}"], values[f"Ki{j + 1}"], values[f"b{j + 1}"]
+        B[j, j], Br[j, j] = -1.0, 1.0
+        D[j, j], Dr[j, j] = -kp, b * kp
+    C = np.diag([values["Ki1"], values["Ki2"]])
+    return LinearController(A, B, C, D, ((0, 1), (1, 2)), (0, 1), Br=Br, Dr=Dr)
+
+
+register_structure(ControllerStructure(
+    name="pi_2dof_test", family="qtp", variables=("Kp1", "Ki1", "Kp2", "Ki2", "b1", "b2"), design=design,
+    bounds={"Kp1": (0.0, 5.0), "Ki1": (0.001, 0.3), "Kp2": (0.0, 5.0), "Ki2": (0.001, 0.3), "b1": (0.0, 1.0),
+            "b2": (0.0, 1.0)},
+    description="2-DOF PI (a test plugin)", integral_action="full",
+    extras={"step_at_reference": 0.125, "explicit_step": True, "reads_reference": True}))
+'''
+
+
+def test_a_2dof_plugin_passes_its_checks_and_its_weights_move_the_set_point_iae(tmp_path):
+    """Issue 52's done-when: a 2-DOF PI plugin written from the docs changes its set-point IAE
+    with b; the same design without the declaration fails its design check, naming it."""
+    from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
+    from heurtune.objectives.qtp.model import preset
+
+    plugin = tmp_path / "pi_2dof.py"
+    plugin.write_text(PI_2DOF)
+    stream = io.StringIO()
+    assert run_check([str(plugin)], stream=stream) == 0, stream.getvalue()
+    loop = ClosedLoop(preset("min"), "pi_2dof_test")
+    scenario = Scenario(horizon=150.0, output_disturbance=(0.0, 0.0), setpoint_step=(1.0, 1.0), setpoint_time=10.0)
+    iae = [loop.run(loop.controller(dict(Kp1=2.0, Ki1=0.05, Kp2=2.0, Ki2=0.05, b1=b, b2=b)), scenario,
+                    record=False).metrics[6] for b in (0.0, 0.5, 1.0)]
+    assert iae[0] > iae[1] > iae[2]  # the set-point weight acts on the servo response
+    undeclared = tmp_path / "pi_2dof_undeclared.py"
+    undeclared.write_text(PI_2DOF.replace(', "reads_reference": True', "").replace("pi_2dof_test", "pi_2dof_u"))
+    stream = io.StringIO()
+    assert run_check([str(undeclared)], stream=stream) == 1
+    assert ("FAIL  qtp structure pi_2dof_u: design: the design returns Br and Dr but the structure does not "
+            "declare extras['reads_reference']") in stream.getvalue()
