@@ -783,7 +783,8 @@ def test_by_controller_takes_a_type_list_case_and_refuses_other_problems(tmp_pat
 def test_by_controller_relabels_histories_and_the_report_compares_structures(tmp_path):
     """A type-list folder's histories follow its runs (plant case, structure), and the report
     takes --by controller as compare does."""
-    from heurtune.analysis.report import build_report, run as report_run
+    from heurtune.analysis.report import build_report
+    from heurtune.analysis.report import run as report_run
     from heurtune.analysis.runs import load_histories
 
     one = _structure_folder(tmp_path, "types", "pid", [1.0, 1.1, 1.2], case="min-pid", experiment="types")

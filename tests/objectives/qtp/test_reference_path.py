@@ -14,11 +14,11 @@ import pytest
 import reference_qtp as ref
 
 import heurtune
-from heurtune.core.families import make_experiment
-from heurtune.runner.config import load_config
 from heurtune.core.errors import ConfigError
+from heurtune.core.families import make_experiment
 from heurtune.objectives.qtp.loop import METRIC_NAMES, ClosedLoop, Scenario
 from heurtune.objectives.qtp.model import preset
+from heurtune.runner.config import load_config
 
 PI2DOF = dict(Kp1=3.0, Ki1=0.05, b1=0.4, Kp2=2.0, Ki2=0.08, b2=0.7)
 # the loop settles in the servo window, and the set-points step before the levels do
