@@ -381,16 +381,34 @@ def write_mat(runs: pd.DataFrame, history: pd.DataFrame, out, *, experiment=None
             rec["gains"] = x.reshape(1, -1)
             rec.update(_controller_record(prob, x))
         cells[i, 0] = rec
-    with atomic_path(out / "best.mat") as tmp:
-        scipy.io.savemat(tmp, {"best": cells}, oned_as="column", long_field_names=True, do_compression=True)
-    files.append(out / "best.mat")
     fields = ()
+    units = {"run": "label (0-based)", "optimiser_index": "label (0-based)"}
     if experiment is not None and len(best):
-        fields = getattr(experiment.problem(best.iloc[0]["case"]), "CONTROLLER_RECORD_FIELDS", ())
+        prob = experiment.problem(best.iloc[0]["case"])
+        fields = getattr(prob, "CONTROLLER_RECORD_FIELDS", ())
+        units.update(_units_of(prob))
+    readme = mat_readme(fields)
+    with atomic_path(out / "best.mat") as tmp:
+        # the readme and the units travel inside the file as well (a copied best.mat keeps them)
+        scipy.io.savemat(tmp, {"best": cells, "readme": readme, "units": units}, oned_as="column",
+                         long_field_names=True, do_compression=True)
+    files.append(out / "best.mat")
     with atomic_path(out / "README.txt") as tmp:
-        Path(tmp).write_text(mat_readme(fields))
+        Path(tmp).write_text(readme)
     files.append(out / "README.txt")
     return files
+
+
+def _units_of(prob) -> dict:
+    """``{field: unit}`` of a best record for ``best.mat``'s ``units``: the objective (its
+    label and unit) and the response's time, outputs and inputs where the problem names them."""
+    units = {"best_f": str(getattr(prob, "objective_label", "objective")), "response_t": "s"}
+    labels = getattr(prob, "signal_labels", {}) or {}
+    if labels.get("y_unit"):
+        units["response_y"] = units["response_h"] = str(labels["y_unit"])
+    if labels.get("u_unit"):
+        units["response_u"] = str(labels["u_unit"])
+    return units
 
 
 def mat_readme(fields=()) -> str:
@@ -416,6 +434,12 @@ def mat_readme(fields=()) -> str:
         "best.mat     cell array best, one struct per (case, optimiser): its best run (experiment, case,",
         "             algorithm, optimiser_index, run, best_f, feasible, status) and its gains (gain_names,",
         "             gains); run and optimiser_index are labels, numbered from 0 as in the parquet files.",
+        "             best.mat also holds this text (readme) and the units of its fields (units: best_f,",
+        "             response_t, response_y, response_u where the problem has them).",
+        "",
+        "A failed run (status 'failed': its best candidate could not be designed, was unstable or",
+        f"diverged) keeps best_f = {FAILED_OBJECTIVE:g}, a placeholder, not a value: select status",
+        "'feasible' (or feasible == 1) before averaging best_f.",
     ]
     if fields:
         lines += ["", "Each struct of best.mat also holds the design:", ""]

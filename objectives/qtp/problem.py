@@ -388,12 +388,14 @@ class Problem(TuningProblem):
         ("scenario", "the scenario of the response: horizon (s), output_disturbance (cm, added to y1, y2 at "
                      "disturbance_time s), input_disturbance (V, added to u1, u2 at input_disturbance_time s), "
                      "saturation (V, NaN: none), limits, uncertainty (factor on every area), sample_time (s, NaN: "
-                     "the continuous loop), tolerance (cm)"),
+                     "the continuous loop), tolerance (cm), setpoint_step (cm, set-points from h0 at setpoint_time s)"),
         ("controller.A, .B, .C, .D", "z' = A z + B w, du = C z + D w; w = [y1 - h1o, y2 - h2o, h3 - h3o, h4 - h4o] "
                                      "(cm), du = u - u0 (V); the error of a loop is -w"),
         ("controller.blocks", "one row per block of states: first and last state, 1-based, inclusive"),
         ("controller.block_pump", "the pump (1 or 2) each block belongs to (its anti-windup channel)"),
         ("controller.type", "the controller structure (folqi, pid, ...)"),
+        ("controller.Br, .Dr", "a structure that reads the set-points r (cm from h0): z' = A z + B w + Br r, "
+                               "du = C z + D w + Dr r, w then taken from h0 (absent otherwise)"),
         ("discrete.Phi, .Gamma, .C, .D, .dt", "the controller with zero-order hold at dt s: z[k+1] = Phi z[k] + "
                                               "Gamma w[k], du[k] = C z[k] + D w[k]"),
         ("response", "the nominal response: t (s), h1..h4 (cm), y1, y2 (cm, measured), u1, u2 (V)"),
@@ -431,7 +433,8 @@ class Problem(TuningProblem):
                     input_disturbance_time=float(sc.input_disturbance_time), saturation=numbers(sc.saturation),
                     limits=str(sc.limits), uncertainty=float(sc.uncertainty), noise_sd=float(sc.noise_sd),
                     sample_time=float(np.nan if sc.dt is None else sc.dt),
-                    tolerance=float(np.nan if sc.tolerance is None else sc.tolerance))
+                    tolerance=float(np.nan if sc.tolerance is None else sc.tolerance),
+                    setpoint_step=numbers(sc.setpoint_step), setpoint_time=float(sc.setpoint_time))
         lin = self.loop.plant_linearisation
         return {
             "plant": {"model": self.loop.plant_model, "name": str(p.name), "tank_area": numbers(p.A),
@@ -442,7 +445,9 @@ class Problem(TuningProblem):
             "scenario": scen,
             "controller": {"A": ctrl.A, "B": ctrl.B, "C": ctrl.C, "D": ctrl.D, "type": self.loop.kind,
                            "blocks": np.array([(a + 1, b) for a, b in ctrl.blocks], dtype=float).reshape(-1, 2),
-                           "block_pump": np.array(ctrl.block_channel, dtype=float) + 1.0},
+                           "block_pump": np.array(ctrl.block_channel, dtype=float) + 1.0,
+                           **({"Br": np.asarray(ctrl.Br, dtype=float), "Dr": np.asarray(ctrl.Dr, dtype=float)}
+                              if ctrl.reads_reference else {})},
             "discrete": {"dt": dt, "Phi": E[:nz, :nz], "Gamma": E[:nz, nz:], "C": ctrl.C, "D": ctrl.D},
             "response_scenario": scenario, "response": resp}
 

@@ -184,6 +184,12 @@ def test_mat_export(tmp_path):
     np.testing.assert_allclose(best["response"]["t"], resp["t"])
     readme = (tmp_path / "m" / "README.txt").read_text()
     assert "1-based" in readme and "controller.blocks" in readme and "cm^2" in readme
+    assert "keeps best_f = 1e+10, a placeholder, not a value" in readme
+    # the readme and the units inside the file: a copied best.mat still says what it holds
+    inside = scipy.io.loadmat(tmp_path / "m/best.mat", simplify_cells=True)
+    assert inside["readme"] == readme
+    assert inside["units"]["best_f"] == prob.objective_label and inside["units"]["response_y"] == "cm"
+    assert inside["units"]["response_u"] == "V" and inside["units"]["response_t"] == "s"
 
 
 def test_ioh_export_cli(tmp_path, capsys):

@@ -58,7 +58,7 @@ def test_custom_plant_case(tmp_path):
         ),
         (
             'extends = "cs_folqi_qtp"\n[controller]\ntype = "pdi"\n',
-            r"controller.type: got 'pdi'; allowed: [a-z_, ]*\bfolqi, fopid, [a-z_, ]*\bpid\b",
+            r"controller.type: got 'pdi'; allowed: [a-z0-9_, ]*\bfolqi, fopid, [a-z0-9_, ]*\bpid\b",
         ),
         (
             'extends = "cs_folqi_qtp"\n[controller]\noustaloup_order = 2.5\n',

@@ -141,9 +141,9 @@ EXPERIMENTS = sorted(_reference()["experiments"]) if REFERENCE.exists() else []
 # their smoke runs are the other's, problem ids included, so the rerun of the other pins both.
 SAME_SMOKE_AS = {"thesis_heuristics": "thesis_ch5"}
 RERUN = [name for name in EXPERIMENTS if name not in SAME_SMOKE_AS]
-# Shipped after the pinned release with controller types it did not have (pid, fopid, the
+# Shipped after the pinned release with controller types it did not have (pid, fopid, pi2dof, the
 # example plugin's): they have no earlier numbers to keep.
-NEWER_THAN_THE_RELEASE = ("cs_fopid_qtp", "cs_pid_qtp", "example_plugin_controller")
+NEWER_THAN_THE_RELEASE = ("cs_fopid_qtp", "cs_pid_qtp", "example_plugin_controller", "pi2dof_qtp")
 RELEASED_TYPES = {"folqi", "iolqi", "ladr", "lqi"}
 
 
