@@ -23,6 +23,7 @@ import matplotlib
 import numpy as np
 import pandas as pd
 
+from heurtune.analysis.colours import colours_of
 from heurtune.core.errors import ConfigError
 from heurtune.core.io import atomic_path
 from heurtune.core.problem import DEFAULT_SIGNAL_LABELS, RANGE_RTOL
@@ -103,8 +104,8 @@ def _require(df: pd.DataFrame, cols, what: str) -> None:
 
 
 def algorithm_colors(algorithms) -> dict:
-    """One colour per algorithm label, the same in every figure of the same set of algorithms
-    (convergence, box plot, ECDF, ERT, fronts): tab10 in the labels' sorted order.
+    """One colour per algorithm label, the same in every figure and report: a name's colour
+    does not depend on the others present (:mod:`heurtune.analysis.colours`).
 
     Parameters
     ----------
@@ -116,8 +117,7 @@ def algorithm_colors(algorithms) -> dict:
     dict
         Label to an RGBA colour.
     """
-    cmap = matplotlib.colormaps["tab10"]
-    return {a: cmap(i % 10) for i, a in enumerate(sorted(set(map(str, algorithms))))}
+    return colours_of(map(str, algorithms))
 
 
 def _empty_reason(failures) -> str:
@@ -225,7 +225,7 @@ def _x_axis(history: pd.DataFrame) -> str:
     return "epoch" if len(common) and (common.nunique(axis=1) == 1).all() else "n_evals"
 
 
-def boxplot_figure(runs: pd.DataFrame, path, metric: str = "best_f") -> None:
+def boxplot_figure(runs: pd.DataFrame, path, metric: str = "best_f", *, ylabel: str | None = None) -> None:
     """Box plots of the final objective per algorithm, one panel per case.
 
     Each box summarises the runs whose ``metric`` is finite and below ``FAILED_THRESHOLD``
@@ -242,6 +242,9 @@ def boxplot_figure(runs: pd.DataFrame, path, metric: str = "best_f") -> None:
         PNG written atomically.
     metric : str
         Column to plot (default ``best_f``); lower is better.
+    ylabel : str, optional
+        What ``metric`` is, with its unit (the problem's ``objective_label``); default
+        ``"final <metric>"``.
 
     Raises
     ------
@@ -275,13 +278,15 @@ def boxplot_figure(runs: pd.DataFrame, path, metric: str = "best_f") -> None:
             ax.scatter(xj[ok & ~feas], v[ok & ~feas], s=22, marker="x", color="red", zorder=4)
         ax.boxplot(boxes, positions=range(1, len(algs) + 1), widths=0.55, showfliers=False,
                    medianprops=dict(color="black", lw=1.5))
-        ax.set_xticks(range(1, len(algs) + 1), labels, fontsize=8)
+        # beyond four algorithms the three-line labels would touch: slanted, anchored at their end
+        slant = dict(rotation=30, ha="right", rotation_mode="anchor") if len(algs) > 4 else {}
+        ax.set_xticks(range(1, len(algs) + 1), labels, fontsize=8, **slant)
         ax.grid(alpha=0.3, axis="y")
         if shown and _needs_log(np.concatenate(shown)):
             ax.set_yscale("log")
             ax.grid(alpha=0.1, axis="y", which="minor")
         ax.set_title(f"case {name}")
-        ax.set_ylabel(f"final {metric}")
+        ax.set_ylabel(f"final {ylabel}" if ylabel else f"final {metric}")
     _save(fig, path)
 
 
@@ -481,7 +486,7 @@ def plot_responses(traj, path, title: str = "", limits=None, labels=None) -> Non
     _save(fig, path)
 
 
-def pareto_figure(fronts, path, objectives, title: str = "") -> None:
+def pareto_figure(fronts, path, objectives, title: str = "", *, axis_labels=None) -> None:
     """The final fronts of several runs in the plane of the first two objectives.
 
     Parameters
@@ -495,6 +500,9 @@ def pareto_figure(fronts, path, objectives, title: str = "") -> None:
         The objective names; the first two are drawn.
     title : str
         Figure title.
+    axis_labels : sequence of str, optional
+        The objectives with their units (the problem's ``objective_axis_label``); default the
+        names.
     """
     fig, ax = new_figure(figsize=(6.5, 5))
     a, b = (f"f_{name}" for name in objectives[:2])
@@ -509,8 +517,9 @@ def pareto_figure(fronts, path, objectives, title: str = "") -> None:
         chosen = front[front["chosen"]]
         ax.plot(chosen[a], chosen[b], "*", ms=14, color=line.get_color(), markeredgecolor="k",
                 label=f"{alg}: chosen")
-    ax.set_xlabel(objectives[0])
-    ax.set_ylabel(objectives[1])
+    labels = list(axis_labels) if axis_labels is not None else list(objectives)
+    ax.set_xlabel(labels[0])
+    ax.set_ylabel(labels[1])
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     if title:
@@ -551,7 +560,9 @@ def cd_diagram(result: FriedmanResult, path) -> Path:
     fig = Figure(figsize=(6.4, 0.6 + 0.35 * len(result.mean_ranks)))
     FigureCanvasAgg(fig)
     ax = fig.add_subplot()
-    sp.critical_difference_diagram(result.mean_ranks, result.nemenyi, alpha=result.alpha, ax=ax)
+    # the algorithms' colours of every other figure (the library's own palette otherwise)
+    sp.critical_difference_diagram(result.mean_ranks, result.nemenyi, alpha=result.alpha, ax=ax,
+                                   color_palette={str(k): v for k, v in colours_of(result.mean_ranks.index).items()})
     if np.isfinite(result.cd):  # drawn here, above the tick labels (the library's bar overlaps them)
         from matplotlib.transforms import blended_transform_factory, offset_copy
 

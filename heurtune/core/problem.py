@@ -136,6 +136,20 @@ class TuningProblem:
     # with its unit for convergence figures (None: "best objective").
     signal_labels = DEFAULT_SIGNAL_LABELS
     objective_label = None
+
+    def objective_axis_label(self, name: str) -> str:
+        """Objective ``name`` with its unit for a figure's axis (a family with units overrides
+        it; here the name itself).
+
+        Parameters
+        ----------
+        name : str
+
+        Returns
+        -------
+        str
+        """
+        return str(name)
     # Where the simulations of an evaluation run (set_device): the devices this family offers,
     # and the chosen one.
     devices = ("cpu",)

@@ -1100,9 +1100,12 @@ def _figures(exp, runs, history, best, out_dir):
             continue
         prob = exp.problem(case)
         failed = runs[(runs["case"] == case) & (runs.get("status") == "failed")] if "status" in runs else runs[:0]
+        ylabel = getattr(prob, "objective_label", None)
+        if getattr(prob, "objective_names", None):  # several objectives: best_f is minus the hypervolume
+            h = h.assign(best_f=-h["best_f"])
+            ylabel = HYPERVOLUME_LABEL
         figures.convergence_figure(h, out_dir / f"convergence_{_slug(case)}.png", case=case,
-                                   failures={case: list(failed.get("failure", []))},
-                                   ylabel=getattr(prob, "objective_label", None))
+                                   failures={case: list(failed.get("failure", []))}, ylabel=ylabel)
         b = best[best["case"] == case].sort_values(["feasible", "best_f"], ascending=[False, True]).head(1)
         if len(b):
             r = b.iloc[0]
@@ -1112,7 +1115,13 @@ def _figures(exp, runs, history, best, out_dir):
                 title += f": {r['status']}" + (f" ({r['failure']})" if r.get("failure") else "")
             figures.response_figure(prob, x, out_dir / f"responses_{_slug(case)}.png",
                                     scenarios=tuple(prob.scenarios), title=title)
-    figures.boxplot_figure(runs, out_dir / "boxplot_best_f.png")
+    probs = [exp.problem(case) for case in exp.cases]
+    if "hypervolume" in runs and all(getattr(p, "objective_names", None) for p in probs):
+        figures.boxplot_figure(runs, out_dir / "boxplot_best_f.png", metric="hypervolume", ylabel=HYPERVOLUME_LABEL)
+    else:  # the objective's label where every case has the same
+        labels = {getattr(p, "objective_label", None) for p in probs}
+        figures.boxplot_figure(runs, out_dir / "boxplot_best_f.png",
+                               ylabel=labels.pop() if len(labels) == 1 else None)
     if (out_dir / "pareto.parquet").exists():  # several objectives: the best front per optimiser
         fronts = pd.read_parquet(out_dir / "pareto.parquet")
         for case in exp.cases:
@@ -1124,7 +1133,12 @@ def _figures(exp, runs, history, best, out_dir):
             if len(sel):
                 prob = exp.problem(case)
                 figures.pareto_figure(sel, out_dir / f"pareto_{_slug(case)}.png", prob.objective_names,
-                                      title=f"{exp.name} / {case}: final fronts of the best runs (star: chosen)")
+                                      title=f"{exp.name} / {case}: final fronts of the best runs (star: chosen)",
+                                      axis_labels=[prob.objective_axis_label(n) for n in prob.objective_names])
+
+
+# The y axis of a multi-objective experiment's convergence and box plots (best_f is minus it).
+HYPERVOLUME_LABEL = "hypervolume of the front (higher is better)"
 
 
 def _slug(text: str) -> str:

@@ -142,8 +142,13 @@ class Problem(TuningProblem):
         """The objective with its unit, for axes: e.g. ``"effort J (V² s)"``."""
         if self.objective == "weighted":
             return "weighted objective: " + " + ".join(f"{w:g} {m}" for m, w in self.weights.items())
-        label = OBJECTIVE_LABELS.get(self.objective, self.objective)
-        unit = OBJECTIVE_UNITS.get(self.objective)
+        return self.objective_axis_label(self.objective)
+
+    def objective_axis_label(self, name: str) -> str:
+        """Objective ``name`` (one of :data:`OBJECTIVES`) with its unit, for an axis: e.g.
+        ``"IAE (cm s)"`` (a Pareto front's axes)."""
+        label = OBJECTIVE_LABELS.get(name, name)
+        unit = OBJECTIVE_UNITS.get(name)
         return f"{label} ({unit})" if unit else label
 
     def __repr__(self):

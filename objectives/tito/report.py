@@ -83,12 +83,16 @@ def spectral_radius_figure(results: dict, path, title: str = "") -> None:
         The PNG file.
     title : str
     """
+    from heurtune.analysis.colours import colours_of
     from heurtune.analysis.figures import new_figure
 
     fig, axes = new_figure(1, 2, figsize=(11, 4), sharey=True)
+    colours = colours_of(results)
     for label, sr in results.items():
-        axes[0].semilogx(sr.w, sr.rho_input, label=label)
-        axes[1].semilogx(sr.w, sr.rho_output, label=label)
+        # a failed design (its label says why) is drawn dashed: the test presumes a stable loop
+        style = "--" if "failed" in label else "-"
+        axes[0].semilogx(sr.w, sr.rho_input, ls=style, color=colours[label], label=label)
+        axes[1].semilogx(sr.w, sr.rho_output, ls=style, color=colours[label], label=label)
     for ax, side in zip(axes, ("input", "output")):
         ax.axhline(1.0, color="k", ls="--", lw=0.8)
         ax.set_xlabel("w (rad/s)")
@@ -139,6 +143,29 @@ def _accuracy_lines(exp, best: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _failure_of(row) -> str:
+    """The reason a best run failed (``"unstable"``, ...), "" for a run that did not."""
+    if str(row.get("status", "")) != "failed":
+        return ""
+    reason = row.get("failure", "")
+    return str(reason) if isinstance(reason, str) and reason else "failed"
+
+
+def _failed_verdicts(summary: dict, failure: str) -> dict:
+    """A failed design's robustness verdicts: not robustly stable. The spectral-radius and
+    Kharitonov tests bound how far a *stable* nominal loop may be perturbed; a design whose own
+    run failed (an unstable nominal loop, a diverged simulation) passes neither, whatever the
+    numbers, and ``robustness_note`` says why."""
+    out = dict(summary)
+    out["spectral_radius_pass"] = False
+    for key in list(out):
+        if key.startswith("kharitonov_pass") and out[key] is not None:
+            out[key] = False
+    out["robustness_note"] = (f"the design's run failed ({failure}): the tests presume a stable nominal loop, so "
+                              f"neither passes")
+    return out
+
+
 def _save(fig, path) -> None:
     with atomic_path(Path(path)) as tmp:
         fig.savefig(tmp, dpi=110, format="png")
@@ -169,8 +196,12 @@ def write_outputs(exp, runs: pd.DataFrame, best: pd.DataFrame, out_dir: Path, *,
         for _, r in best[best["case"] == case].iterrows():
             x = np.array([r[n] for n in prob.names])
             summary, sr = prob.robustness(x)
+            failure = _failure_of(r)
+            if failure:
+                summary = _failed_verdicts(summary, failure)
             robust.append(dict(experiment=exp.name, case=case, algorithm=r["algorithm"], run=int(r["run"]), **summary))
-            spectral[case][f"{r['algorithm']} (run {int(r['run'])})"] = sr
+            label = f"{r['algorithm']} (run {int(r['run'])})"
+            spectral[case][label + (f", failed: {failure}" if failure else "")] = sr
     lead = ["experiment", "case"]
     d = pd.concat(designs, ignore_index=True)
     write_parquet(d[lead + [c for c in d.columns if c not in lead]], out_dir / "design.parquet")

@@ -85,8 +85,23 @@ def test_single_objective_optimisers_are_refused():
         make_experiment(config)
 
 
-def test_nsga2_run_writes_the_front_and_reports_the_chosen_controller(tmp_path):
+def test_nsga2_run_writes_the_front_and_reports_the_chosen_controller(tmp_path, monkeypatch):
+    from heurtune.analysis import figures
+
+    drawn = {}  # what the figures are told to draw (issue 53: hypervolume, not "effort J", and units)
+    for name in ("convergence_figure", "boxplot_figure", "pareto_figure"):
+        original = getattr(figures, name)
+
+        def spy(*args, _name=name, _original=original, **kwargs):
+            drawn.setdefault(_name, []).append((args, kwargs))
+            return _original(*args, **kwargs)
+
+        monkeypatch.setattr(figures, name, spy)
     out = run_experiment("nsga2_folqi_qtp", smoke=True, out=tmp_path / "mo", progress_stream=open("/dev/null", "w"))
+    (conv_args, conv_kwargs), *_ = drawn["convergence_figure"]
+    assert conv_kwargs["ylabel"].startswith("hypervolume") and (conv_args[0]["best_f"] >= 0).all()
+    assert drawn["boxplot_figure"][0][1] == dict(metric="hypervolume", ylabel=conv_kwargs["ylabel"])
+    assert drawn["pareto_figure"][0][1]["axis_labels"] == ["effort J (V² s)", "IAE (cm s)"]
     runs = pd.read_parquet(out / "runs.parquet")
     fronts = pd.read_parquet(out / "pareto.parquet")
     history = pd.read_parquet(out / "history.parquet")

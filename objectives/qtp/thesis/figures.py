@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from heurtune.analysis.colours import colours_of
 from heurtune.analysis.figures import _save, convergence_figure, new_figure
 from heurtune.analysis.runs import best_run_index
 from heurtune.objectives.qtp.margins import element_loop, frequency_grid, loop_margins
@@ -63,6 +64,7 @@ def response_overlay_figure(designs: dict, path, scenario: str = "nominal", titl
         raise ValueError("response_overlay_figure: no designs")
     fig, axes = new_figure(2, 2, figsize=(11, 7), sharex=True)
     failed = []
+    colours = colours_of(designs)  # CS, FOLQI, ... in their colours of every other figure
     for label, (prob, x) in designs.items():
         try:
             with warnings.catch_warnings():
@@ -74,7 +76,7 @@ def response_overlay_figure(designs: dict, path, scenario: str = "nominal", titl
         for ax, col in zip(axes.flat, _SIGNALS):
             src = col if col in df else {"y1": "h1", "y2": "h2"}.get(col, col)
             if src in df:
-                ax.plot(df["t"], df[src], lw=1.2, label=label)
+                ax.plot(df["t"], df[src], lw=1.2, label=label, color=colours[label])
     units = {"y1": "h1, measured (cm)", "y2": "h2, measured (cm)", "u1": "u1 (V)", "u2": "u2 (V)"}
     for ax, col in zip(axes.flat, _SIGNALS):
         ax.set_ylabel(units[col])

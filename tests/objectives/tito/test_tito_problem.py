@@ -358,3 +358,26 @@ def test_element_magnitude_bound_holds_beyond_every_sample(name, case):
         sup_beyond = np.maximum.accumulate(q[::-1])[::-1]
         bound = _magnitude_tail(_element_terms(prob.chain, i), w)
         assert np.all(bound >= sup_beyond * (1 - 1e-12))
+
+
+def test_a_failed_design_is_not_robustly_stable_and_is_marked(tmp_path, monkeypatch):
+    """A best run that failed (an unstable nominal loop) passes neither robustness test, with a
+    note saying why, and its spectral-radius line is labelled failed (issue 53)."""
+    from heurtune.objectives.tito import report
+
+    out = tmp_path / "ga"
+    assert run(["ga_pi_ccts", "--smoke", "--out", str(out), "--no-figures"]) == 0
+    runs = pd.read_parquet(out / "runs.parquet")
+    best = runs[runs["algorithm"] == "gpm"].copy()
+    best["status"], best["failure"] = "failed", "unstable"
+    drawn = {}
+    monkeypatch.setattr(report, "spectral_radius_figure", lambda results, path, title="": drawn.update(results))
+    exp = heurtune.load_experiment("ga_pi_ccts")
+    report.write_outputs(exp, runs, best, out, figures=True)
+    robust = pd.read_parquet(out / "robustness.parquet").iloc[0]
+    assert not robust["spectral_radius_pass"] and robust["kharitonov_pass1"] is not True
+    assert "run failed (unstable)" in robust["robustness_note"]
+    assert list(drawn) == ["gpm (run 0), failed: unstable"]
+    ok = runs[runs["algorithm"] == "gpm"].copy()  # the same design, not failed: its own verdicts
+    report.write_outputs(exp, runs, ok, out, figures=False)
+    assert pd.read_parquet(out / "robustness.parquet")["spectral_radius_pass"].iloc[0]
