@@ -103,14 +103,15 @@ LATEX_PACKAGES = ("booktabs",)
 def _latex_label(title: str) -> str:
     """A \\label key from a table's title: ``tab:`` and its words, lowercase, joined by ``-``."""
     words, key = re.findall(r"[a-z0-9]+", title.lower()), ""
-    for word in words:  # whole words, up to 60 characters
-        if key and len(key) + 1 + len(word) > 60:
+    for word in words:  # whole words, up to 120 characters
+        if key and len(key) + 1 + len(word) > 120:
             break
         key = f"{key}-{word}" if key else word
     return "tab:" + key
 
 
-def _latex_table(df: pd.DataFrame, formats: dict, title: str, use_pandas: bool | None = None) -> str:
+def _latex_table(df: pd.DataFrame, formats: dict, title: str, use_pandas: bool | None = None,
+                 label_prefix: str = "", used: set | None = None) -> str:
     num = _numeric_columns(df)
     cols = list(df.columns)
     keys = []
@@ -133,7 +134,13 @@ def _latex_table(df: pd.DataFrame, formats: dict, title: str, use_pandas: bool |
         body = (cells.to_latex(index=False, escape=False, column_format=colfmt) if use_pandas
                 else _tabular(cells, colfmt))
         caption = title if len(chunks) == 1 else f"{title} (part {k + 1} of {len(chunks)})"
-        label = _latex_label(title) + ("" if len(chunks) == 1 else f"-{k + 1}")
+        label = _latex_label(f"{label_prefix} {title}") + ("" if len(chunks) == 1 else f"-{k + 1}")
+        if used is not None:  # unique in the document: a repeat gets a number
+            again, n = label, 2
+            while again in used:
+                again, n = f"{label}-{n}", n + 1
+            label = again
+            used.add(label)
         out.append("\\begin{table}[htbp]\n\\centering\n\\small\n" + f"\\caption{{{_tex(caption)}}}\n"
                    + f"\\label{{{label}}}\n" + body + "\\end{table}")
     return "\n\n".join(out)
@@ -309,7 +316,8 @@ def report(runs: pd.DataFrame, metric: str = "best_f", alpha: float = 0.05, fmt:
         lines, headings and notes as ``# ...`` lines, numbers unrounded. ``latex``: starred
         sectioning commands and ``table`` environments with booktabs tabulars (needs
         ``\\usepackage{booktabs}``, said in a first comment line), each ``\\small`` with a
-        ``\\label`` (``tab:`` and its caption's words); a table wider than
+        ``\\label`` (``tab:``, the experiments' and its caption's words, unique in the report); a
+        table wider than
         :data:`LATEX_MAX_COLUMNS` is split into parts that repeat its leading text columns, and
         each case starts on a new page (``\\clearpage``) so that no table drifts past the next
         case's heading.
@@ -332,6 +340,9 @@ def report(runs: pd.DataFrame, metric: str = "best_f", alpha: float = 0.05, fmt:
         raise ConfigError(f"alpha must lie in (0, 1), got {alpha:g}")
     check_metric(runs, metric)
     parts = []
+    # labels start with the experiments compared: two reports input in one document stay apart
+    prefix = " ".join(pd.unique(runs["experiment"].astype(str))) if "experiment" in runs else ""
+    labels = set()
     for block in report_blocks(runs, metric, alpha, margins, cd_path):
         kind = block[0]
         if fmt == "md":
@@ -360,8 +371,8 @@ def report(runs: pd.DataFrame, metric: str = "best_f", alpha: float = 0.05, fmt:
             elif kind == "note":
                 parts.append(_tex(block[1]))
             else:
-                parts.append(_latex_table(block[2], block[3], block[1]))
+                parts.append(_latex_table(block[2], block[3], block[1], label_prefix=prefix, used=labels))
     if fmt == "latex":
         parts.insert(0, f"% heurtune.compare: needs \\usepackage{{{', '.join(LATEX_PACKAGES)}}}; tables are "
-                        f"labelled tab:<their caption's words>")
+                        f"labelled tab:<the experiments' and their caption's words>")
     return "\n\n".join(parts) + "\n"

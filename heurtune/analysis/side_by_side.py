@@ -242,40 +242,131 @@ def _tex(s) -> str:
     return "".join(_TEX.get(ch, ch) for ch in str(s))
 
 
-def render_latex(table: SideBySideTable) -> str:
-    """The .tex text of a table: one booktabs ``table`` environment per part (needs booktabs), the
-    notes under the last one.
+# Columns of one LaTeX tabular in \scriptsize: the leading key columns and whole quantities
+# (printed, heurtune, diff, diff %) up to this many fit a portrait A4 or letter text width
+# (measured with pdflatex on every shipped chapter and paper table, tests/analysis/test_latex_tables.py).
+LATEX_MAX_COLUMNS = 7
+
+
+def _caption(title: str, subtitle: str, k: int, n: int) -> str:
+    """A table's caption without the ``Table 5.2:`` LaTeX adds its own number to: the title's
+    rest, the source's table in parentheses, the part's subtitle, ``(columns k of n)``."""
+    m = re.match(r"^(.*?\bTable [^:]+):\s*(.*)$", title)
+    text = f"{m.group(2)} ({m.group(1)})" if m else title
+    if subtitle:
+        text += f". {subtitle}"
+    return text + (f" (columns {k + 1} of {n})" if n > 1 else "")
+
+
+def _column_groups(columns) -> list:
+    """The columns after the keys in groups that stay together: a quantity's printed, heurtune,
+    diff and diff % columns (one prefix), any other column alone."""
+    groups, prefix = [], None
+    for c in columns:
+        head = re.sub(r" (printed|heurtune|diff|diff %)$", "", str(c))
+        if groups and head != str(c) and head == prefix:
+            groups[-1].append(c)
+        else:
+            groups.append([c])
+        prefix = head if head != str(c) else None
+    return groups
+
+
+def _chunks(columns, keys) -> list:
+    """The columns after the keys split into tabulars of at most :data:`LATEX_MAX_COLUMNS` with
+    the keys repeated, whole quantities kept together (a wider quantity alone)."""
+    room = max(1, LATEX_MAX_COLUMNS - len(keys))
+    chunks = []
+    for group in _column_groups([c for c in columns if c not in keys]):
+        if chunks and len(chunks[-1]) + len(group) <= room:
+            chunks[-1] += group
+        else:
+            chunks.append(list(group))
+    return chunks or [[]]
+
+
+# A text column with a longer cell than this (a polynomial's coefficients) wraps in a paragraph
+# column of WRAP_WIDTH rather than widening the table past the page.
+WRAP_ABOVE = 20
+WRAP_WIDTH = r"0.25\textwidth"
+# Leading text columns repeated in every tabular of a split part (the rows' keys).
+MAX_KEYS = 3
+
+
+def _column_format(cells, is_text: bool) -> str:
+    """``r`` for numbers, ``l`` for text, a wrapping ``p{...}`` for long text."""
+    if not is_text:
+        return "r"
+    return f"p{{{WRAP_WIDTH}}}" if max((len(str(v)) for v in cells), default=0) > WRAP_ABOVE else "l"
+
+
+def _header(keys, chunk) -> list:
+    """The header rows of a tabular: a quantity's name once over its columns (``\\multicolumn``
+    and a ``\\cmidrule``), then the keys' names and the columns' own (printed, heurtune, diff,
+    diff %): a column is as wide as its numbers, not as its quantity's name."""
+    groups = _column_groups(chunk)
+    if all(len(g) == 1 for g in groups):
+        return [" & ".join(_tex(c) for c in keys + chunk) + r" \\"]
+    top, rules, low, at = [""] * len(keys), [], [_tex(c) for c in keys], len(keys) + 1
+    for g in groups:
+        if len(g) == 1:
+            top.append("")
+            low.append(_tex(g[0]))
+        else:
+            head = re.sub(r" (printed|heurtune|diff|diff %)$", "", str(g[0]))
+            top.append(f"\\multicolumn{{{len(g)}}}{{c}}{{{_tex(head)}}}")
+            rules.append(f"\\cmidrule(lr){{{at}-{at + len(g) - 1}}}")
+            low += [_tex(str(c)[len(head) + 1:]) for c in g]
+        at += len(g)
+    return [" & ".join(top) + r" \\", "".join(rules), " & ".join(low) + r" \\"]
+
+
+def render_latex(table: SideBySideTable, *, label_prefix: str = "") -> str:
+    """The .tex text of a table: booktabs ``table`` environments, one per part and group of
+    columns (a wide part is split with its key columns repeated, so that each fits a portrait
+    page), each with a caption and a unique ``\\label``; the notes under the last one. The first
+    line names the package it needs.
 
     Parameters
     ----------
     table : SideBySideTable
+    label_prefix : str
+        Put before each label (the experiment's name), so that the tables of several
+        experiments can be input in one document.
 
     Returns
     -------
     str
     """
-    out = [f"% {_tex(table.title)}", f"% {_tex(table.meaning)}"]
+    out = [r"% needs \usepackage{booktabs}", f"% {_tex(table.title)}", f"% {_tex(table.meaning)}"]
     for note in table.notes:
         out.append(f"% note: {_tex(note)}")
     shown = [p for p in table.parts if not p.display.empty]
-    last = shown[-1] if shown and table.notes else None
     notes = (r"\par\smallskip{\footnotesize\raggedright Notes: "
              + " ".join(f"({k}) {_tex(n)}." for k, n in enumerate(table.notes, start=1)) + r"\par}")
-    for part in table.parts:
+    base = re.sub(r"[^a-z0-9]+", "-", f"{label_prefix} {table.stem}".lower()).strip("-")
+    for i, part in enumerate(shown):
         d = part.display
-        if d.empty:
-            continue
-        num = [not all(isinstance(v, str) for v in part.values[c]) for c in d.columns]
-        colfmt = "".join("r" if n else "l" for n in num)
-        out += [r"\begin{table}[htbp]", r"\centering", r"\scriptsize",
-                f"\\caption{{{_tex(table.title)}. {_tex(part.subtitle)}}}",
-                f"\\begin{{tabular}}{{{colfmt}}}", r"\toprule",
-                " & ".join(_tex(c) for c in d.columns) + r" \\", r"\midrule"]
-        out += [" & ".join(_tex(v) for v in r) + r" \\" for r in d.itertuples(index=False, name=None)]
-        out += [r"\bottomrule", r"\end{tabular}"]
-        if part is last:  # the notes under the last table, where a reader of the PDF sees them
-            out += [notes]
-        out += [r"\end{table}", ""]
+        text = [all(isinstance(v, str) for v in part.values[c]) for c in d.columns]
+        keys = []
+        for c, is_text in zip(d.columns, text):  # the leading text columns: the rows' keys
+            if not is_text or len(keys) == MAX_KEYS or len(keys) == len(d.columns) - 1:
+                break
+            keys.append(c)
+        chunks = _chunks(list(d.columns), keys)
+        for k, chunk in enumerate(chunks):
+            cols = keys + chunk
+            colfmt = "".join(_column_format(d[c], text[list(d.columns).index(c)]) for c in cols)
+            label = f"tab:{base}" + (f"-{i + 1}" if len(shown) > 1 else "") + (f"-{k + 1}" if len(chunks) > 1 else "")
+            out += [r"\begin{table}[htbp]", r"\centering", r"\scriptsize",
+                    f"\\caption{{{_tex(_caption(table.title, part.subtitle, k, len(chunks)))}}}",
+                    f"\\label{{{label}}}",
+                    f"\\begin{{tabular}}{{{colfmt}}}", r"\toprule", *_header(keys, chunk), r"\midrule"]
+            out += [" & ".join(_tex(v) for v in r) + r" \\" for r in d[cols].itertuples(index=False, name=None)]
+            out += [r"\bottomrule", r"\end{tabular}"]
+            if table.notes and part is shown[-1] and k == len(chunks) - 1:  # where a reader of the PDF sees them
+                out += [notes]
+            out += [r"\end{table}", ""]
     return "\n".join(out)
 
 

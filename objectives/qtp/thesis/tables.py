@@ -733,7 +733,7 @@ def write_chapter(chapter: int, exp, out_dir, *, runs=None, history=None, margin
     ]
     for t in tables:
         md = write_text(tdir / f"{t.stem}.md", render_markdown(t))
-        tex = write_text(tdir / f"{t.stem}.tex", render_latex(t))
+        tex = write_text(tdir / f"{t.stem}.tex", render_latex(t, label_prefix=getattr(exp, "name", "")))
         written += [md, tex]
         label = "distribution of SQP solutions" if t.name == "starts" else f"Table {t.name}"
         index.append(f"| {label} | [{md.name}]({md.name}), [{tex.name}]({tex.name}) | {md_cell(t.meaning)} |")

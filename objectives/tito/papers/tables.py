@@ -511,7 +511,7 @@ def write_paper(paper, exp, out_dir, *, runs: pd.DataFrame | None = None, figure
         if smoke:
             t.notes.insert(0, SMOKE_NOTE)
         md = write_text(tdir / f"{t.stem}.md", render_markdown(t))
-        tex = write_text(tdir / f"{t.stem}.tex", "% needs \\usepackage{booktabs}\n" + render_latex(t))
+        tex = write_text(tdir / f"{t.stem}.tex", render_latex(t, label_prefix=getattr(exp, "name", "")))
         written += [md, tex]
         index.append(f"| Table {t.name} | [{md.name}]({md.name}), [{tex.name}]({tex.name}) | {md_cell(t.meaning)} |")
     if figures:
