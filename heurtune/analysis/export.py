@@ -19,7 +19,11 @@ Usage::
     at each epoch where it improves and at the run's last evaluation. Readers split runs at
     ``evaluations == 1``, so each run starts with a line at evaluation 1; until the run has a
     feasible candidate its value is the placeholder ``max(FAILED_OBJECTIVE, worst value of the
-    case)`` (1e10 for the QTP problems), which no target below it counts as reached.
+    case)`` (1e10 for the QTP problems) plus the run's place in its file (0, 1, 2, ...), which no
+    target below it counts as reached. The places keep runs apart for a reader that drops
+    repeated values over a whole file: iohinspector 0.0.8's ``load(monotonic=True)`` takes its
+    differences across runs, and with one placeholder a failed run after another failed run
+    vanished (5 of thesis_ch5's 24).
 
 ``mat``
     ``runs.mat`` (struct ``runs``: one field per column of runs.parquet), ``history.mat``
@@ -209,8 +213,9 @@ def write_ioh(history: pd.DataFrame, out, *, dimensions, runs: pd.DataFrame | No
         folder = out / _slug(label)
         data_rel = f"data_f{fid[case]}_{safe_case}/IOHprofiler_f{fid[case]}_DIM{dim}.dat"
         text, run_meta = [], []
-        for run, rg in g.groupby("run", sort=True):
-            lines = ioh_lines(rg["n_evals"].to_numpy(), rg["f_feasible"].to_numpy(), placeholder[case])
+        for place, (run, rg) in enumerate(g.groupby("run", sort=True)):
+            # one placeholder per run: no run starts on the value the one before it ended on
+            lines = ioh_lines(rg["n_evals"].to_numpy(), rg["f_feasible"].to_numpy(), placeholder[case] + place)
             text.append("evaluations raw_y")
             text.extend(f"{e} {_fmt(v)}" for e, v in lines)
             best_v = lines[-1][1]

@@ -65,7 +65,8 @@ def test_ioh_layout(tmp_path):
     (scen,) = meta["scenarios"]
     assert scen["dimension"] == 3
     runs = _parse_dat(tmp_path / "pso" / scen["path"])
-    assert runs == [[(1, P), (50, 10), (100, 5), (500, 1)], [(1, P), (300, 3), (400, 3)]]
+    # the placeholder plus the run's place in its file
+    assert runs == [[(1, P), (50, 10), (100, 5), (500, 1)], [(1, P + 1), (300, 3), (400, 3)]]
     assert [r["evals"] for r in scen["runs"]] == [500, 400]
     assert [r["best"]["y"] for r in scen["runs"]] == [1, 3]
     assert [r["best"]["evals"] for r in scen["runs"]] == [500, 300]
@@ -106,6 +107,26 @@ def test_ioh_read_by_iohinspector(tmp_path):
     data = dm.load(monotonic=True, include_meta_data=True).to_pandas()
     pso = data[(data["algorithm_name"] == "pso") & (data["function_name"] == "c1")]
     assert sorted(pso.groupby("run_id")["evaluations"].max()) == [300, 500]
+
+
+def test_iohinspector_keeps_failed_runs_one_after_another(tmp_path):
+    """Runs that never find a feasible candidate, one after another, each stay a run for
+    iohinspector's monotonic load (issue 53: one shared placeholder lost them)."""
+    iohinspector = pytest.importorskip("iohinspector")
+    rows = [dict(experiment="exp", case="c1", algorithm="cs", optimiser_index=0, run=run, epoch=e, n_evals=n,
+                 best_f=f, best_violation=v)
+            for run, epochs in enumerate([[(10, 5.0, 0.0), (20, 4.0, 0.0)],
+                                          [(10, 9.0, 1.0), (20, 9.0, 1.0)],     # never feasible
+                                          [(10, 9.0, 1.0), (20, 9.0, 1.0)],     # never feasible
+                                          [(10, 9.0, 1.0), (20, 3.0, 0.0)]])
+            for e, (n, f, v) in enumerate(epochs)]
+    export.write_ioh(pd.DataFrame(rows), tmp_path, dimensions=2)
+    dm = iohinspector.DataManager()
+    dm.add_folder(str(tmp_path))
+    data = dm.load(monotonic=True, include_meta_data=True).to_pandas()
+    assert data["run_id"].nunique() == 4
+    final = data.groupby("run_id")["raw_y"].min().sort_index().to_numpy()
+    assert final[0] == 4.0 and final[3] == 3.0 and (final[1:3] >= P).all()
 
 
 def test_matlab_names():
