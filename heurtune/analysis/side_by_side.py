@@ -300,18 +300,29 @@ def _column_format(cells, is_text: bool) -> str:
     return f"p{{{WRAP_WIDTH}}}" if max((len(str(v)) for v in cells), default=0) > WRAP_ABOVE else "l"
 
 
+def _stacked(name) -> str:
+    """A column's name in its header cell: a long name of several words on two lines
+    (``\\shortstack``), so that the name does not make the column wider than its numbers."""
+    words = str(name).split(" ")
+    if len(str(name)) <= 10 or len(words) < 2:
+        return _tex(name)
+    # the split into two lines of the most even lengths
+    cut = min(range(1, len(words)), key=lambda i: abs(len(" ".join(words[:i])) - len(" ".join(words[i:]))))
+    return f"\\shortstack{{{_tex(' '.join(words[:cut]))}\\\\{_tex(' '.join(words[cut:]))}}}"
+
+
 def _header(keys, chunk) -> list:
     """The header rows of a tabular: a quantity's name once over its columns (``\\multicolumn``
     and a ``\\cmidrule``), then the keys' names and the columns' own (printed, heurtune, diff,
     diff %): a column is as wide as its numbers, not as its quantity's name."""
     groups = _column_groups(chunk)
     if all(len(g) == 1 for g in groups):
-        return [" & ".join(_tex(c) for c in keys + chunk) + r" \\"]
+        return [" & ".join([_tex(c) for c in keys] + [_stacked(c) for c in chunk]) + r" \\"]
     top, rules, low, at = [""] * len(keys), [], [_tex(c) for c in keys], len(keys) + 1
     for g in groups:
         if len(g) == 1:
             top.append("")
-            low.append(_tex(g[0]))
+            low.append(_stacked(g[0]))
         else:
             head = re.sub(r" (printed|heurtune|diff|diff %)$", "", str(g[0]))
             top.append(f"\\multicolumn{{{len(g)}}}{{c}}{{{_tex(head)}}}")
