@@ -348,13 +348,17 @@ def _outside(values, lo, hi) -> bool:
 def _draw_limits(ax, lo, hi, label):
     """Dashed lines at ``lo`` and ``hi`` that do not rescale the panel.
 
-    The view stays on the response: a limit far from it is named in the legend only, one that
-    the response approaches or crosses is also drawn.
+    The view stays on the response: a limit that the response approaches or crosses is drawn
+    and named in the legend; limits both off the panel's scale are named in its title
+    instead (a legend entry for a line one cannot see would mislead).
     """
     ylim = ax.get_ylim()
-    ax.axhline(lo, color="0.35", lw=0.9, ls=(0, (5, 3)), label=label)
+    visible = any(ylim[0] <= v <= ylim[1] for v in (lo, hi))
+    ax.axhline(lo, color="0.35", lw=0.9, ls=(0, (5, 3)), label=label if visible else None)
     ax.axhline(hi, color="0.35", lw=0.9, ls=(0, (5, 3)))
     ax.set_ylim(ylim)
+    if not visible:
+        ax.set_title(f"{ax.get_title()} (limits off scale: {label.split(': ', 1)[-1]})", fontsize=10)
 
 
 def _signal_numbers(df: pd.DataFrame, prefix: str) -> list:
@@ -424,7 +428,7 @@ def plot_responses(traj, path, title: str = "", limits=None, labels=None) -> Non
     lab = {**DEFAULT_SIGNAL_LABELS, **(labels or {})}
     outputs, inputs = _signal_numbers(traj, "y"), _signal_numbers(traj, "u")
     ncol = max(len(outputs), len(inputs), 1)
-    fig, axes = new_figure(2, ncol, figsize=(5.5 * ncol, 7), sharex=True, squeeze=False)
+    fig, axes = new_figure(2, ncol, figsize=(6.8 * ncol, 7), sharex=True, squeeze=False)
     out_ax = {i: axes[0, k] for k, i in enumerate(outputs)}
     in_ax = {j: axes[1, k] for k, j in enumerate(inputs)}
     for ax in list(axes[0, len(outputs):]) + list(axes[1, len(inputs):]):
@@ -477,7 +481,8 @@ def plot_responses(traj, path, title: str = "", limits=None, labels=None) -> Non
         ax.set_ylabel(lab["u_label"].format(i=j))
         ax.set_xlabel("t (s)")
     for ax in list(out_ax.values()) + list(in_ax.values()):
-        ax.legend(fontsize=7)
+        # beside the panel, never over its traces
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
         ax.grid(alpha=0.3)
     if title:
         fig.suptitle(title)

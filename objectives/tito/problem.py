@@ -232,8 +232,10 @@ class TITOProblem(TuningProblem):
     scenario_type = TITOScenario
     report_columns = ("f", "IAE1", "IAE2", "ISE1", "ISE2", "ITAE1", "ITAE2", "ts1", "ts2", "Am1", "Am2",
                       "phim1", "phim2", "Ms1", "Ms2", "feasible", "reason")
-    signal_labels = {"output": "loop", "input": "input", "y_label": "y{i}", "u_label": "u{i}",
-                     "y_unit": "", "u_unit": ""}
+    # The papers print their transfer functions without units (deviations of levels and of
+    # pump inputs): the axes say so rather than show bare numbers.
+    signal_labels = {"output": "loop", "input": "input", "y_label": "y{i} (model units)",
+                     "u_label": "u{i} (model units)", "y_unit": "", "u_unit": ""}
 
     def __init__(self, case: str, kind: str, chain: DesignChain, bounds: dict, *, objective: str,
                  constraints: dict, scenarios: dict, tuning_scenario: str, N: float, windows: dict,

@@ -239,6 +239,24 @@ def test_responses_are_sized_from_the_signals(tmp_path, monkeypatch):
     assert figs[1].axes[3].get_title() == "input 1"
 
 
+def test_off_scale_limits_are_named_in_the_title_and_legends_sit_beside_the_panels(tmp_path, monkeypatch):
+    """A limit far from the response is not a legend entry for a line one cannot see: the
+    panel's title names it; a limit the response reaches is drawn and in the legend; every
+    legend is outside its panel (issue 53)."""
+    from heurtune.analysis import figures
+
+    figs = keep_figures(monkeypatch, figures)
+    t = np.linspace(0, 1, 11)
+    traj = pd.DataFrame(dict(scenario="a", t=t, y1=10 + 0.1 * t, u1=3.5 + 0.6 * t))
+    figures.plot_responses(traj, tmp_path / "r.png", limits={"y": [(0, 50)], "u": [(0, 4)]})
+    out_ax, in_ax = figs[0].axes[0], figs[0].axes[1]
+    assert out_ax.get_title() == "output 1 (limits off scale: 0 and 50)"
+    assert [t.get_text() for t in out_ax.get_legend().get_texts()] == ["a: y1"]
+    assert "input range 0 to 4" in [t.get_text() for t in in_ax.get_legend().get_texts()]
+    for ax in (out_ax, in_ax):
+        assert ax.get_legend().get_bbox_to_anchor().x0 >= ax.get_window_extent().x1 - 1
+
+
 def test_a_long_response_is_drawn_from_its_extremes():
     """A trajectory of 50,000 rows is drawn from a few thousand: each bucket's first and last
     rows and the rows where a signal is smallest or largest, so a one-sample spike and the NaN
