@@ -281,7 +281,10 @@ def boxplot_figure(runs: pd.DataFrame, path, metric: str = "best_f", *, ylabel: 
         slant = dict(rotation=30, ha="right", rotation_mode="anchor") if len(algs) > 4 else {}
         ax.set_xticks(range(1, len(algs) + 1), labels, fontsize=8, **slant)
         ax.grid(alpha=0.3, axis="y")
-        if shown and _needs_log(np.concatenate(shown)):
+        if not any(len(v) for v in shown):  # every run failed: say so rather than draw empty axes
+            ax.text(0.5, 0.5, "no run has a finite value below the failure placeholder:\nevery run failed",
+                    ha="center", va="center", transform=ax.transAxes, fontsize=9)
+        elif _needs_log(np.concatenate(shown)):
             ax.set_yscale("log")
             ax.grid(alpha=0.1, axis="y", which="minor")
         ax.set_title(f"case {name}")

@@ -218,6 +218,9 @@ def test_boxplot_counts_failed_and_infeasible_runs_as_compare_does(tmp_path, mon
     boxplot_figure(runs, tmp_path / "box.png")
     label = figs[0].axes[0].get_xticklabels()[0].get_text()
     assert label == "apso\nn=3, failed=1, infeas.=1"
+    # a case whose every run failed: a note, not empty axes
+    boxplot_figure(runs.assign(best_f=1e10, status="failed"), tmp_path / "box2.png")
+    assert "every run failed" in " ".join(t.get_text() for t in figs[1].axes[0].texts)
 
 
 def test_responses_are_sized_from_the_signals(tmp_path, monkeypatch):
