@@ -151,3 +151,36 @@ def test_a_terminal_line_fits_its_width(monkeypatch, columns):
     bar.close()
     frames = [f for f in stream.getvalue().split("\r") if f]
     assert frames and all(len(f.rstrip("\n")) == columns - 1 for f in frames), [len(f) for f in frames]
+
+
+def test_a_pseudo_terminal_of_80_columns_gets_lines_of_79(monkeypatch):
+    """On a real (pseudo-)terminal of 80 columns, its own size read from its file descriptor,
+    not the environment's COLUMNS: every redraw is 79 characters, so none wraps (issue 53)."""
+    import fcntl
+    import select
+    import struct
+    import termios
+
+    monkeypatch.setenv("COLUMNS", "200")  # what the terminal says wins over the environment
+    master, slave = os.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))
+    stream = os.fdopen(slave, "w", buffering=1, encoding="utf-8")
+    try:
+        assert stream.isatty()
+        bar = Progress(total=3, done=0, stream=stream)
+        for k in range(3):
+            bar.update(dict(case="min" * 20, algorithm="cs", feasible=True, best_f=1234.5 + k, violation=0.0,
+                            n_evals=100), name=f"r{k}")
+        bar.close()
+        stream.flush()
+        out = b""
+        while True:  # what the terminal received
+            if not select.select([master], [], [], 0.2)[0]:
+                break
+            out += os.read(master, 65536)
+    finally:
+        stream.close()
+        os.close(master)
+    frames = [f for f in out.decode().replace("\n", "\r").split("\r") if f.strip()]
+    assert frames and all(len(f) <= 79 for f in frames), [len(f) for f in frames]
+    assert any(len(f) == 79 for f in frames)
