@@ -25,7 +25,7 @@ FIXED = {
     "cs": 0, "apso": 1, "pso": 2, "firefly": 3, "ga": 4, "cmaes": 5, "cmaes_sqp": 6, "random_search": 7,
     "lshade": 8, "jso": 9, "sqp_multistart": 10, "nsga2": 11, "sms_emoa": 12, "bfgs": 13, "dfp": 14,
     "steepest_descent": 15, "newton_raphson": 16, "gpm": 17, "sqp": 10,
-    "folqi": 0, "iolqi": 1, "ladr": 2, "lqi": 3, "pid": 4, "fopid": 5, "pi2dof": 6,
+    "folqi": 0, "iolqi": 1, "ladr": 2, "lqi": 3, "pid": 4, "fopid": 5, "pi2dof": 6, "2-dof pi": 6,
 }
 
 

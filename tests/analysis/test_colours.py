@@ -28,3 +28,4 @@ def test_names_of_one_figure_never_share_a_colour():
 def test_base_names():
     assert base_name("CS [seed1]") == "cs" and base_name("gpm (run 0), failed: unstable") == "gpm"
     assert base_name("2-DOF PI") == "2-dof pi"
+    assert colours_of(["2-DOF PI"])["2-DOF PI"] == colours_of(["pi2dof"])["pi2dof"]  # its label, its type
