@@ -800,3 +800,26 @@ def test_by_controller_relabels_histories_and_the_report_compares_structures(tmp
     page = build_report([one], tmp_path / "rep", responses=False, by="controller").read_text()
     assert "between controller structures" in page
     assert report_run([str(one), "--out", str(tmp_path / "rep2"), "--by", "plant"]) == 2
+
+
+def test_the_report_labels_best_f_with_the_objective_and_its_unit(tmp_path, monkeypatch):
+    """The report's box plot (and convergence) axes say what best_f is, from the problem
+    rebuilt from meta.json: "IAE (cm s)", not "best_f" (issue 53)."""
+    from heurtune.analysis import figures
+    from heurtune.analysis.report import build_report
+
+    seen = []
+    original = figures.boxplot_figure
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs.get("ylabel"))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(figures, "boxplot_figure", spy)
+    import json
+
+    one = _structure_folder(tmp_path, "pid_run", "pid", [1.0, 1.1, 1.2])
+    meta = json.loads((one / "meta.json").read_text())
+    (one / "meta.json").write_text(json.dumps({"experiment": "pid_run", **meta}))
+    build_report([one], tmp_path / "rep", responses=False)
+    assert seen == ["IAE (cm s)"]
