@@ -277,8 +277,8 @@ def boxplot_figure(runs: pd.DataFrame, path, metric: str = "best_f", *, ylabel: 
             ax.scatter(xj[ok & ~feas], v[ok & ~feas], s=22, marker="x", color="red", zorder=4)
         ax.boxplot(boxes, positions=range(1, len(algs) + 1), widths=0.55, showfliers=False,
                    medianprops=dict(color="black", lw=1.5))
-        # beyond four algorithms the three-line labels would touch: slanted, anchored at their end
-        slant = dict(rotation=30, ha="right", rotation_mode="anchor") if len(algs) > 4 else {}
+        # beyond four algorithms the three-line labels would run into each other: upright
+        slant = dict(rotation=90, ha="center") if len(algs) > 4 else {}
         ax.set_xticks(range(1, len(algs) + 1), labels, fontsize=8, **slant)
         ax.grid(alpha=0.3, axis="y")
         if not any(len(v) for v in shown):  # every run failed: say so rather than draw empty axes

@@ -218,6 +218,17 @@ def test_boxplot_counts_failed_and_infeasible_runs_as_compare_does(tmp_path, mon
     boxplot_figure(runs, tmp_path / "box.png")
     label = figs[0].axes[0].get_xticklabels()[0].get_text()
     assert label == "apso\nn=3, failed=1, infeas.=1"
+    # nine algorithms: upright labels that do not run into each other (issue 53)
+    many = pd.DataFrame(dict(case="min", algorithm=[f"algorithm_{k}" for k in range(9) for _ in range(2)], run=0,
+                             best_f=1.0, feasible=True, status="feasible"))
+    boxplot_figure(many, tmp_path / "box9.png")
+    fig = figs[1]
+    fig.canvas.draw()
+    ticks = fig.axes[0].get_xticklabels()
+    assert all(t.get_rotation() == 90 for t in ticks)
+    boxes = [t.get_window_extent() for t in ticks]
+    assert all(not a.overlaps(b) for a, b in zip(boxes, boxes[1:]))
+    figs.pop()
     # a case whose every run failed: a note, not empty axes
     boxplot_figure(runs.assign(best_f=1e10, status="failed"), tmp_path / "box2.png")
     assert "every run failed" in " ".join(t.get_text() for t in figs[1].axes[0].texts)
