@@ -83,7 +83,9 @@ def collect(folders) -> tuple:
     hist = pd.concat(hist, ignore_index=True).drop(columns=["experiment"], errors="ignore")
     runs["optimiser_index"] = 0
     hist["optimiser_index"] = 0
-    return runs, hist
+    # one block per dtype: the TITO folders' hundreds of per-scenario columns left the frames in
+    # pieces, and every later assign warned (PerformanceWarning) on the user's terminal
+    return runs.copy(), hist.copy()
 
 
 def _final(runs: pd.DataFrame) -> pd.Series:
