@@ -136,6 +136,10 @@ class TuningProblem:
     # with its unit for convergence figures (None: "best objective").
     signal_labels = DEFAULT_SIGNAL_LABELS
     objective_label = None
+    # Where the simulations of an evaluation run (set_device): the devices this family offers,
+    # and the chosen one.
+    devices = ("cpu",)
+    device = "cpu"
 
     def objective_axis_label(self, name: str) -> str:
         """Objective ``name`` with its unit for a figure's axis (a family with units overrides
@@ -150,10 +154,6 @@ class TuningProblem:
         str
         """
         return str(name)
-    # Where the simulations of an evaluation run (set_device): the devices this family offers,
-    # and the chosen one.
-    devices = ("cpu",)
-    device = "cpu"
 
     def __init_subclass__(cls, **kwargs):
         """Robust and multi-objective tuning for every family, by construction: a subclass's
