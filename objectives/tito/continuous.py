@@ -66,7 +66,7 @@ from .model import ParallelPID, PIController
 from .sim import _poly, controller_tf, input_noise, measurement_noise, vary_plant
 
 __all__ = ["DEFAULT_TOLERANCE", "ContinuousRun", "ContinuousTITOLoop", "ContinuousTITOSimulator", "ErrorCubics",
-           "check_continuous_plant", "coarsest_step"]
+           "balanced", "check_continuous_plant", "coarsest_step"]
 
 # Gauss-Lobatto nodes on [0, 1] (cubic through both ends and two interior points)
 NODES = np.array([0.0, 0.5 - 0.5 / math.sqrt(5.0), 0.5 + 0.5 / math.sqrt(5.0), 1.0])
@@ -273,12 +273,35 @@ class _Path:
         # balanced first (M = D Mb D^-1, D a diagonal of powers of 2, exact): a stiff filter's
         # realisation can put 1/Tf^2 beside 1 in M, and its norm (1e8 for a 10 us filter) would
         # cost the small entries of exp(M) their relative accuracy in the squarings
-        Mb, (scale, _) = scipy.linalg.matrix_balance(M, permute=False, separate=True)
+        Mb, scale = balanced(M)
         for i, tau in enumerate(offsets):
             F = scale[:, None] * kern.expm(Mb * tau) / scale[None, :]
             E[i] = F[:n, :n]
             H[i] = F[:n, n:] @ Vinv
         return E, H
+
+
+def balanced(M: np.ndarray) -> tuple:
+    """``(Mb, scale)`` with ``M = diag(scale) Mb diag(scale)^-1``, the scaling by powers of 2 of
+    LAPACK's ``gebal`` (no permutation).
+
+    scipy's ``matrix_balance`` also casts the scaling factors to int to read a permutation out of
+    them, which warns (``invalid value encountered in cast``) when a factor exceeds 2^63: a
+    perturbed plant's stiff route reached one in the suite. Without permutation that cast is
+    not used; its warning is silenced here, and the scaling is the float one.
+
+    Parameters
+    ----------
+    M : ndarray (m, m)
+
+    Returns
+    -------
+    Mb : ndarray (m, m)
+    scale : ndarray (m,)
+    """
+    with np.errstate(invalid="ignore"):
+        Mb, (scale, _) = scipy.linalg.matrix_balance(M, permute=False, separate=True)
+    return Mb, scale
 
 
 _MATRICES = ("Ox", "O1", "O2", "Sx", "S1", "S2")

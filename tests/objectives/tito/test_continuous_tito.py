@@ -446,3 +446,18 @@ def test_the_ladders_estimate_covers_the_error_of_random_candidates(name, case):
         _, fine, _, _ = ContinuousTITOLoop(sim.plant, prob.chain.decoupler, ctrl, sc, res.step / 16).run(None, "y")
         err = np.abs(res.y - fine[::16]).max()
         assert err <= res.error_estimate and err <= sc.tolerance * max(1.0, np.abs(res.y).max()), (x, err)
+
+
+def test_balancing_a_stiff_route_is_silent_and_exact():
+    """A scaling factor beyond 2^63 (a perturbed plant's stiff route in the suite) made scipy's
+    matrix_balance warn on the user's terminal; the balance is exact (powers of 2) and quiet."""
+    from numerics import assert_exact
+
+    from heurtune.objectives.tito.continuous import balanced
+
+    M = np.array([[1.0, 1e40, 0.0], [1e-40, 1.0, 1e40], [0.0, 1e-40, 1.0]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        Mb, scale = balanced(M)
+    assert scale.max() > 2.0 ** 63
+    assert_exact(scale[:, None] * Mb / scale[None, :], M)
