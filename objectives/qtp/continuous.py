@@ -110,20 +110,21 @@ class ContinuousController:
     @classmethod
     def _build(cls, ctrl) -> ContinuousController:
         D = np.ascontiguousarray(ctrl.D, dtype=np.float64)
-        if ctrl.reads_reference:
-            return cls._with_reference(ctrl, D)
-        if ctrl.modal_arrays is not None:  # every block modal, concatenated by the design
+        if ctrl.modal_arrays is not None and not ctrl.reads_reference:  # every block modal, concatenated
             # writeable, as the kernels' types are: the design's own (shared by the controllers
             # of one layout, never written), else copies
             lam, b, col, channel = (arr if arr.flags.writeable else arr.copy() for arr in ctrl.modal_arrays)
             return cls(lam=lam, b=b, col=col, Cm=np.ascontiguousarray(ctrl.C), D=D, channel=channel,
                        Aq=_NO_DENSE[0], Bq=_NO_DENSE[1], Cq=_NO_DENSE[2])
+        parts, extra = ctrl.modal_blocks(), ()
+        if ctrl.reads_reference:
+            parts, extra = cls._reference_block(ctrl, parts)
         lam, b, col, Cm, dense, ch_m, ch_q = [], [], [], [], [], [], []
 
         def real(x):
             return x if x.dtype.kind == "f" else np.real(x)
 
-        for part in ctrl.modal_blocks():
+        for part in parts:
             if part[0] == "modal":
                 _, l_, b_, C_, c_, ch = part
                 lam.append(real(l_))
@@ -134,6 +135,9 @@ class ContinuousController:
             else:
                 dense.append(part[1:4])
                 ch_q.append(np.full(part[1].shape[0], part[4], dtype=np.int64))
+        for A, B, C, channels in extra:  # a dense block whose states have channels of their own
+            dense.append((A, B, C))
+            ch_q.append(channels)
 
         def cat(xs, empty):
             return np.ascontiguousarray(np.concatenate(xs)) if xs else empty
@@ -143,53 +147,38 @@ class ContinuousController:
                    channel=np.concatenate(ch_m + ch_q) if ch_m or ch_q else np.zeros(0, dtype=np.int64),
                    **cls._dense_part(dense))
 
-    @classmethod
-    def _with_reference(cls, ctrl, D) -> ContinuousController:
-        """The form of a controller that reads the reference: the blocks the reference drives
-        (rows of ``Be`` not zero, :meth:`LinearController.reference_feed`) move, in their own
-        coordinates, into one dense block beside two reference states ``rho`` (channels
-        ``REF_CHANNEL``, ``REF_CHANNEL + 1``) that hold the set-point deviations: ``z' = A z +
-        B w_k + Be rho``, and ``rho`` drives the pumps by ``De``. The kernel sets ``rho`` at each
-        segment start; the other blocks keep their form."""
+    @staticmethod
+    def _reference_block(ctrl, parts) -> tuple:
+        """The form of a controller that reads the reference: ``(parts, [(A, B, C, channels)])``,
+        the :meth:`LinearController.modal_blocks` parts of the blocks the reference does not drive
+        and one dense block holding the others (rows of ``Be`` not zero,
+        :meth:`LinearController.reference_feed`) in their own coordinates, beside two reference
+        states ``rho`` (channels ``REF_CHANNEL``, ``REF_CHANNEL + 1``) that hold the set-point
+        deviations: ``z' = A z + B w_k + Be rho``, and ``rho`` drives the pumps by ``De``. The
+        kernel sets ``rho`` at each segment start."""
         from heurtune.objectives.qtp.continuous_kernels import REF_CHANNEL
 
         Be, De = ctrl.reference_feed()
-        plain, driven = [], []
-        for (start, stop), ch in zip(ctrl.blocks, ctrl.block_channel):
-            (driven if np.any(Be[start:stop] != 0.0) else plain).append((start, stop, ch))
-        sub = [(ctrl.A[a:b, a:b], ctrl.B[a:b], ctrl.C[:, a:b], ch) for a, b, ch in plain]
-        lam, b, col, Cm, dense, ch_m, ch_q = [], [], [], [], [], [], []
-        for A, B, C, ch in sub:
-            block = type(ctrl)(A, B, C, np.zeros((2, 4)), ((0, A.shape[0]),), (ch,))
-            for part in block.modal_blocks():
-                if part[0] == "modal":
-                    lam.append(np.real(part[1]))
-                    b.append(np.real(part[2]))
-                    Cm.append(np.real(part[3]))
-                    col.append(np.full(len(part[1]), part[4], dtype=np.int64))
-                    ch_m.append(np.full(len(part[1]), ch, dtype=np.int64))
-                else:
-                    dense.append(part[1:4])
-                    ch_q.append(np.full(part[1].shape[0], ch, dtype=np.int64))
-        m = sum(b_ - a for a, b_, _ in driven)
-        Ar, Br, Cr = np.zeros((m + 2, m + 2)), np.zeros((m + 2, 4)), np.zeros((2, m + 2))
-        k = 0
-        for a, b_, ch in driven:
-            n = b_ - a
-            Ar[k:k + n, k:k + n] = ctrl.A[a:b_, a:b_]
-            Ar[k:k + n, m:] = Be[a:b_]
-            Br[k:k + n] = ctrl.B[a:b_]
-            Cr[:, k:k + n] = ctrl.C[:, a:b_]
-            ch_q.append(np.full(n, ch, dtype=np.int64))
+        keep, driven = [], []
+        for part, (start, stop), ch in zip(parts, ctrl.blocks, ctrl.block_channel, strict=True):
+            if np.any(Be[start:stop] != 0.0):
+                driven.append((start, stop, ch))
+            else:
+                keep.append(part)
+        m = sum(stop - start for start, stop, _ in driven)
+        A, B, C = np.zeros((m + 2, m + 2)), np.zeros((m + 2, 4)), np.zeros((2, m + 2))
+        channels, k = [], 0
+        for start, stop, ch in driven:
+            n = stop - start
+            A[k:k + n, k:k + n] = ctrl.A[start:stop, start:stop]
+            A[k:k + n, m:] = Be[start:stop]
+            B[k:k + n] = ctrl.B[start:stop]
+            C[:, k:k + n] = ctrl.C[:, start:stop]
+            channels += [ch] * n
             k += n
-        Cr[:, m:] = De
-        dense.append((Ar, Br, Cr))
-        ch_q.append(np.array([REF_CHANNEL, REF_CHANNEL + 1], dtype=np.int64))
-        return cls(lam=np.ascontiguousarray(np.concatenate(lam)) if lam else np.zeros(0),
-                   b=np.ascontiguousarray(np.concatenate(b)) if b else np.zeros(0),
-                   col=np.concatenate(col) if col else np.zeros(0, dtype=np.int64),
-                   Cm=np.ascontiguousarray(np.hstack(Cm)) if Cm else np.zeros((2, 0)), D=D,
-                   channel=np.concatenate(ch_m + ch_q), **cls._dense_part(dense))
+        C[:, m:] = De
+        channels += [REF_CHANNEL, REF_CHANNEL + 1]
+        return keep, [(A, B, C, np.array(channels, dtype=np.int64))]
 
     @staticmethod
     def _dense_part(dense: list) -> dict:
