@@ -444,6 +444,27 @@ class StepPlan:
         return seg
 
 
+def first_event_time(output_disturbance, disturbance_time: float, setpoint_step, setpoint_time: float) -> float:
+    """The time overshoot and settling count from: the earlier of the measured-level step and
+    the set-point step among those that are not zero; the output disturbance time when neither
+    is (the thesis' scenarios: its 50 s).
+
+    Parameters
+    ----------
+    output_disturbance : array_like (2,)
+    disturbance_time : float
+    setpoint_step : array_like (2,)
+    setpoint_time : float
+
+    Returns
+    -------
+    float
+    """
+    times = [float(t) for t, d in ((disturbance_time, output_disturbance), (setpoint_time, setpoint_step))
+             if np.any(np.asarray(d, dtype=np.float64) != 0)]
+    return min(times) if times else float(disturbance_time)
+
+
 def plan_steps(horizon: float, step: float, output_disturbance, disturbance_time: float,
                input_disturbance, input_disturbance_time: float, local_tol: float = 0.0, top: int = 0,
                local_rel: float = 0.0, local_per: float = 0.0, setpoint_step=(0.0, 0.0),
@@ -479,16 +500,10 @@ def plan_steps(horizon: float, step: float, output_disturbance, disturbance_time
     d_in = np.asarray(input_disturbance, dtype=np.float64)
     d_ref = np.asarray(setpoint_step, dtype=np.float64)
     breaks = {0.0, float(horizon)}
-    events = []
-    if np.any(d_out != 0):
-        events.append(float(disturbance_time))
-    if np.any(d_ref != 0):
-        events.append(float(setpoint_time))
-    for t_event in events + ([float(input_disturbance_time)] if np.any(d_in != 0) else []):
-        if 0.0 < t_event < horizon:
-            breaks.add(t_event)
-    # overshoot and settling count from the first step of a level or a set-point
-    t_post = min(events) if events else float(disturbance_time)
+    for t_event, d in ((disturbance_time, d_out), (setpoint_time, d_ref), (input_disturbance_time, d_in)):
+        if np.any(d != 0) and 0.0 < t_event < horizon:
+            breaks.add(float(t_event))
+    t_post = first_event_time(d_out, disturbance_time, d_ref, setpoint_time)
     edges = sorted(breaks)
     t0, h, steps, graded, dist, uin, post, ref = [], [], [], [], [], [], [], []
     for a, b in zip(edges[:-1], edges[1:]):

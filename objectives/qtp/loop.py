@@ -271,15 +271,10 @@ class Scenario:
 
     @property
     def event_time(self) -> float:
-        """The time from which overshoot and settling are measured: the earlier of the
-        measured-level step and the set-point step among those that happen; the output
-        disturbance time when neither does (the thesis' scenarios: its 50 s)."""
-        times = []
-        if self.output_disturbance[0] != 0.0 or self.output_disturbance[1] != 0.0:
-            times.append(self.disturbance_time)
-        if self.has_setpoint_step:
-            times.append(self.setpoint_time)
-        return float(min(times)) if times else float(self.disturbance_time)
+        """The time from which overshoot and settling are measured
+        (:func:`~heurtune.objectives.qtp.continuous.first_event_time`)."""
+        return _continuous.first_event_time(self.output_disturbance, self.disturbance_time, self.setpoint_step,
+                                            self.setpoint_time)
 
     @property
     def continuous(self) -> bool:
