@@ -506,30 +506,32 @@ class Problem(TuningProblem):
             row.update(zip(METRIC_NAMES, ev.metrics[0]))
             row["J"] = row["J1"] + row["J2"]
             row["range"] = "; ".join(physical_range_flags(ev.metrics[0], self.loop.plant))
-            row.update(self.window_metrics(x, name, simulated=ev.reason[0] == ""))
+            row.update(self.window_metrics(x, name, metrics=ev.metrics[0] if ev.reason[0] == "" else None))
             rows.append(row)
         return pd.DataFrame(rows).set_index("scenario")
 
-    def window_metrics(self, x, scenario="nominal", *, simulated: bool = True) -> dict:
+    def window_metrics(self, x, scenario="nominal", *, metrics=None) -> dict:
         """IAE, ISE and ITAE of each loop per window of the scenario (:attr:`Scenario.windows`:
         servo from the set-point step, regulatory from the later disturbance), as
         ``IAE_servo1``, ``ITAE_regulatory2``, ...; ITAE counts time from the window's start.
-        ``{}`` for a scenario without windows; NaN for a candidate that was not simulated.
+        ``{}`` for a scenario without windows; NaN for a candidate that is not simulated.
 
         Each window's integrals are the differences of the whole-run integrals up to its ends:
         runs cut at the window boundaries follow the same trajectory on the same steps
-        (:meth:`Scenario.cut`), so the windows add up to the run's own IAE, ISE and ITAE."""
+        (:meth:`Scenario.cut`), so the windows add up to the run's own IAE, ISE and ITAE.
+        ``metrics``: the whole run's metrics (in the order of ``METRIC_NAMES``), whose integrals
+        close the last window; None for a candidate that was not simulated (NaN windows)."""
         sc = self.scenario(scenario)
         windows = sc.windows
         if not windows:
             return {}
         out = {f"{m}_{w}{i}": math.nan for w in windows for m in ("IAE", "ISE", "ITAE") for i in (1, 2)}
-        if not simulated or not sc.continuous:
+        if metrics is None or not sc.continuous:
             return out
         ctrl = self.loop.controller(dict(zip(self.names, np.asarray(x, dtype=np.float64).tolist())))
         idx = [_METRIC_INDEX[f"{m}{i}"] for m in ("IAE", "ISE", "ITAE") for i in (1, 2)]
-        upto = {0.0: np.zeros(len(idx))}
-        for t in sorted({t for w in windows.values() for t in w if t > 0.0}):
+        upto = {0.0: np.zeros(len(idx)), float(sc.horizon): np.asarray(metrics, dtype=np.float64)[idx]}
+        for t in sorted({t for w in windows.values() for t in w if 0.0 < t < sc.horizon}):
             sim = self.loop.run(ctrl, sc.cut(t), settling_band=self.settling_band, record=False)
             upto[t] = np.full(len(idx), math.nan) if sim.diverged else sim.metrics[idx]
         for w, (t0, t1) in windows.items():
