@@ -31,7 +31,8 @@ if TYPE_CHECKING:
     from heurtune.analysis.stats import FriedmanResult
 
 __all__ = ["convergence_figure", "boxplot_figure", "response_figure", "plot_responses", "pareto_figure",
-           "new_figure", "algorithm_colors", "FAILED_THRESHOLD", "cd_diagram"]
+           "new_figure", "algorithm_colors", "FAILED_THRESHOLD", "cd_diagram", "best_f_axis", "shown_best_f",
+           "HYPERVOLUME_LABEL"]
 
 # Objective values at or above this are the problem's failure sentinel (FAILED_OBJECTIVE = 1e10,
 # see heurtune.objectives.qtp.problem): they are left out of medians and boxes, which they would otherwise swamp.
@@ -128,6 +129,50 @@ def _empty_reason(failures) -> str:
     if len(counts) == 1:
         return f"no line: {counts.iloc[0]} runs failed,\nevery best candidate {counts.index[0]}"
     return "no line: runs failed, best candidates\n" + ", ".join(f"{n} {r}" for r, n in counts.items())
+
+
+# The axis of a multi-objective problem's best_f, shown as the hypervolume it is minus of.
+HYPERVOLUME_LABEL = "hypervolume of the front (higher is better)"
+
+
+def best_f_axis(prob) -> tuple:
+    """How a figure shows ``best_f`` of ``prob``: ``(label, sign)``, the axis label and the
+    factor that turns ``best_f`` into what the label names. One objective: its label with its
+    unit (None where the family gives none) and 1; several: :data:`HYPERVOLUME_LABEL` and -1
+    (``best_f`` is minus the front's hypervolume).
+
+    Parameters
+    ----------
+    prob : TuningProblem
+
+    Returns
+    -------
+    tuple of (str or None, float)
+    """
+    if getattr(prob, "objective_names", None):
+        return HYPERVOLUME_LABEL, -1.0
+    return getattr(prob, "objective_label", None), 1.0
+
+
+def shown_best_f(frame: pd.DataFrame, sign: float) -> pd.DataFrame:
+    """``frame`` with its ``best_f`` as :func:`best_f_axis`'s label names it (times ``sign``);
+    failure placeholders (at or above :data:`FAILED_THRESHOLD`) kept, so the figures still tell
+    them apart.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        With a ``best_f`` column (runs or history).
+    sign : float
+
+    Returns
+    -------
+    pandas.DataFrame
+    """
+    if sign > 0:
+        return frame
+    f = frame["best_f"].astype(float)
+    return frame.assign(best_f=f.where(f >= FAILED_THRESHOLD, sign * f))
 
 
 def convergence_figure(history: pd.DataFrame, path, case=None, *, failures=None, ylabel=None) -> None:

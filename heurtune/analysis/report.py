@@ -115,27 +115,26 @@ def _read_meta(dirs) -> dict:
 # Figures (each returns HTML: an embedded image or a note)
 # ----------------------------------------------------------------------------------------------
 
-def _objective_label(runs, case, metas, cache):
-    """The case's objective with its unit (``"IAE (cm s)"``) for the axes of ``best_f``, from
-    the problem rebuilt from ``meta.json``; None when it cannot be rebuilt or has none, or when
-    the problem has several objectives (``best_f`` is then minus the front's hypervolume)."""
+def _best_f_axis(runs, case, metas, cache) -> tuple:
+    """:func:`~heurtune.analysis.figures.best_f_axis` of the case's problem rebuilt from
+    ``meta.json`` (``"IAE (cm s)"``, or the hypervolume for several objectives); ``(None, 1.0)``
+    when it cannot be rebuilt."""
     rows = runs[runs["case"] == case]
     try:
         prob = _problem(metas, str(rows["experiment"].iloc[0]), case, cache)
     except (ConfigError, IndexError, KeyError):
-        return None
-    if getattr(prob, "objective_names", None):
-        return "minus the hypervolume of the front"
-    return getattr(prob, "objective_label", None)
+        return None, 1.0
+    return figures.best_f_axis(prob)
 
 
-def _convergence(history, case, tmp: Path, ylabel=None) -> str:
+def _convergence(history, case, tmp: Path, axis=(None, 1.0)) -> str:
     what = "Convergence figure"
     if history.empty or "case" not in history or not (history["case"] == case).any():
         return _skip(what, "no history.parquet rows for this case")
     path = tmp / f"convergence_{_slug(case)}.png"
+    ylabel, sign = axis
     try:
-        figures.convergence_figure(history, path, case=case, ylabel=ylabel)
+        figures.convergence_figure(figures.shown_best_f(history, sign), path, case=case, ylabel=ylabel)
     except ValueError as exc:
         return _skip(what, exc)
     return _img(path, f"Case {case}: median best objective per epoch, IQR band per algorithm")
@@ -162,10 +161,14 @@ def _ecdf_table(history):
         return str(exc) or type(exc).__name__
 
 
-def _boxplot(runs, case, metric, tmp: Path, ylabel=None) -> str:
+def _boxplot(runs, case, metric, tmp: Path, axis=(None, 1.0)) -> str:
     path = tmp / f"boxplot_{_slug(case)}.png"
+    rows, ylabel = runs[runs["case"] == case], None
+    if metric == "best_f":  # best_f as its axis names it
+        ylabel, sign = axis
+        rows = figures.shown_best_f(rows, sign)
     try:
-        figures.boxplot_figure(runs[runs["case"] == case], path, metric=metric, ylabel=ylabel)
+        figures.boxplot_figure(rows, path, metric=metric, ylabel=ylabel)
     except ValueError as exc:
         return _skip("Box plot", exc)
     return _img(path, f"Case {case}: final {metric} per algorithm (red crosses: infeasible runs)")
@@ -297,10 +300,9 @@ def render_html(runs: pd.DataFrame, *, dirs=(), history: pd.DataFrame | None = N
 
         def figures_of(i):
             case = cases[i]
-            label = _objective_label(runs, case, metas, cache)  # best_f with its unit
-            parts = [f"<h3>Case {_esc(case)}: figures</h3>", _convergence(history, case, tmp, label),
-                     _ecdf(ecdf_table, case, tmp),
-                     _boxplot(runs, case, metric, tmp, label if metric == "best_f" else None)]
+            axis = _best_f_axis(runs, case, metas, cache)  # best_f with its unit
+            parts = [f"<h3>Case {_esc(case)}: figures</h3>", _convergence(history, case, tmp, axis),
+                     _ecdf(ecdf_table, case, tmp), _boxplot(runs, case, metric, tmp, axis)]
             if responses:
                 parts += _responses(runs, case, metas, tmp, cache)
             return parts

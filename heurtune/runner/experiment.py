@@ -1100,11 +1100,8 @@ def _figures(exp, runs, history, best, out_dir):
             continue
         prob = exp.problem(case)
         failed = runs[(runs["case"] == case) & (runs.get("status") == "failed")] if "status" in runs else runs[:0]
-        ylabel = getattr(prob, "objective_label", None)
-        if getattr(prob, "objective_names", None):  # several objectives: best_f is minus the hypervolume
-            h = h.assign(best_f=-h["best_f"])
-            ylabel = HYPERVOLUME_LABEL
-        figures.convergence_figure(h, out_dir / f"convergence_{_slug(case)}.png", case=case,
+        ylabel, sign = figures.best_f_axis(prob)  # several objectives: the hypervolume
+        figures.convergence_figure(figures.shown_best_f(h, sign), out_dir / f"convergence_{_slug(case)}.png", case=case,
                                    failures={case: list(failed.get("failure", []))}, ylabel=ylabel)
         b = best[best["case"] == case].sort_values(["feasible", "best_f"], ascending=[False, True]).head(1)
         if len(b):
@@ -1115,13 +1112,12 @@ def _figures(exp, runs, history, best, out_dir):
                 title += f": {r['status']}" + (f" ({r['failure']})" if r.get("failure") else "")
             figures.response_figure(prob, x, out_dir / f"responses_{_slug(case)}.png",
                                     scenarios=tuple(prob.scenarios), title=title)
-    probs = [exp.problem(case) for case in exp.cases]
-    if "hypervolume" in runs and all(getattr(p, "objective_names", None) for p in probs):
-        figures.boxplot_figure(runs, out_dir / "boxplot_best_f.png", metric="hypervolume", ylabel=HYPERVOLUME_LABEL)
-    else:  # the objective's label where every case has the same
-        labels = {getattr(p, "objective_label", None) for p in probs}
-        figures.boxplot_figure(runs, out_dir / "boxplot_best_f.png",
-                               ylabel=labels.pop() if len(labels) == 1 else None)
+    axes = {figures.best_f_axis(exp.problem(case)) for case in exp.cases}
+    (ylabel, sign), = axes if len(axes) == 1 else ((None, 1.0),)  # the cases' common axis, if any
+    if sign < 0 and "hypervolume" in runs:  # several objectives: the runs' hypervolume column
+        figures.boxplot_figure(runs, out_dir / "boxplot_best_f.png", metric="hypervolume", ylabel=ylabel)
+    else:
+        figures.boxplot_figure(runs, out_dir / "boxplot_best_f.png", ylabel=ylabel if sign > 0 else None)
     if (out_dir / "pareto.parquet").exists():  # several objectives: the best front per optimiser
         fronts = pd.read_parquet(out_dir / "pareto.parquet")
         for case in exp.cases:
@@ -1136,9 +1132,6 @@ def _figures(exp, runs, history, best, out_dir):
                                       title=f"{exp.name} / {case}: final fronts of the best runs (star: chosen)",
                                       axis_labels=[prob.objective_axis_label(n) for n in prob.objective_names])
 
-
-# The y axis of a multi-objective experiment's convergence and box plots (best_f is minus it).
-HYPERVOLUME_LABEL = "hypervolume of the front (higher is better)"
 
 
 def _slug(text: str) -> str:
