@@ -71,7 +71,7 @@ def _markdown(table: pd.DataFrame, title: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def spectral_radius_figure(results: dict, path, title: str = "") -> None:
+def spectral_radius_figure(results: dict, path, title: str = "", *, failed=()) -> None:
     """``rho(W T(jw))`` for input and output uncertainty, one line per design, with the limit 1.
 
     ``results`` maps a label to a :class:`~heurtune.objectives.robustness.SpectralRadiusResult`.
@@ -82,6 +82,8 @@ def spectral_radius_figure(results: dict, path, title: str = "") -> None:
     path : str or Path
         The PNG file.
     title : str
+    failed : collection of str
+        Labels of designs whose run failed: drawn dashed (the test presumes a stable loop).
     """
     from heurtune.analysis.colours import colours_of
     from heurtune.analysis.figures import new_figure
@@ -89,8 +91,7 @@ def spectral_radius_figure(results: dict, path, title: str = "") -> None:
     fig, axes = new_figure(1, 2, figsize=(11, 4), sharey=True)
     colours = colours_of(results)
     for label, sr in results.items():
-        # a failed design (its label says why) is drawn dashed: the test presumes a stable loop
-        style = "--" if "failed" in label else "-"
+        style = "--" if label in failed else "-"
         axes[0].semilogx(sr.w, sr.rho_input, ls=style, color=colours[label], label=label)
         axes[1].semilogx(sr.w, sr.rho_output, ls=style, color=colours[label], label=label)
     for ax, side in zip(axes, ("input", "output")):
@@ -188,7 +189,7 @@ def write_outputs(exp, runs: pd.DataFrame, best: pd.DataFrame, out_dir: Path, *,
     """
     out_dir = Path(out_dir)
     designs, robust = [], []
-    spectral = {}
+    spectral, failed = {}, set()
     for case in exp.cases:
         prob = exp.problem(case)
         designs.append(prob.design_table().assign(experiment=exp.name, case=case))
@@ -200,8 +201,10 @@ def write_outputs(exp, runs: pd.DataFrame, best: pd.DataFrame, out_dir: Path, *,
             if failure:
                 summary = _failed_verdicts(summary, failure)
             robust.append(dict(experiment=exp.name, case=case, algorithm=r["algorithm"], run=int(r["run"]), **summary))
-            label = f"{r['algorithm']} (run {int(r['run'])})"
-            spectral[case][label + (f", failed: {failure}" if failure else "")] = sr
+            label = f"{r['algorithm']} (run {int(r['run'])})" + (f", failed: {failure}" if failure else "")
+            spectral[case][label] = sr
+            if failure:
+                failed.add(label)
     lead = ["experiment", "case"]
     d = pd.concat(designs, ignore_index=True)
     write_parquet(d[lead + [c for c in d.columns if c not in lead]], out_dir / "design.parquet")
@@ -219,6 +222,6 @@ def write_outputs(exp, runs: pd.DataFrame, best: pd.DataFrame, out_dir: Path, *,
         for case, results in spectral.items():
             if results:
                 slug = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in case)
-                spectral_radius_figure(results, out_dir / f"spectral_radius_{slug}.png",
+                spectral_radius_figure(results, out_dir / f"spectral_radius_{slug}.png", failed=failed,
                                        title=f"{exp.name} / {case}: robust stability (weight "
                                              f"{exp.problem(case).robustness_options.get('uncertainty', 0.2):g})")

@@ -371,7 +371,7 @@ def test_a_failed_design_is_not_robustly_stable_and_is_marked(tmp_path, monkeypa
     best = runs[runs["algorithm"] == "gpm"].copy()
     best["status"], best["failure"] = "failed", "unstable"
     drawn = {}
-    monkeypatch.setattr(report, "spectral_radius_figure", lambda results, path, title="": drawn.update(results))
+    monkeypatch.setattr(report, "spectral_radius_figure", lambda results, path, title="", **kw: drawn.update(results))
     exp = heurtune.load_experiment("ga_pi_ccts")
     report.write_outputs(exp, runs, best, out, figures=True)
     robust = pd.read_parquet(out / "robustness.parquet").iloc[0]
