@@ -258,17 +258,27 @@ def _caption(title: str, subtitle: str, k: int, n: int) -> str:
     return text + (f" (columns {k + 1} of {n})" if n > 1 else "")
 
 
+# The columns :func:`add_quantity` gives a quantity: ``<label> printed``, ``<label> heurtune``, ...
+_QUANTITY_COLUMN = re.compile(r"^(.*) (printed|heurtune|diff|diff %)$")
+
+
+def _quantity_of(column):
+    """The quantity's label of one of :func:`add_quantity`'s columns, else None."""
+    m = _QUANTITY_COLUMN.match(str(column))
+    return m.group(1) if m else None
+
+
 def _column_groups(columns) -> list:
     """The columns after the keys in groups that stay together: a quantity's printed, heurtune,
-    diff and diff % columns (one prefix), any other column alone."""
-    groups, prefix = [], None
+    diff and diff % columns (one label), any other column alone."""
+    groups, label = [], None
     for c in columns:
-        head = re.sub(r" (printed|heurtune|diff|diff %)$", "", str(c))
-        if groups and head != str(c) and head == prefix:
+        head = _quantity_of(c)
+        if groups and head is not None and head == label:
             groups[-1].append(c)
         else:
             groups.append([c])
-        prefix = head if head != str(c) else None
+        label = head
     return groups
 
 
@@ -324,7 +334,7 @@ def _header(keys, chunk) -> list:
             top.append("")
             low.append(_stacked(g[0]))
         else:
-            head = re.sub(r" (printed|heurtune|diff|diff %)$", "", str(g[0]))
+            head = _quantity_of(g[0])
             top.append(f"\\multicolumn{{{len(g)}}}{{c}}{{{_tex(head)}}}")
             rules.append(f"\\cmidrule(lr){{{at}-{at + len(g) - 1}}}")
             low += [_tex(str(c)[len(head) + 1:]) for c in g]
