@@ -10,21 +10,28 @@ the controller's input ``Bc`` and dynamics ``Ac``, its drive ``Cc`` of the pumps
 constant drive of a segment (disturbances, operating voltages) and ``r`` what the square-root
 outflows leave beyond their linearisation, second order in ``xi`` (written without
 cancellation). ETDRK4 (Cox and Matthews) integrates ``L`` and ``g`` exactly and only ``r``
-explicitly, in the modal coordinates of ``L = V diag(lam) V^-1`` (complex): every stage is a
-product by diagonal coefficients and two thin products (the plant rows of ``V`` out, the plant
-columns of ``V^-1`` in). heurtune's kernel (``continuous_kernels``) integrates the plant and the
-feedback explicitly instead; ``benchmarks/splitting.py`` measures the two error constants in
-numpy, this file what the split costs and gives when compiled, with heurtune's own metric
-helpers folding each step's end and midpoint (the midpoint from the method's dense output at
-theta = 1/2). No saturation, no level limits, metrics only.
+explicitly, in the real modal coordinates of ``L`` (LAPACK ``dgeev`` with right eigenvectors,
+the routine the stability check calls without them): one real coordinate per real mode, two
+per complex-conjugate pair, so that every stage is a product by diagonal coefficients (real, or
+complex on a pair) and two thin real products (the plant rows of the basis out, the plant
+columns of its inverse in).
 
-Run with ``python benchmarks/linearised_lane.py``: per case (the thesis' FOLQI min gains, the
-weakly damped FOLQI candidate, the IOLQI nmp loop) and step, the relative errors of IAE, J and
-TV and the settling time against heurtune's loop at 0.125/16 s (itself within 1e-8 of Radau in
-IAE for these loops), beside heurtune's default loop; then, one core, the median time of the
-prototype's lane per step and of its set-up (the loop matrix, its eigendecomposition and
-inverse), beside heurtune's whole simulation. The findings are in docs/model.md ("Where the
-error comes from"). Not part of ``make bench``: a measurement for the kernel's next design.
+Steps are adaptive, ``h_top 2^-l``: each step resolves (``|lam| h <= kappa``) every mode whose
+transient ``|y_j'| / |lam_j|`` weighs more than ``amp_floor`` (cm or V) in the level errors and
+voltages; lighter modes are integrated exactly and only the quadrature sees them. The metrics
+are heurtune's own helpers (``continuous_kernels``) folding each step's end and midpoint (the
+method's dense output at theta = 1/2). No saturation, no level limits, metrics only.
+
+Run with ``python benchmarks/linearised_lane.py [--rule H_TOP KAPPA FLOOR]``: per case (the
+thesis' FOLQI min gains, the weakly damped FOLQI candidate, the IOLQI nmp loop) and rule, the
+relative errors of IAE, J and TV and the settling time against heurtune's loop at 0.125/16 s
+(itself within 1e-8 of Radau in IAE for these loops), beside heurtune's default loop; then
+``cs_folqi_qtp`` min's candidate sets of ``bench_study_candidates.py`` (thesis, uniform, at the
+bounds, visited by cuckoo search) under one rule: IAE errors against the same reference, steps,
+and the milliseconds per candidate of heurtune's evaluation, of heurtune's loop within it and of
+the prototype's set-up and lane (one core, BLAS one thread). The findings are in docs/model.md
+("Where the error comes from"). Not part of ``make bench``: a measurement for the kernel's next
+design.
 """
 
 import os
@@ -32,6 +39,7 @@ import os
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
+import dataclasses  # noqa: E402
 import functools  # noqa: E402
 import math  # noqa: E402
 import sys  # noqa: E402
@@ -42,14 +50,10 @@ import numpy as np  # noqa: E402
 from numba import njit  # noqa: E402
 from numba.core.cpu import CPUTargetOptions  # noqa: E402
 
-from heurtune.objectives.qtp import continuous  # noqa: E402
 from heurtune.objectives.qtp.continuous_kernels import (  # noqa: E402
     _N_SIG,
     SEG_DIST,
-    SEG_GRADED,
-    SEG_H,
     SEG_POST,
-    SEG_STEPS,
     SEG_T0,
     SEG_UIN,
     _abs_moments,
@@ -58,6 +62,7 @@ from heurtune.objectives.qtp.continuous_kernels import (  # noqa: E402
     _signals,
     _visit,
 )
+from heurtune.objectives.qtp.design_kernels import _N, _V, _data, _dgeev, _kept  # noqa: E402
 from heurtune.objectives.qtp.kernels import (  # noqa: E402
     LEVEL_LIMIT,
     N_METRICS,
@@ -73,10 +78,9 @@ from heurtune.objectives.qtp.kernels import (  # noqa: E402
 # (continuous_kernels): with it, every array an inlined helper binds costs two atomic updates.
 _kernel = functools.partial(njit, cache=True, **({"_nrt": False} if hasattr(CPUTargetOptions, "_nrt") else {}))
 
-# Step levels h / 2^l, l = 0 .. N_LEVELS - 1: the plain step and the graded first steps after a
-# discontinuity (h/16, h/16, h/8, h/4, h/2, as the switching kernel grades them).
-N_LEVELS = 5
-GRADED_LEVELS = (4, 4, 3, 2, 1)
+# Step levels h_top 2^-l, l = 0 .. N_LEVELS - 1, each step's level chosen by the modes it must
+# resolve (_step_level); one more slot of coefficients for a segment's shortened last step.
+N_LEVELS = 8
 # Per level and mode, the step's diagonal coefficients: E = e^z, E2 = e^(z/2), Q = h/2 phi_1(z/2),
 # the weights F1, F2, F3 of N(u), N(a) + N(b), N(c) at the step's end and G1, G2, G3 at its
 # midpoint (z = lam h; the dense output replaces phi_k(z) by theta^k phi_k(theta z)).
@@ -152,21 +156,50 @@ def _phi3(z):
 
 
 @_kernel
-def step_coefficients(lam, h, Tr, Ti):
-    """The diagonal coefficients of a step ``h / 2^l`` for each level l, real and imaginary
-    parts (``Tr``, ``Ti`` (N_LEVELS, N_COEF, n), names ``C_*``)."""
-    for lv in range(N_LEVELS):
-        hl = h / 2.0 ** lv
-        for i in range(lam.size):
-            z = lam[i] * hl
-            p0, p1, p2, p3 = _phi3(z)
-            q0, q1, q2, q3 = _phi3(0.5 * z)
-            for k, v in ((C_E, p0), (C_E2, q0), (C_Q, 0.5 * hl * q1), (C_F1, hl * (p1 - 3.0 * p2 + 4.0 * p3)),
-                         (C_F2, 2.0 * hl * (p2 - 2.0 * p3)), (C_F3, hl * (4.0 * p3 - p2)),
-                         (C_G1, hl * (0.5 * q1 - 0.75 * q2 + 0.5 * q3)), (C_G2, hl * (0.5 * q2 - 0.5 * q3)),
-                         (C_G3, hl * (0.5 * q3 - 0.25 * q2))):
-                Tr[lv, k, i] = v.real
-                Ti[lv, k, i] = v.imag
+def _coefficients(lam_r, lam_i, n_real, hl, T, lv):
+    """The diagonal coefficients ``C_*`` of a step ``hl`` into ``T[lv]`` (N_COEF, n): a real
+    mode's value at its coordinate, a pair's real and imaginary parts at its two."""
+    n = lam_r.size
+    j = 0
+    while j < n:
+        z = complex(lam_r[j], lam_i[j]) * hl
+        p0, p1, p2, p3 = _phi3(z)
+        q0, q1, q2, q3 = _phi3(0.5 * z)
+        k = 0
+        for v in (p0, q0, 0.5 * hl * q1, hl * (p1 - 3.0 * p2 + 4.0 * p3), 2.0 * hl * (p2 - 2.0 * p3),
+                  hl * (4.0 * p3 - p2), hl * (0.5 * q1 - 0.75 * q2 + 0.5 * q3), hl * (0.5 * q2 - 0.5 * q3),
+                  hl * (0.5 * q3 - 0.25 * q2)):
+            T[lv, k, j] = v.real
+            if j >= n_real:
+                T[lv, k, j + 1] = v.imag
+            k += 1
+        j += 1 if j < n_real else 2
+
+
+@_kernel(inline="always")
+def _diag2(T, lv, k1, v1, k2, v2, out, n_real):
+    """``out = T[k1] o v1 + T[k2] o v2``, ``o`` the product by the diagonal: real on the real
+    modes, complex on the pairs (coordinates ``j, j + 1`` the real and imaginary parts)."""
+    for j in range(n_real):
+        out[j] = T[lv, k1, j] * v1[j] + T[lv, k2, j] * v2[j]
+    for j in range(n_real, v1.size, 2):
+        ar, ai, br, bi = T[lv, k1, j], T[lv, k1, j + 1], T[lv, k2, j], T[lv, k2, j + 1]
+        out[j] = ar * v1[j] - ai * v1[j + 1] + br * v2[j] - bi * v2[j + 1]
+        out[j + 1] = ar * v1[j + 1] + ai * v1[j] + br * v2[j + 1] + bi * v2[j]
+
+
+@_kernel(inline="always")
+def _diag4(T, lv, k1, v1, k2, v2, k3, v3, k4, v4, out, n_real):
+    """``out = T[k1] o v1 + T[k2] o v2 + T[k3] o v3 + T[k4] o v4`` (see :func:`_diag2`)."""
+    for j in range(n_real):
+        out[j] = T[lv, k1, j] * v1[j] + T[lv, k2, j] * v2[j] + T[lv, k3, j] * v3[j] + T[lv, k4, j] * v4[j]
+    for j in range(n_real, v1.size, 2):
+        ar, ai, br, bi = T[lv, k1, j], T[lv, k1, j + 1], T[lv, k2, j], T[lv, k2, j + 1]
+        cr, ci, dr, di = T[lv, k3, j], T[lv, k3, j + 1], T[lv, k4, j], T[lv, k4, j + 1]
+        out[j] = (ar * v1[j] - ai * v1[j + 1] + br * v2[j] - bi * v2[j + 1] + cr * v3[j] - ci * v3[j + 1]
+                  + dr * v4[j] - di * v4[j + 1])
+        out[j + 1] = (ar * v1[j + 1] + ai * v1[j] + br * v2[j + 1] + bi * v2[j] + cr * v3[j + 1] + ci * v3[j]
+                      + dr * v4[j + 1] + di * v4[j])
 
 
 @_kernel(inline="always")
@@ -181,125 +214,223 @@ def _root_excess(a, ra, xi):
 
 
 @_kernel(inline="always")
-def _plant_rows(V4r, V4i, yr, yi):
-    """``Re(V_x y)``: the plant deviation of modal state ``y`` (``V4r``, ``V4i`` (n, 4), the plant
-    rows of V transposed). Two partial sums per row (even and odd modes), so that the
-    additions of one row form two short chains instead of one long one (IEEE order, no
-    reassociation licence)."""
-    a0 = a1 = a2 = a3 = 0.0
-    b0 = b1 = b2 = b3 = 0.0
-    n = yr.size
+def _readout(V6, y, x_op, du_const, x, du):
+    """Plant state ``x`` and voltage deviations ``du`` of modal state ``y`` (``V6`` (n, 6): the
+    plant rows and the voltage rows of the real modal basis, transposed). Two partial sums per
+    row (even and odd coordinates): two short chains of additions instead of one long one."""
+    a0 = a1 = a2 = a3 = a4 = a5 = 0.0
+    b0 = b1 = b2 = b3 = b4 = b5 = 0.0
+    n = y.size
     j = 0
     while j + 1 < n:
-        p, q = yr[j], yi[j]
-        a0 += V4r[j, 0] * p - V4i[j, 0] * q
-        a1 += V4r[j, 1] * p - V4i[j, 1] * q
-        a2 += V4r[j, 2] * p - V4i[j, 2] * q
-        a3 += V4r[j, 3] * p - V4i[j, 3] * q
-        p, q = yr[j + 1], yi[j + 1]
-        b0 += V4r[j + 1, 0] * p - V4i[j + 1, 0] * q
-        b1 += V4r[j + 1, 1] * p - V4i[j + 1, 1] * q
-        b2 += V4r[j + 1, 2] * p - V4i[j + 1, 2] * q
-        b3 += V4r[j + 1, 3] * p - V4i[j + 1, 3] * q
+        v = y[j]
+        a0 += V6[j, 0] * v
+        a1 += V6[j, 1] * v
+        a2 += V6[j, 2] * v
+        a3 += V6[j, 3] * v
+        a4 += V6[j, 4] * v
+        a5 += V6[j, 5] * v
+        v = y[j + 1]
+        b0 += V6[j + 1, 0] * v
+        b1 += V6[j + 1, 1] * v
+        b2 += V6[j + 1, 2] * v
+        b3 += V6[j + 1, 3] * v
+        b4 += V6[j + 1, 4] * v
+        b5 += V6[j + 1, 5] * v
         j += 2
     if j < n:
-        p, q = yr[j], yi[j]
-        a0 += V4r[j, 0] * p - V4i[j, 0] * q
-        a1 += V4r[j, 1] * p - V4i[j, 1] * q
-        a2 += V4r[j, 2] * p - V4i[j, 2] * q
-        a3 += V4r[j, 3] * p - V4i[j, 3] * q
-    return a0 + b0, a1 + b1, a2 + b2, a3 + b3
+        v = y[j]
+        a0 += V6[j, 0] * v
+        a1 += V6[j, 1] * v
+        a2 += V6[j, 2] * v
+        a3 += V6[j, 3] * v
+        a4 += V6[j, 4] * v
+        a5 += V6[j, 5] * v
+    x[0] = x_op[0] + (a0 + b0)
+    x[1] = x_op[1] + (a1 + b1)
+    x[2] = x_op[2] + (a2 + b2)
+    x[3] = x_op[3] + (a3 + b3)
+    du[0] = du_const[0] + (a4 + b4)
+    du[1] = du_const[1] + (a5 + b5)
 
 
 @_kernel(inline="always")
-def _remainder(V4r, V4i, yr, yi, x_op, rt, c, Wr, Wi, kr, ki, Nr, Ni):
-    """The modal drive ``N = k + W r(xi)`` of modal state ``y`` (``xi`` its plant deviation)."""
-    x0, x1, x2, x3 = _plant_rows(V4r, V4i, yr, yi)
-    e0 = _root_excess(x_op[0], rt[0], x0)
-    e1 = _root_excess(x_op[1], rt[1], x1)
-    e2 = _root_excess(x_op[2], rt[2], x2)
-    e3 = _root_excess(x_op[3], rt[3], x3)
+def _plant_readout(V6, y, x_op, x):
+    """The plant state ``x`` of modal state ``y`` alone (a stage's, whose voltages no metric
+    reads)."""
+    a0 = a1 = a2 = a3 = 0.0
+    b0 = b1 = b2 = b3 = 0.0
+    n = y.size
+    j = 0
+    while j + 1 < n:
+        v = y[j]
+        a0 += V6[j, 0] * v
+        a1 += V6[j, 1] * v
+        a2 += V6[j, 2] * v
+        a3 += V6[j, 3] * v
+        v = y[j + 1]
+        b0 += V6[j + 1, 0] * v
+        b1 += V6[j + 1, 1] * v
+        b2 += V6[j + 1, 2] * v
+        b3 += V6[j + 1, 3] * v
+        j += 2
+    if j < n:
+        v = y[j]
+        a0 += V6[j, 0] * v
+        a1 += V6[j, 1] * v
+        a2 += V6[j, 2] * v
+        a3 += V6[j, 3] * v
+    x[0] = x_op[0] + (a0 + b0)
+    x[1] = x_op[1] + (a1 + b1)
+    x[2] = x_op[2] + (a2 + b2)
+    x[3] = x_op[3] + (a3 + b3)
+
+
+@_kernel(inline="always")
+def _drive(x, x_op, rt, c, W, k, out):
+    """The modal drive ``out = k + W r`` at plant state ``x`` (``r``: the outflows beyond their
+    linearisation)."""
+    e0 = _root_excess(x_op[0], rt[0], x[0] - x_op[0])
+    e1 = _root_excess(x_op[1], rt[1], x[1] - x_op[1])
+    e2 = _root_excess(x_op[2], rt[2], x[2] - x_op[2])
+    e3 = _root_excess(x_op[3], rt[3], x[3] - x_op[3])
     r0 = c[4] * e2 - c[0] * e0
     r1 = c[5] * e3 - c[1] * e1
     r2 = -c[2] * e2
     r3 = -c[3] * e3
-    for j in range(yr.size):
-        Nr[j] = kr[j] + Wr[j, 0] * r0 + Wr[j, 1] * r1 + Wr[j, 2] * r2 + Wr[j, 3] * r3
-        Ni[j] = ki[j] + Wi[j, 0] * r0 + Wi[j, 1] * r1 + Wi[j, 2] * r2 + Wi[j, 3] * r3
-
-
-@_kernel(inline="always")
-def _readout(V4r, V4i, Vur, Vui, yr, yi, x_op, du_const, x, du):
-    """Plant state ``x`` and controller voltage deviations ``du`` of modal state ``y``
-    (``Vur``, ``Vui`` (n, 2): the voltage rows transposed)."""
-    x0, x1, x2, x3 = _plant_rows(V4r, V4i, yr, yi)
-    x[0] = x_op[0] + x0
-    x[1] = x_op[1] + x1
-    x[2] = x_op[2] + x2
-    x[3] = x_op[3] + x3
-    a0 = a1 = b0 = b1 = 0.0
-    n = yr.size
-    j = 0
-    while j + 1 < n:
-        a0 += Vur[j, 0] * yr[j] - Vui[j, 0] * yi[j]
-        a1 += Vur[j, 1] * yr[j] - Vui[j, 1] * yi[j]
-        b0 += Vur[j + 1, 0] * yr[j + 1] - Vui[j + 1, 0] * yi[j + 1]
-        b1 += Vur[j + 1, 1] * yr[j + 1] - Vui[j + 1, 1] * yi[j + 1]
-        j += 2
-    if j < n:
-        a0 += Vur[j, 0] * yr[j] - Vui[j, 0] * yi[j]
-        a1 += Vur[j, 1] * yr[j] - Vui[j, 1] * yi[j]
-    du[0] = du_const[0] + a0 + b0
-    du[1] = du_const[1] + a1 + b1
+    for j in range(k.size):
+        out[j] = k[j] + W[j, 0] * r0 + W[j, 1] * r1 + W[j, 2] * r2 + W[j, 3] * r3
 
 
 @njit(cache=True)
 def modal_form(L, s, Cc, Dc):
-    """Eigendecomposition of ``L`` and the thin products the stages take.
+    """The real modal form of ``L``: LAPACK ``dgeev`` with right eigenvectors, the real modes
+    first, then one coordinate pair per complex-conjugate pair of eigenvalues.
+
+    With ``T`` the real basis (a real mode's eigenvector; a pair's real and imaginary parts
+    ``P``, ``Q`` of the eigenvector of ``a + ib``, b > 0) and ``y = T^-1 Y``, a real mode obeys
+    ``y_j' = lam_j y_j`` and a pair's ``zeta = y_j - i y_(j+1)``... stored as ``(Re, -Im)``:
+    with ``(y_j, y_(j+1)) = (Re zeta, Im zeta)`` where ``zeta = p - i q``, ``zeta' = (a + ib)
+    zeta`` and the state is ``P Re zeta - Q Im zeta``.
 
     Returns
     -------
-    ok : bool (False: LAPACK failed or the eigenvectors are conditioned worse than COND_LIMIT)
-    lam : (n,) complex eigenvalues
-    V4r, V4i : (n, 4) the plant rows of V, transposed; Vur, Vui : (n, 2) the voltage rows
-    ``s Dc V_x + Cc V_z``, transposed;
-    Wr, Wi : (n, 4) the plant columns of V^-1; Vinv : (n, n) complex
+    ok : bool (False: LAPACK failed, or T is conditioned worse than COND_LIMIT)
+    lam_r, lam_i : (n,) eigenvalue per coordinate (a pair's on both of its coordinates)
+    n_real : int
+    V6 : (n, 6) plant and voltage rows of the basis, transposed (a pair's second row negated)
+    W : (n, 4) plant columns of the inverse (a pair's second row negated)
+    Tinv : (n, n) the inverse, the same rows (the segment's constant drive)
+    gain : (n,) the largest weight of a coordinate in the level errors and voltages
     """
     n = L.shape[0]
     nc = n - 4
-    lam, V = np.linalg.eig(L.astype(np.complex128))
-    Vinv = np.linalg.inv(V)
-    cond = np.abs(V).sum(axis=0).max() * np.abs(Vinv).sum(axis=0).max()
+    a = np.asfortranarray(L)
+    wr, wi = np.empty(n), np.empty(n)
+    vl = np.empty(1)
+    vr = np.empty((n, n)).T  # Fortran order
+    jobl = np.array([_N], dtype=np.uint8)
+    jobr = np.array([_V], dtype=np.uint8)
+    size, one = np.array([n], dtype=np.int32), np.ones(1, dtype=np.int32)
+    lwork, info = np.array([max(4 * n, 1)], dtype=np.int32), np.zeros(1, dtype=np.int32)
+    work = np.empty(max(4 * n, 1))
+    _dgeev(_data(jobl), _data(jobr), _data(size), _data(a), _data(size), _data(wr), _data(wi), _data(vl),
+           _data(one), _data(vr), _data(size), _data(work), _data(lwork), _data(info))
+    _kept(jobl, jobr, size, a, wr, wi, vl, one, vr, work, lwork, info)
+    lam_r, lam_i = np.zeros(n), np.zeros(n)
+    T = np.empty((n, n))
+    sign = np.ones(n)
+    if info[0] != 0:
+        return False, lam_r, lam_i, 0, np.zeros((n, 6)), np.zeros((n, 4)), np.zeros((n, n)), np.zeros(n)
+    k = 0
+    for j in range(n):  # real modes first
+        if wi[j] == 0.0:
+            lam_r[k] = wr[j]
+            T[:, k] = vr[:, j]
+            k += 1
+    n_real = k
+    j = 0
+    while j < n:
+        if wi[j] != 0.0:  # dgeev: columns j, j + 1 hold P, Q of the eigenvalue with wi[j] > 0
+            lam_r[k] = lam_r[k + 1] = wr[j]
+            lam_i[k] = lam_i[k + 1] = wi[j]
+            T[:, k] = vr[:, j]
+            T[:, k + 1] = vr[:, j + 1]
+            sign[k + 1] = -1.0
+            k += 2
+            j += 2
+        else:
+            j += 1
+    Tinv = np.linalg.inv(T)
+    cond = np.abs(T).sum(axis=0).max() * np.abs(Tinv).sum(axis=0).max()
     ok = np.isfinite(cond) and cond <= COND_LIMIT
-    Vu = np.zeros((2, n), dtype=np.complex128)
-    for r in range(2):
-        for j in range(n):
-            acc = 0.0 + 0.0j
-            for k in range(4):
-                acc += s * Dc[r, k] * V[k, j]
-            for k in range(nc):
-                acc += Cc[r, k] * V[4 + k, j]
-            Vu[r, j] = acc
-    V4 = np.ascontiguousarray(V[:4, :].T)
-    W = np.ascontiguousarray(Vinv[:, :4])
-    VuT = Vu.T
-    return (ok, lam, np.ascontiguousarray(V4.real), np.ascontiguousarray(V4.imag), np.ascontiguousarray(VuT.real),
-            np.ascontiguousarray(VuT.imag), np.ascontiguousarray(W.real), np.ascontiguousarray(W.imag), Vinv)
+    V6 = np.zeros((n, 6))
+    W = np.empty((n, 4))
+    gain = np.zeros(n)
+    for j in range(n):
+        for r in range(4):
+            V6[j, r] = sign[j] * T[r, j]
+        for r in range(2):
+            acc = 0.0
+            for q in range(4):
+                acc += s * Dc[r, q] * T[q, j]
+            for q in range(nc):
+                acc += Cc[r, q] * T[4 + q, j]
+            V6[j, 4 + r] = sign[j] * acc
+        for r in range(n):
+            Tinv[j, r] *= sign[j]
+        for r in range(4):
+            W[j, r] = Tinv[j, r]
+    for j in range(n):
+        g = max(max(s * abs(V6[j, 0]), s * abs(V6[j, 1])), max(abs(V6[j, 4]), abs(V6[j, 5])))
+        gain[j] = g
+    for j in range(n_real, n, 2):  # a pair: the modulus of its two rows
+        g = 0.0
+        for r in (0, 1, 4, 5):
+            f = s if r < 2 else 1.0
+            g = max(g, f * math.hypot(V6[j, r], V6[j + 1, r]))
+        gain[j] = gain[j + 1] = g
+    return ok, lam_r, lam_i, n_real, V6, W, Tinv, gain
+
+
+@_kernel(inline="always")
+def _step_level(y, N, lam_r, lam_i, gain, n_real, amp_floor, kappa, h_top, n_levels):
+    """The step level ``l`` (step ``h_top 2^-l``) for the coming step: every mode whose transient
+    ``|y_j'| / |lam_j| = |lam_j y_j + N_j| / |lam_j|`` (its distance from where the present
+    drive ``N`` holds it) weighs more than ``amp_floor`` in the level errors and voltages is
+    resolved (``|lam| h <= kappa``); lighter modes are integrated exactly and left to the
+    quadrature."""
+    fast = 0.0
+    for j in range(n_real):
+        lam = abs(lam_r[j])
+        if abs(lam_r[j] * y[j] + N[j]) * gain[j] > amp_floor * lam:
+            fast = max(fast, lam)
+    for j in range(n_real, y.size, 2):
+        lam = math.hypot(lam_r[j], lam_i[j])
+        dr = lam_r[j] * y[j] - lam_i[j] * y[j + 1] + N[j]
+        di = lam_r[j] * y[j + 1] + lam_i[j] * y[j] + N[j + 1]
+        if math.hypot(dr, di) * gain[j] > amp_floor * lam:
+            fast = max(fast, lam)
+    lv = 0
+    while lv < n_levels - 1 and h_top * fast > kappa * 2.0 ** lv:
+        lv += 1
+    return lv
 
 
 @_kernel
-def linearised_lane(P, level_per_state, x_op, h_op, lam, V4r, V4i, Vur, Vui, Wr, Wi, Vinv, Bc, Dc, seg, n_seg,
-                    band_pct, metrics, work):
-    """The loop of one controller under one scenario, metrics only (no saturation, no limits).
+def linearised_lane(P, level_per_state, x_op, h_op, lam_r, lam_i, n_real, V6, W, Tinv, gain, Bc, Dc, seg, n_seg,
+                    band_pct, h_top, kappa, amp_floor, metrics, work):
+    """The loop of one controller under one scenario, metrics only (no saturation, no limits),
+    in adaptive steps ``h_top 2^-l`` chosen by :func:`_step_level`.
 
     Parameters
     ----------
-    P : (NP,) the scenario table (``kernels.scenario_table``: plant coefficients, operating
-        voltages, disturbance time, horizon); level_per_state : float; x_op : (4,) operating
-        state; h_op : (4,) operating levels; lam, V4r .. Vinv: :func:`modal_form`; Bc (nc, 4),
-        Dc (2, 4): the controller's input matrices; seg : (S, N_SEG) the step plan
-        (``continuous.StepPlan.table``; ``SEG_H`` the step, graded first steps after a
-        discontinuity); n_seg : rows used; band_pct : settling band in percent
+    P : (NP,) the scenario table (``kernels.scenario_table``); level_per_state : float; x_op :
+        (4,) operating state; h_op : (4,) operating levels; lam_r .. gain: :func:`modal_form`;
+        Bc (nc, 4), Dc (2, 4): the controller's input matrices; seg : (S, N_SEG) the segments
+        (``continuous.StepPlan.table``: their starts and disturbances; the steps are this lane's);
+        n_seg : rows used; band_pct : settling band in percent; h_top, kappa, amp_floor: the
+        step rule (:func:`_step_level`)
     metrics : (N_METRICS,) output, in the order of ``kernels.METRIC_NAMES``
     work : the working arrays of :func:`workspace` (initialised here)
 
@@ -312,23 +443,25 @@ def linearised_lane(P, level_per_state, x_op, h_op, lam, V4r, V4i, Vur, Vui, Wr,
     u_op = P[P_UOP:P_UOP + 2]
     t_dist, horizon = P[P_T_DIST], P[P_HORIZON]
     s = level_per_state
-    n = lam.size
+    n = lam_r.size
     nc = n - 4
     state_limit = LEVEL_LIMIT / s
-    Tr, Ti, vec, w4, w2, ex, wb, sig = work
-    yr, yi, ar, ai, br, bi, cr, ci = vec[0], vec[1], vec[2], vec[3], vec[4], vec[5], vec[6], vec[7]
-    Nur, Nui, Nar, Nai, Nbr, Nbi, Ncr, Nci = vec[8], vec[9], vec[10], vec[11], vec[12], vec[13], vec[14], vec[15]
-    mr, mi_, kr, ki = vec[16], vec[17], vec[18], vec[19]
-    x, x_mid, w, rt, f_op = w4[0], w4[1], w4[2], w4[3], w4[4]
+    T, vec, w4, w2, ex, wb, sig = work
+    y, a, b, cs, Ny, Na, Nb, Nc, ym, k, sab = (vec[0], vec[1], vec[2], vec[3], vec[4], vec[5], vec[6], vec[7],
+                                                   vec[8], vec[9], vec[10])
+    x, x_mid, w, rt, f_op, xs = w4[0], w4[1], w4[2], w4[3], w4[4], w4[5]
     du0, du_mid, du_end, du_const, band, u_prev = w2[0], w2[1], w2[2], w2[3], w2[4], w2[5]
     iae, ise, itae, jj, jdev, tv, mp = w2[6], w2[7], w2[8], w2[9], w2[10], w2[11], w2[12]
+    w2[13]
     ex_prev, ex_out, ex_in = ex[0], ex[1], ex[2]
     ex_has_prev, pending = wb[0], wb[1]
     f0, fm, f1, lo, hi = sig[0], sig[1], sig[2], sig[3], sig[4]
     win_v, win_t = sig[5:8], sig[8, :3]
+    n_levels = T.shape[0] - 1  # the last slot: a segment's shortened last step
+    for lv in range(n_levels):
+        _coefficients(lam_r, lam_i, n_real, h_top / 2.0 ** lv, T, lv)
     for j in range(n):
-        yr[j] = 0.0
-        yi[j] = 0.0
+        y[j] = 0.0
     for i in range(4):
         rt[i] = math.sqrt(max(x_op[i], 0.0))
     for j in range(2):
@@ -358,95 +491,64 @@ def linearised_lane(P, level_per_state, x_op, h_op, lam, V4r, V4i, Vur, Vui, Wr,
     n_taken = 0
     diverged = False
     first_node = True
-    h_tab = -1.0
+    t = 0.0
     for sg in range(n_seg):
         d1 = seg[sg, SEG_DIST]
         d2 = seg[sg, SEG_DIST + 1]
         post = seg[sg, SEG_POST] > 0.0
         t = seg[sg, SEG_T0]
-        h = seg[sg, SEG_H]
-        n_plain = int(seg[sg, SEG_STEPS])
-        graded = seg[sg, SEG_GRADED] > 0.0
-        t_end = horizon if sg == n_seg - 1 else t + h * n_plain
-        if h != h_tab:
-            step_coefficients(lam, h, Tr, Ti)
-            h_tab = h
-        # the segment's constant drive g = [f_op + Bp (u_op + uin + Dc d); Bc d], in modal form
+        t_end = horizon if sg == n_seg - 1 else seg[sg + 1, SEG_T0]
+        # the segment's constant drive g = [f_op + Bp (u_op + uin + Dc d); Bc d], in modal form,
         for j in range(2):
             du_const[j] = Dc[j, 0] * d1 + Dc[j, 1] * d2
         for j in range(n):
-            kr[j] = 0.0
-            ki[j] = 0.0
+            k[j] = 0.0
         for i in range(4):
             p = _PUMP[i]
             gx = f_op[i] + c[_PUMP_COEF[i]] * (u_op[p] + seg[sg, SEG_UIN + p] + du_const[p])
             for j in range(n):
-                v = Vinv[j, i] * gx
-                kr[j] += v.real
-                ki[j] += v.imag
+                k[j] += Tinv[j, i] * gx
         for r in range(nc):
             gz = Bc[r, 0] * d1 + Bc[r, 1] * d2
             if gz != 0.0:
                 for j in range(n):
-                    v = Vinv[j, 4 + r] * gz
-                    kr[j] += v.real
-                    ki[j] += v.imag
+                    k[j] += Tinv[j, 4 + r] * gz
         # the segment's first node (a jump of the measurement is in it)
-        _readout(V4r, V4i, Vur, Vui, yr, yi, x_op, du_const, x, du0)
+        _readout(V6, y, x_op, du_const, x, du0)
         _measure(x, s, d1, d2, h_op, w)
         _signals(w, x, s, u_op, du0, f0)
         n_win = _visit(t, f0, post, band, 0, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in, ex_has_prev,
                        pending, tv, u_prev, first_node)
         first_node = False
-        n_steps = n_plain + (4 if graded else 0)
-        for k in range(n_steps):
-            if graded and k < 5:
-                lv = GRADED_LEVELS[k]
-            else:
-                lv = 0
-            hs = h / 2.0 ** lv
-            if k == n_steps - 1:
+        while t < t_end:
+            _drive(x, x_op, rt, c, W, k, Ny)
+            lv = _step_level(y, Ny, lam_r, lam_i, gain, n_real, amp_floor, kappa, h_top, n_levels)
+            hs = h_top / 2.0 ** lv
+            last = t + hs >= t_end * (1.0 - 1e-14)
+            if last:
                 hs = t_end - t
-            _remainder(V4r, V4i, yr, yi, x_op, rt, c, Wr, Wi, kr, ki, Nur, Nui)
-            for j in range(n):  # a = E2 y + Q N(y)
-                e2r, e2i, qr, qi = Tr[lv, C_E2, j], Ti[lv, C_E2, j], Tr[lv, C_Q, j], Ti[lv, C_Q, j]
-                ar[j] = e2r * yr[j] - e2i * yi[j] + qr * Nur[j] - qi * Nui[j]
-                ai[j] = e2r * yi[j] + e2i * yr[j] + qr * Nui[j] + qi * Nur[j]
-            _remainder(V4r, V4i, ar, ai, x_op, rt, c, Wr, Wi, kr, ki, Nar, Nai)
-            for j in range(n):  # b = E2 y + Q N(a)
-                e2r, e2i, qr, qi = Tr[lv, C_E2, j], Ti[lv, C_E2, j], Tr[lv, C_Q, j], Ti[lv, C_Q, j]
-                br[j] = e2r * yr[j] - e2i * yi[j] + qr * Nar[j] - qi * Nai[j]
-                bi[j] = e2r * yi[j] + e2i * yr[j] + qr * Nai[j] + qi * Nar[j]
-            _remainder(V4r, V4i, br, bi, x_op, rt, c, Wr, Wi, kr, ki, Nbr, Nbi)
-            for j in range(n):  # c = E2 a + Q (2 N(b) - N(y))
-                e2r, e2i, qr, qi = Tr[lv, C_E2, j], Ti[lv, C_E2, j], Tr[lv, C_Q, j], Ti[lv, C_Q, j]
-                sr = 2.0 * Nbr[j] - Nur[j]
-                si = 2.0 * Nbi[j] - Nui[j]
-                cr[j] = e2r * ar[j] - e2i * ai[j] + qr * sr - qi * si
-                ci[j] = e2r * ai[j] + e2i * ar[j] + qr * si + qi * sr
-            _remainder(V4r, V4i, cr, ci, x_op, rt, c, Wr, Wi, kr, ki, Ncr, Nci)
-            for j in range(n):  # the midpoint (dense output at 1/2) and the step's end
-                sr = Nar[j] + Nbr[j]
-                si = Nai[j] + Nbi[j]
-                e2r, e2i = Tr[lv, C_E2, j], Ti[lv, C_E2, j]
-                g1r, g1i, g2r, g2i = Tr[lv, C_G1, j], Ti[lv, C_G1, j], Tr[lv, C_G2, j], Ti[lv, C_G2, j]
-                g3r, g3i = Tr[lv, C_G3, j], Ti[lv, C_G3, j]
-                mr[j] = (e2r * yr[j] - e2i * yi[j] + g1r * Nur[j] - g1i * Nui[j] + g2r * sr - g2i * si
-                         + g3r * Ncr[j] - g3i * Nci[j])
-                mi_[j] = (e2r * yi[j] + e2i * yr[j] + g1r * Nui[j] + g1i * Nur[j] + g2r * si + g2i * sr
-                          + g3r * Nci[j] + g3i * Ncr[j])
-                er, ei = Tr[lv, C_E, j], Ti[lv, C_E, j]
-                f1r, f1i, f2r, f2i = Tr[lv, C_F1, j], Ti[lv, C_F1, j], Tr[lv, C_F2, j], Ti[lv, C_F2, j]
-                f3r, f3i = Tr[lv, C_F3, j], Ti[lv, C_F3, j]
-                nr = (er * yr[j] - ei * yi[j] + f1r * Nur[j] - f1i * Nui[j] + f2r * sr - f2i * si
-                      + f3r * Ncr[j] - f3i * Nci[j])
-                ni = (er * yi[j] + ei * yr[j] + f1r * Nui[j] + f1i * Nur[j] + f2r * si + f2i * sr
-                      + f3r * Nci[j] + f3i * Ncr[j])
-                yr[j] = nr
-                yi[j] = ni
+                lv = n_levels
+                _coefficients(lam_r, lam_i, n_real, hs, T, lv)
+            _diag2(T, lv, C_E2, y, C_Q, Ny, a, n_real)  # a = E2 y + Q N(y)
+            _plant_readout(V6, a, x_op, xs)
+            _drive(xs, x_op, rt, c, W, k, Na)
+            _diag2(T, lv, C_E2, y, C_Q, Na, b, n_real)  # b = E2 y + Q N(a)
+            _plant_readout(V6, b, x_op, xs)
+            _drive(xs, x_op, rt, c, W, k, Nb)
+            for j in range(n):
+                sab[j] = 2.0 * Nb[j] - Ny[j]
+            _diag2(T, lv, C_E2, a, C_Q, sab, cs, n_real)  # c = E2 a + Q (2 N(b) - N(y))
+            _plant_readout(V6, cs, x_op, xs)
+            _drive(xs, x_op, rt, c, W, k, Nc)
+            for j in range(n):
+                sab[j] = Na[j] + Nb[j]
+            _diag4(T, lv, C_E2, y, C_G1, Ny, C_G2, sab, C_G3, Nc, ym, n_real)  # the midpoint
+            _diag4(T, lv, C_E, y, C_F1, Ny, C_F2, sab, C_F3, Nc, a, n_real)  # the step's end
+            for j in range(n):
+                y[j] = a[j]
             n_taken += 1
-            _readout(V4r, V4i, Vur, Vui, mr, mi_, x_op, du_const, x_mid, du_mid)
-            _readout(V4r, V4i, Vur, Vui, yr, yi, x_op, du_const, x, du_end)
+            _readout(V6, ym, x_op, du_const, x_mid, du_mid)
+            _readout(V6, y, x_op, du_const, x, du_end)
             if not (abs(x[0]) + abs(x[1]) + abs(x[2]) + abs(x[3]) < state_limit):
                 diverged = True
                 break
@@ -475,7 +577,7 @@ def linearised_lane(P, level_per_state, x_op, h_op, lam, V4r, V4i, Vur, Vui, Wr,
                 jdev[i] += wq * (b0 * b0 + 4.0 * bmm * bmm + b1 * b1)
             for i in range(_N_SIG):
                 f0[i] = f1[i]
-            t = t_end if k == n_steps - 1 else t + hs
+            t = t_end if last else t + hs
         if diverged:
             break
     if diverged:
@@ -507,19 +609,22 @@ def linearised_lane(P, level_per_state, x_op, h_op, lam, V4r, V4i, Vur, Vui, Wr,
     return STATUS_OK, n_taken
 
 
-def workspace(n):
+def workspace(n, n_levels=N_LEVELS):
     """The working arrays of :func:`linearised_lane` for a loop of ``n`` states."""
-    return (np.empty((N_LEVELS, N_COEF, n)), np.empty((N_LEVELS, N_COEF, n)), np.empty((20, n)), np.empty((5, 4)),
-            np.empty((13, 2)), np.empty((3, 2, 2)), np.empty((2, 2), dtype=np.bool_), np.empty((9, _N_SIG)))
+    return (np.empty((n_levels + 1, N_COEF, n)), np.empty((11, n)), np.empty((6, 4)), np.empty((14, 2)),
+            np.empty((3, 2, 2)), np.empty((2, 2), dtype=np.bool_), np.empty((9, _N_SIG)))
 
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+# The step rules measured: (h_top, kappa, amp_floor in cm or V).
+RULES = ((1.0, 0.5, 1e-6), (1.0, 0.5, 1e-5), (1.0, 0.5, 1e-4), (2.0, 0.5, 1e-4), (1.0, 1.0, 1e-4))
 
 
 def prototype_inputs(loop, ctrl, scenario):
     """The lane's inputs for a heurtune loop, controller and scenario: the scenario table, the
-    operating state and levels, :func:`modal_form` of the loop matrix, the controller's input
-    matrices."""
+    operating state and levels, the controller's minimal realisation and the loop matrix."""
     P = loop._scenario_table(scenario)
     s = loop._level_per_state
     x_op, h_op = loop._state_op(), loop.op.h
@@ -528,16 +633,16 @@ def prototype_inputs(loop, ctrl, scenario):
     return P, s, x_op, h_op, (Ac, Bc, Cc, Dc), L
 
 
-def run_prototype(loop, ctrl, scenario, step):
-    """Metrics of the prototype at a fixed ``step`` (graded after the disturbance): (ok, status,
-    steps, metrics)."""
+def run_prototype(loop, ctrl, scenario, rule, work=None):
+    """Metrics of the prototype under ``rule`` = (h_top, kappa, amp_floor): (ok, status, steps,
+    metrics)."""
     P, s, x_op, h_op, (Ac, Bc, Cc, Dc), L = prototype_inputs(loop, ctrl, scenario)
-    ok, lam, V4r, V4i, Vur, Vui, Wr, Wi, Vinv = modal_form(L, s, Cc, Dc)
-    plan = continuous.plan_steps(scenario.horizon, step, scenario.output_disturbance, scenario.disturbance_time,
-                                 scenario.input_disturbance, scenario.input_disturbance_time)
+    ok, lam_r, lam_i, n_real, V6, W, Tinv, gain = modal_form(L, s, Cc, Dc)
+    plan = loop.step_plan(ctrl, scenario)
     metrics = np.empty(N_METRICS)
-    status, steps = linearised_lane(P, s, x_op, h_op, lam, V4r, V4i, Vur, Vui, Wr, Wi, Vinv, Bc, Dc, plan.table,
-                                    plan.t0.size, 3.0, metrics, workspace(lam.size))
+    work = workspace(lam_r.size) if work is None else work
+    status, steps = linearised_lane(P, s, x_op, h_op, lam_r, lam_i, n_real, V6, W, Tinv, gain, Bc, Dc, plan.table,
+                                    plan.t0.size, 3.0, *rule, metrics, work)
     return ok, status, steps, metrics
 
 
@@ -550,61 +655,127 @@ def _median_ms(fn, repeats=30):
     return 1e3 * float(np.median(times))
 
 
-def main() -> int:
+def _rel(m, ref, idx, name):
+    return m[idx[name]] / ref[idx[name]] - 1.0
+
+
+def named_cases(idx):
+    """The three loops of docs/model.md at each rule, against heurtune's loop at 0.125/16 s."""
     from qtp_cases import IOLQI_NMP, THESIS_MIN, WEAK
 
-    from heurtune.objectives.qtp.loop import METRIC_NAMES, ClosedLoop, Scenario
+    from heurtune.objectives.qtp.loop import ClosedLoop, Scenario
     from heurtune.objectives.qtp.model import preset
-    from heurtune.runner.machine import cpu_name
 
-    idx = {name: i for i, name in enumerate(METRIC_NAMES)}
-    print(f"CPU: {cpu_name()}, one core")
-    print("| case | loop | step (s) | steps | IAE1, IAE2 rel. | J1 rel. | TV1 rel. | ts1 (s) |")
+    print("| case | loop | rule (h_top, kappa, floor) | steps | IAE1, IAE2 rel. | J1 rel. | TV1 rel. | ts1 (s) |")
     print("| --- | --- | --- | --- | --- | --- | --- | --- |")
     cases = {"FOLQI min, thesis": ("min", "folqi", THESIS_MIN), "FOLQI min, weakly damped": ("min", "folqi", WEAK),
              "IOLQI nmp": ("nmp", "iolqi", IOLQI_NMP)}
     scenario = Scenario()
 
-    def row(label, kind, step, steps, m, ref):
-        rel = [m[idx[k]] / ref[idx[k]] - 1.0 for k in ("IAE1", "IAE2", "J1", "TV1")]
-        print(f"| {label} | {kind} | {step} | {steps} | {rel[0]:+.1e}, {rel[1]:+.1e} | {rel[2]:+.1e} | "
+    def row(label, kind, rule, steps, m, ref):
+        rel = [_rel(m, ref, idx, k) for k in ("IAE1", "IAE2", "J1", "TV1")]
+        print(f"| {label} | {kind} | {rule} | {steps} | {rel[0]:+.1e}, {rel[1]:+.1e} | {rel[2]:+.1e} | "
               f"{rel[3]:+.1e} | {m[idx['ts1']]:.4f} (ref. {ref[idx['ts1']]:.4f}) |")
 
-    timings = []
     for label, (case, kind, gains) in cases.items():
         loop = ClosedLoop(preset(case), kind)
         ctrl = loop.controller(gains)
         ref = loop.run(ctrl, Scenario(step=0.125 / 16), record=False).metrics
         sim = loop.run(ctrl, scenario, record=False)
-        row(label, "heurtune, default tolerance", "rule", sim.steps, sim.metrics, ref)
-        for step in (0.125, 0.25, 0.5, 1.0):
-            ok, status, steps, m = run_prototype(loop, ctrl, scenario, step)
-            row(label, "prototype" + ("" if ok else " (ill-conditioned V)"), step, steps, m, ref)
-        P, s, x_op, h_op, (Ac, Bc, Cc, Dc), L = prototype_inputs(loop, ctrl, scenario)
-        form = modal_form(L, s, Cc, Dc)
-        plan = continuous.plan_steps(scenario.horizon, 0.25, scenario.output_disturbance, scenario.disturbance_time,
-                                     scenario.input_disturbance, scenario.input_disturbance_time)
-        metrics = np.empty(N_METRICS)
-        work = workspace(L.shape[0])
-        coef, u_op = P[P_COEF:P_COEF + 10].copy(), P[P_UOP:P_UOP + 2].copy()
+        row(label, "heurtune, default tolerance", "", sim.steps, sim.metrics, ref)
+        for rule in RULES:
+            ok, status, steps, m = run_prototype(loop, ctrl, scenario, rule)
+            row(label, "prototype" + ("" if ok else " (ill-conditioned T)"), rule, steps, m, ref)
 
-        def lane(P=P, s=s, x_op=x_op, h_op=h_op, form=form, Bc=Bc, Dc=Dc, plan=plan, metrics=metrics, work=work):
-            linearised_lane(P, s, x_op, h_op, *form[1:], Bc, Dc, plan.table, plan.t0.size, 3.0, metrics, work)
 
-        def setup(coef=coef, u_op=u_op, x_op=x_op, s=s, Ac=Ac, Bc=Bc, Cc=Cc, Dc=Dc):
-            modal_form(loop_matrix(coef, u_op, x_op, s, Ac, Bc, Cc, Dc), s, Cc, Dc)
+def study_sets(idx, n, rule):
+    """cs_folqi_qtp min: uniform, at-bounds and visited candidates (bench_study_candidates), each
+    against heurtune's loop at 0.125/16 s: IAE errors, steps and time per candidate."""
+    import warnings
 
-        def heurtune_run(loop=loop, ctrl=ctrl):
-            loop.run(ctrl, scenario, record=False)
+    from bench_evaluate import forget_designs
+    from bench_study_candidates import candidate_sets
 
-        lane_ms, setup_ms, heurtune_ms = _median_ms(lane), _median_ms(setup), _median_ms(heurtune_run)
-        timings.append((label, L.shape[0], 1e3 * lane_ms / plan.n_steps, setup_ms, heurtune_ms, sim.steps))
-    print()
-    print("| case | loop states | prototype: us per step | prototype: set-up ms | heurtune: ms per simulation "
-          "(steps) |")
-    print("| --- | --- | --- | --- | --- |")
-    for label, n, per_step, setup_ms, heurtune_ms, steps in timings:
-        print(f"| {label} | {n} | {per_step:.2f} | {setup_ms:.3f} | {heurtune_ms:.3f} ({steps}) |")
+    import heurtune
+    from heurtune.objectives.qtp import design_kernels
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        prob = heurtune.load_experiment("cs_folqi_qtp").problem("min")
+        sets = candidate_sets(prob, n, 1, True)
+    loop = prob.loop
+    scenario = prob.scenario(prob.tuning_scenario)
+    tight = dataclasses.replace(scenario, step=0.125 / 16, tolerance=None)
+    print(f"\ncs_folqi_qtp min, rule (h_top, kappa, floor) = {rule}; IAE relative errors against heurtune's loop "
+          "at 0.125/16 s; ms per candidate, one core")
+    print("| set | n | ill-cond. | steps mean / max (heurtune) | max abs IAE rel. err. (heurtune) | > 1e-4 "
+          "(heurtune) | max abs J rel. err. | evaluate ms | heurtune loop ms | prototype set-up + lane ms | "
+          "projected evaluate ms |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    works = {}
+
+    def work_of(n):
+        if n not in works:
+            works[n] = workspace(n)
+        return works[n]
+
+    for label, X in sets.items():
+        ctrls = [loop.controller(prob.values(x)) for x in X]
+        errs, errs_h, jerr, steps, steps_h, bad = [], [], [], [], [], 0
+        inputs = []
+        for ctrl in ctrls:
+            ref = loop.run(ctrl, tight, record=False).metrics
+            sim = loop.run(ctrl, scenario, record=False)
+            ok, status, st, m = run_prototype(loop, ctrl, scenario, rule, work_of(ctrl.A.shape[0] + 4))
+            bad += not ok
+            errs.append(max(abs(_rel(m, ref, idx, "IAE1")), abs(_rel(m, ref, idx, "IAE2"))))
+            errs_h.append(max(abs(_rel(sim.metrics, ref, idx, "IAE1")), abs(_rel(sim.metrics, ref, idx, "IAE2"))))
+            jerr.append(max(abs(_rel(m, ref, idx, "J1")), abs(_rel(m, ref, idx, "J2"))))
+            steps.append(st)
+            steps_h.append(sim.steps)
+            inputs.append(prototype_inputs(loop, ctrl, scenario))
+        plan = loop.step_plan(ctrls[0], scenario)
+
+        def evaluate(X=X):
+            forget_designs(filters=True)
+            prob.evaluate(X)
+
+        def heurtune_loops(ctrls=ctrls):
+            for ctrl in ctrls:
+                loop._continuous_metrics(ctrl, scenario, 3.0)
+
+        def prototype(inputs=inputs, plan=plan):
+            metrics = np.empty(N_METRICS)
+            for P, s, x_op, h_op, (Ac, Bc, Cc, Dc), L in inputs:
+                L = loop_matrix(P[P_COEF:P_COEF + 10], P[P_UOP:P_UOP + 2], x_op, s, Ac, Bc, Cc, Dc)
+                form = modal_form(L, s, Cc, Dc)
+                linearised_lane(P, s, x_op, h_op, *form[1:], Bc, Dc, plan.table, plan.t0.size, 3.0, *rule, metrics,
+                                work_of(L.shape[0]))
+
+        k = len(X)
+        ev, hl, pr = (_median_ms(f, 7) / k for f in (evaluate, heurtune_loops, prototype))
+        e = np.array(errs)
+        print(f"| {label} | {k} | {bad} | {np.mean(steps):.0f} / {max(steps)} ({np.mean(steps_h):.0f} / "
+              f"{max(steps_h)}) | {e.max():.1e} ({max(errs_h):.1e}) | {int((e > 1e-4).sum())} "
+              f"({int((np.array(errs_h) > 1e-4).sum())}) | {max(jerr):.1e} | {ev:.3f} | {hl:.3f} | {pr:.3f} | "
+              f"{ev - hl + pr:.3f} |")
+    del design_kernels
+
+
+def main(argv=None) -> int:
+    import argparse
+
+    from heurtune.objectives.qtp.loop import METRIC_NAMES
+    from heurtune.runner.machine import cpu_name
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--candidates", type=int, default=40)
+    ap.add_argument("--rule", type=float, nargs=3, default=(1.0, 0.5, 1e-6), help="h_top kappa amp_floor")
+    args = ap.parse_args(argv)
+    idx = {name: i for i, name in enumerate(METRIC_NAMES)}
+    print(f"CPU: {cpu_name()}, one core, BLAS one thread")
+    named_cases(idx)
+    study_sets(idx, args.candidates, tuple(args.rule))
     return 0
 
 
