@@ -255,38 +255,6 @@ def _readout(V6, y, x_op, du_const, x, du):
 
 
 @_kernel(inline="always")
-def _plant_readout(V6, y, x_op, x):
-    """The plant state ``x`` of modal state ``y`` alone (a stage's, whose voltages no metric
-    reads)."""
-    a0 = a1 = a2 = a3 = 0.0
-    b0 = b1 = b2 = b3 = 0.0
-    n = y.size
-    j = 0
-    while j + 1 < n:
-        v = y[j]
-        a0 += V6[j, 0] * v
-        a1 += V6[j, 1] * v
-        a2 += V6[j, 2] * v
-        a3 += V6[j, 3] * v
-        v = y[j + 1]
-        b0 += V6[j + 1, 0] * v
-        b1 += V6[j + 1, 1] * v
-        b2 += V6[j + 1, 2] * v
-        b3 += V6[j + 1, 3] * v
-        j += 2
-    if j < n:
-        v = y[j]
-        a0 += V6[j, 0] * v
-        a1 += V6[j, 1] * v
-        a2 += V6[j, 2] * v
-        a3 += V6[j, 3] * v
-    x[0] = x_op[0] + (a0 + b0)
-    x[1] = x_op[1] + (a1 + b1)
-    x[2] = x_op[2] + (a2 + b2)
-    x[3] = x_op[3] + (a3 + b3)
-
-
-@_kernel(inline="always")
 def _drive(x, x_op, rt, c, W, k, out):
     """The modal drive ``out = k + W r`` at plant state ``x`` (``r``: the outflows beyond their
     linearisation)."""
@@ -417,6 +385,135 @@ def _step_level(y, N, lam_r, lam_i, gain, n_real, amp_floor, kappa, h_top, n_lev
     return lv
 
 
+@_kernel(inline="always")
+def _start_metrics(w2, ex, wb, sig, band_pct, h_op):
+    """Empty the metric accumulators of a lane's working arrays (``w2`` rows 5..12, ``ex``,
+    ``wb``, ``sig``) and set the settling band."""
+    u_prev, band = w2[5], w2[4]
+    ex_prev, ex_out, ex_in = ex[0], ex[1], ex[2]
+    ex_has_prev, pending = wb[0], wb[1]
+    lo, hi = sig[3], sig[4]
+    win_v, win_t = sig[5:8], sig[8, :3]
+    for j in range(2):
+        u_prev[j] = 0.0
+        ex_has_prev[j] = False
+        pending[j] = False
+        for r in range(7):
+            w2[6 + r, j] = 0.0
+        for r in range(2):
+            ex_prev[j, r] = 0.0
+            ex_out[j, r] = -1.0
+            ex_in[j, r] = 0.0
+        band[j] = band_pct / 100.0 * h_op[j]
+    for i in range(_N_SIG):
+        lo[i] = math.inf
+        hi[i] = -math.inf
+        for r in range(3):
+            win_v[r, i] = 0.0
+    for r in range(3):
+        win_t[r] = 0.0
+
+
+@_kernel(inline="always")
+def _operating_drive(c, x_op, rt, f_op):
+    """``rt = sqrt(x_op)`` and the operating point's own drive ``f_op`` (zero up to rounding for an
+    exact operating point)."""
+    for i in range(4):
+        rt[i] = math.sqrt(max(x_op[i], 0.0))
+    f_op[0] = c[4] * rt[2] - c[0] * rt[0]
+    f_op[1] = c[5] * rt[3] - c[1] * rt[1]
+    f_op[2] = -c[2] * rt[2]
+    f_op[3] = -c[3] * rt[3]
+
+
+@_kernel(inline="always")
+def _visit_node(t, x, du, s, d1, d2, h_op, u_op, post, n_win, w, f, w2, ex, wb, sig, first):
+    """Measure a node (plant state ``x``, voltage deviations ``du``) into ``f`` and fold it into
+    the extremes, overshoot, band exits and total variation; returns the new window count."""
+    _measure(x, s, d1, d2, h_op, w)
+    _signals(w, x, s, u_op, du, f)
+    return _visit(t, f, post, w2[4], n_win, sig[8, :3], sig[5:8], sig[3], sig[4], w2[12], ex[0], ex[1], ex[2],
+                  wb[0], wb[1], w2[11], w2[5], first)
+
+
+@_kernel(inline="always")
+def _simpson(t, hs, u_op, w2, sig):
+    """Simpson's rule over a step from its start, midpoint and end signals (``sig[0..2]``), IAE
+    and ITAE split at the error's zero crossings; the end becomes the next step's start."""
+    f0, fm, f1 = sig[0], sig[1], sig[2]
+    iae, ise, itae, jj, jdev = w2[6], w2[7], w2[8], w2[9], w2[10]
+    wq = hs / 6.0
+    for i in range(2):
+        m0, m1 = _abs_moments(f0[8 + i], fm[8 + i], f1[8 + i])
+        iae[i] += hs * m0
+        ise[i] += wq * (f0[i] * f0[i] + 4.0 * fm[i] * fm[i] + f1[i] * f1[i])
+        itae[i] += hs * (t * m0 + hs * m1)
+        a0 = f0[6 + i]
+        am = fm[6 + i]
+        a1 = f1[6 + i]
+        jj[i] += wq * (a0 * a0 + 4.0 * am * am + a1 * a1)
+        b0 = a0 - u_op[i]
+        bm = am - u_op[i]
+        b1 = a1 - u_op[i]
+        jdev[i] += wq * (b0 * b0 + 4.0 * bm * bm + b1 * b1)
+    for i in range(_N_SIG):
+        f0[i] = f1[i]
+
+
+@_kernel(inline="always")
+def _finish_metrics(diverged, n_taken, w2, ex, wb, sig, h_op, horizon, t_dist, metrics):
+    """The metrics from the accumulators (NaN when the run diverged); returns (status, steps)."""
+    if diverged:
+        for i in range(N_METRICS):
+            metrics[i] = math.nan
+        return STATUS_DIVERGED, n_taken
+    ex_prev, ex_out, ex_in = ex[0], ex[1], ex[2]
+    ex_has_prev, pending = wb[0], wb[1]
+    f1, lo, hi = sig[2], sig[3], sig[4]
+    band, mp = w2[4], w2[12]
+    for i in range(2):
+        y0 = h_op[i]
+        if ex_out[i, 0] < 0.0:
+            ts = 0.0
+        elif pending[i]:
+            ts = horizon - t_dist
+        else:
+            ts = _crossing(ex_prev[i, 0], ex_prev[i, 1], ex_out[i, 0], ex_out[i, 1], ex_in[i, 0], ex_in[i, 1],
+                           band[i], ex_has_prev[i]) - t_dist
+        metrics[i] = mp[i] / y0 * 100.0
+        metrics[2 + i] = ts
+        metrics[4 + i] = f1[i] / y0 * 100.0
+        for r in range(6):  # IAE, ISE, ITAE, J, Jdev, TV
+            metrics[6 + 2 * r + i] = w2[6 + r, i]
+    metrics[18] = min(min(lo[2], lo[3]), min(lo[4], lo[5]))
+    metrics[19] = max(max(hi[2], hi[3]), max(hi[4], hi[5]))
+    metrics[20] = min(lo[6], lo[7])
+    metrics[21] = max(hi[6], hi[7])
+    return STATUS_OK, n_taken
+
+
+@_kernel(inline="always")
+def _segment_drive(row, d1, d2, c, f_op, u_op, Dc, Bc, Tinv, du_const, k):
+    """A segment's constant drive ``g = [f_op + Bp (u_op + uin + Dc d); Bc d]`` in modal form
+    (``k = T^-1 g``), and the voltage deviations ``du_const = Dc d`` its output disturbance
+    ``d`` adds (``row``: the segment's row of the step plan)."""
+    n = k.size
+    for j in range(2):
+        du_const[j] = Dc[j, 0] * d1 + Dc[j, 1] * d2
+    for j in range(n):
+        k[j] = 0.0
+    for i in range(4):
+        p = _PUMP[i]
+        gx = f_op[i] + c[_PUMP_COEF[i]] * (u_op[p] + row[SEG_UIN + p] + du_const[p])
+        for j in range(n):
+            k[j] += Tinv[j, i] * gx
+    for r in range(n - 4):
+        gz = Bc[r, 0] * d1 + Bc[r, 1] * d2
+        if gz != 0.0:
+            for j in range(n):
+                k[j] += Tinv[j, 4 + r] * gz
+
+
 @_kernel
 def linearised_lane(P, level_per_state, x_op, h_op, lam_r, lam_i, n_real, V6, W, Tinv, gain, Bc, Dc, seg, n_seg,
                     band_pct, h_top, kappa, amp_floor, metrics, work):
@@ -444,50 +541,21 @@ def linearised_lane(P, level_per_state, x_op, h_op, lam_r, lam_i, n_real, V6, W,
     t_dist, horizon = P[P_T_DIST], P[P_HORIZON]
     s = level_per_state
     n = lam_r.size
-    nc = n - 4
     state_limit = LEVEL_LIMIT / s
     T, vec, w4, w2, ex, wb, sig = work
     y, a, b, cs, Ny, Na, Nb, Nc, ym, k, sab = (vec[0], vec[1], vec[2], vec[3], vec[4], vec[5], vec[6], vec[7],
                                                    vec[8], vec[9], vec[10])
     x, x_mid, w, rt, f_op, xs = w4[0], w4[1], w4[2], w4[3], w4[4], w4[5]
-    du0, du_mid, du_end, du_const, band, u_prev = w2[0], w2[1], w2[2], w2[3], w2[4], w2[5]
-    iae, ise, itae, jj, jdev, tv, mp = w2[6], w2[7], w2[8], w2[9], w2[10], w2[11], w2[12]
-    w2[13]
-    ex_prev, ex_out, ex_in = ex[0], ex[1], ex[2]
-    ex_has_prev, pending = wb[0], wb[1]
-    f0, fm, f1, lo, hi = sig[0], sig[1], sig[2], sig[3], sig[4]
-    win_v, win_t = sig[5:8], sig[8, :3]
+    du0, du_mid, du_end, du_const = w2[0], w2[1], w2[2], w2[3]
+    du_stage = w2[13]  # a stage's voltages, not read
+    f0, fm, f1 = sig[0], sig[1], sig[2]
     n_levels = T.shape[0] - 1  # the last slot: a segment's shortened last step
     for lv in range(n_levels):
         _coefficients(lam_r, lam_i, n_real, h_top / 2.0 ** lv, T, lv)
     for j in range(n):
         y[j] = 0.0
-    for i in range(4):
-        rt[i] = math.sqrt(max(x_op[i], 0.0))
-    for j in range(2):
-        u_prev[j] = 0.0
-        ex_has_prev[j] = False
-        pending[j] = False
-        for r in range(7):
-            w2[6 + r, j] = 0.0
-        for r in range(2):
-            ex_prev[j, r] = 0.0
-            ex_out[j, r] = -1.0
-            ex_in[j, r] = 0.0
-    for i in range(_N_SIG):
-        lo[i] = math.inf
-        hi[i] = -math.inf
-        for r in range(3):
-            win_v[r, i] = 0.0
-    for r in range(3):
-        win_t[r] = 0.0
-    for j in range(2):
-        band[j] = band_pct / 100.0 * h_op[j]
-    # the operating point's own drive (zero up to rounding for an exact operating point)
-    f_op[0] = c[4] * rt[2] - c[0] * rt[0]
-    f_op[1] = c[5] * rt[3] - c[1] * rt[1]
-    f_op[2] = -c[2] * rt[2]
-    f_op[3] = -c[3] * rt[3]
+    _start_metrics(w2, ex, wb, sig, band_pct, h_op)
+    _operating_drive(c, x_op, rt, f_op)
     n_taken = 0
     diverged = False
     first_node = True
@@ -498,27 +566,10 @@ def linearised_lane(P, level_per_state, x_op, h_op, lam_r, lam_i, n_real, V6, W,
         post = seg[sg, SEG_POST] > 0.0
         t = seg[sg, SEG_T0]
         t_end = horizon if sg == n_seg - 1 else seg[sg + 1, SEG_T0]
-        # the segment's constant drive g = [f_op + Bp (u_op + uin + Dc d); Bc d], in modal form,
-        for j in range(2):
-            du_const[j] = Dc[j, 0] * d1 + Dc[j, 1] * d2
-        for j in range(n):
-            k[j] = 0.0
-        for i in range(4):
-            p = _PUMP[i]
-            gx = f_op[i] + c[_PUMP_COEF[i]] * (u_op[p] + seg[sg, SEG_UIN + p] + du_const[p])
-            for j in range(n):
-                k[j] += Tinv[j, i] * gx
-        for r in range(nc):
-            gz = Bc[r, 0] * d1 + Bc[r, 1] * d2
-            if gz != 0.0:
-                for j in range(n):
-                    k[j] += Tinv[j, 4 + r] * gz
+        _segment_drive(seg[sg], d1, d2, c, f_op, u_op, Dc, Bc, Tinv, du_const, k)
         # the segment's first node (a jump of the measurement is in it)
         _readout(V6, y, x_op, du_const, x, du0)
-        _measure(x, s, d1, d2, h_op, w)
-        _signals(w, x, s, u_op, du0, f0)
-        n_win = _visit(t, f0, post, band, 0, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in, ex_has_prev,
-                       pending, tv, u_prev, first_node)
+        n_win = _visit_node(t, x, du0, s, d1, d2, h_op, u_op, post, 0, w, f0, w2, ex, wb, sig, first_node)
         first_node = False
         while t < t_end:
             _drive(x, x_op, rt, c, W, k, Ny)
@@ -530,15 +581,15 @@ def linearised_lane(P, level_per_state, x_op, h_op, lam_r, lam_i, n_real, V6, W,
                 lv = n_levels
                 _coefficients(lam_r, lam_i, n_real, hs, T, lv)
             _diag2(T, lv, C_E2, y, C_Q, Ny, a, n_real)  # a = E2 y + Q N(y)
-            _plant_readout(V6, a, x_op, xs)
+            _readout(V6, a, x_op, du_const, xs, du_stage)
             _drive(xs, x_op, rt, c, W, k, Na)
             _diag2(T, lv, C_E2, y, C_Q, Na, b, n_real)  # b = E2 y + Q N(a)
-            _plant_readout(V6, b, x_op, xs)
+            _readout(V6, b, x_op, du_const, xs, du_stage)
             _drive(xs, x_op, rt, c, W, k, Nb)
             for j in range(n):
                 sab[j] = 2.0 * Nb[j] - Ny[j]
             _diag2(T, lv, C_E2, a, C_Q, sab, cs, n_real)  # c = E2 a + Q (2 N(b) - N(y))
-            _plant_readout(V6, cs, x_op, xs)
+            _readout(V6, cs, x_op, du_const, xs, du_stage)
             _drive(xs, x_op, rt, c, W, k, Nc)
             for j in range(n):
                 sab[j] = Na[j] + Nb[j]
@@ -552,61 +603,14 @@ def linearised_lane(P, level_per_state, x_op, h_op, lam_r, lam_i, n_real, V6, W,
             if not (abs(x[0]) + abs(x[1]) + abs(x[2]) + abs(x[3]) < state_limit):
                 diverged = True
                 break
-            _measure(x_mid, s, d1, d2, h_op, w)
-            _signals(w, x_mid, s, u_op, du_mid, fm)
-            n_win = _visit(t + 0.5 * hs, fm, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
-                           ex_has_prev, pending, tv, u_prev, False)
-            _measure(x, s, d1, d2, h_op, w)
-            _signals(w, x, s, u_op, du_end, f1)
-            n_win = _visit(t + hs, f1, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
-                           ex_has_prev, pending, tv, u_prev, False)
-            # Simpson's rule over the step (IAE and ITAE split at the error's zero crossings)
-            wq = hs / 6.0
-            for i in range(2):
-                m0, m1 = _abs_moments(f0[8 + i], fm[8 + i], f1[8 + i])
-                iae[i] += hs * m0
-                ise[i] += wq * (f0[i] * f0[i] + 4.0 * fm[i] * fm[i] + f1[i] * f1[i])
-                itae[i] += hs * (t * m0 + hs * m1)
-                a0 = f0[6 + i]
-                am = fm[6 + i]
-                a1 = f1[6 + i]
-                jj[i] += wq * (a0 * a0 + 4.0 * am * am + a1 * a1)
-                b0 = a0 - u_op[i]
-                bmm = am - u_op[i]
-                b1 = a1 - u_op[i]
-                jdev[i] += wq * (b0 * b0 + 4.0 * bmm * bmm + b1 * b1)
-            for i in range(_N_SIG):
-                f0[i] = f1[i]
+            n_win = _visit_node(t + 0.5 * hs, x_mid, du_mid, s, d1, d2, h_op, u_op, post, n_win, w, fm, w2, ex, wb,
+                                sig, False)
+            n_win = _visit_node(t + hs, x, du_end, s, d1, d2, h_op, u_op, post, n_win, w, f1, w2, ex, wb, sig, False)
+            _simpson(t, hs, u_op, w2, sig)
             t = t_end if last else t + hs
         if diverged:
             break
-    if diverged:
-        for i in range(N_METRICS):
-            metrics[i] = math.nan
-        return STATUS_DIVERGED, n_taken
-    for i in range(2):
-        y0 = h_op[i]
-        if ex_out[i, 0] < 0.0:
-            ts = 0.0
-        elif pending[i]:
-            ts = horizon - t_dist
-        else:
-            ts = _crossing(ex_prev[i, 0], ex_prev[i, 1], ex_out[i, 0], ex_out[i, 1], ex_in[i, 0], ex_in[i, 1],
-                           band[i], ex_has_prev[i]) - t_dist
-        metrics[i] = mp[i] / y0 * 100.0
-        metrics[2 + i] = ts
-        metrics[4 + i] = f1[i] / y0 * 100.0
-        metrics[6 + i] = iae[i]
-        metrics[8 + i] = ise[i]
-        metrics[10 + i] = itae[i]
-        metrics[12 + i] = jj[i]
-        metrics[14 + i] = jdev[i]
-        metrics[16 + i] = tv[i]
-    metrics[18] = min(min(lo[2], lo[3]), min(lo[4], lo[5]))
-    metrics[19] = max(max(hi[2], hi[3]), max(hi[4], hi[5]))
-    metrics[20] = min(lo[6], lo[7])
-    metrics[21] = max(hi[6], hi[7])
-    return STATUS_OK, n_taken
+    return _finish_metrics(diverged, n_taken, w2, ex, wb, sig, h_op, horizon, t_dist, metrics)
 
 
 # -- The same method with its stages folded into per-level tables ----------------------------
@@ -753,48 +757,21 @@ def folded_lane(P, level_per_state, x_op, h_op, lam_r, lam_i, n_real, V6, W, Tin
     t_dist, horizon = P[P_T_DIST], P[P_HORIZON]
     s = level_per_state
     n = lam_r.size
-    nc = n - 4
     state_limit = LEVEL_LIMIT / s
     T, LT, SM, SC, KF, scr, vec, w4, w2, ex, wb, sig = work
     y, Ny, k, tmp = vec[0], vec[1], vec[2], vec[3]
     x, x_mid, w, rt, f_op = w4[0], w4[1], w4[2], w4[3], w4[4]
-    du0, du_mid, du_end, du_const, band, u_prev = w2[0], w2[1], w2[2], w2[3], w2[4], w2[5]
-    iae, ise, itae, jj, jdev, tv, mp = w2[6], w2[7], w2[8], w2[9], w2[10], w2[11], w2[12]
-    ex_prev, ex_out, ex_in = ex[0], ex[1], ex[2]
-    ex_has_prev, pending = wb[0], wb[1]
-    f0, fm, f1, lo, hi = sig[0], sig[1], sig[2], sig[3], sig[4]
-    win_v, win_t = sig[5:8], sig[8, :3]
+    du0, du_mid, du_end, du_const = w2[0], w2[1], w2[2], w2[3]
+    f0, fm, f1 = sig[0], sig[1], sig[2]
     n_levels = T.shape[0] - 1  # the last slot: a segment's shortened last step
     for lv in range(n_levels):
         _level_tables(lam_r, lam_i, n_real, V6, W, h_top / 2.0 ** lv, T, LT, SM, lv, scr)
     for j in range(n):
         y[j] = 0.0
     for i in range(4):
-        rt[i] = math.sqrt(max(x_op[i], 0.0))
         x[i] = x_op[i]
-    for j in range(2):
-        u_prev[j] = 0.0
-        ex_has_prev[j] = False
-        pending[j] = False
-        for r in range(7):
-            w2[6 + r, j] = 0.0
-        for r in range(2):
-            ex_prev[j, r] = 0.0
-            ex_out[j, r] = -1.0
-            ex_in[j, r] = 0.0
-    for i in range(_N_SIG):
-        lo[i] = math.inf
-        hi[i] = -math.inf
-        for r in range(3):
-            win_v[r, i] = 0.0
-    for r in range(3):
-        win_t[r] = 0.0
-    for j in range(2):
-        band[j] = band_pct / 100.0 * h_op[j]
-    f_op[0] = c[4] * rt[2] - c[0] * rt[0]
-    f_op[1] = c[5] * rt[3] - c[1] * rt[1]
-    f_op[2] = -c[2] * rt[2]
-    f_op[3] = -c[3] * rt[3]
+    _start_metrics(w2, ex, wb, sig, band_pct, h_op)
+    _operating_drive(c, x_op, rt, f_op)
     n_taken = 0
     diverged = False
     first_node = True
@@ -805,27 +782,11 @@ def folded_lane(P, level_per_state, x_op, h_op, lam_r, lam_i, n_real, V6, W, Tin
         post = seg[sg, SEG_POST] > 0.0
         t = seg[sg, SEG_T0]
         t_end = horizon if sg == n_seg - 1 else seg[sg + 1, SEG_T0]
-        for j in range(2):
-            du_const[j] = Dc[j, 0] * d1 + Dc[j, 1] * d2
-        for j in range(n):
-            k[j] = 0.0
-        for i in range(4):
-            p = _PUMP[i]
-            gx = f_op[i] + c[_PUMP_COEF[i]] * (u_op[p] + seg[sg, SEG_UIN + p] + du_const[p])
-            for j in range(n):
-                k[j] += Tinv[j, i] * gx
-        for r in range(nc):
-            gz = Bc[r, 0] * d1 + Bc[r, 1] * d2
-            if gz != 0.0:
-                for j in range(n):
-                    k[j] += Tinv[j, 4 + r] * gz
+        _segment_drive(seg[sg], d1, d2, c, f_op, u_op, Dc, Bc, Tinv, du_const, k)
         for lv in range(n_levels):
             _segment_constants(T, V6, k, n_real, lv, SC, KF, tmp)
         _readout(V6, y, x_op, du_const, x, du0)
-        _measure(x, s, d1, d2, h_op, w)
-        _signals(w, x, s, u_op, du0, f0)
-        n_win = _visit(t, f0, post, band, 0, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in, ex_has_prev,
-                       pending, tv, u_prev, first_node)
+        n_win = _visit_node(t, x, du0, s, d1, d2, h_op, u_op, post, 0, w, f0, w2, ex, wb, sig, first_node)
         first_node = False
         while t < t_end:
             ry0, ry1, ry2, ry3 = _residual(x[0], x[1], x[2], x[3], x_op, rt, c)
@@ -912,60 +873,14 @@ def folded_lane(P, level_per_state, x_op, h_op, lam_r, lam_i, n_real, V6, W, Tin
             if not (abs(x[0]) + abs(x[1]) + abs(x[2]) + abs(x[3]) < state_limit):
                 diverged = True
                 break
-            _measure(x_mid, s, d1, d2, h_op, w)
-            _signals(w, x_mid, s, u_op, du_mid, fm)
-            n_win = _visit(t + 0.5 * hs, fm, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
-                           ex_has_prev, pending, tv, u_prev, False)
-            _measure(x, s, d1, d2, h_op, w)
-            _signals(w, x, s, u_op, du_end, f1)
-            n_win = _visit(t + hs, f1, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
-                           ex_has_prev, pending, tv, u_prev, False)
-            wq = hs / 6.0
-            for i in range(2):
-                m0, m1 = _abs_moments(f0[8 + i], fm[8 + i], f1[8 + i])
-                iae[i] += hs * m0
-                ise[i] += wq * (f0[i] * f0[i] + 4.0 * fm[i] * fm[i] + f1[i] * f1[i])
-                itae[i] += hs * (t * m0 + hs * m1)
-                a0 = f0[6 + i]
-                am = fm[6 + i]
-                a1 = f1[6 + i]
-                jj[i] += wq * (a0 * a0 + 4.0 * am * am + a1 * a1)
-                c0 = a0 - u_op[i]
-                cm = am - u_op[i]
-                c1 = a1 - u_op[i]
-                jdev[i] += wq * (c0 * c0 + 4.0 * cm * cm + c1 * c1)
-            for i in range(_N_SIG):
-                f0[i] = f1[i]
+            n_win = _visit_node(t + 0.5 * hs, x_mid, du_mid, s, d1, d2, h_op, u_op, post, n_win, w, fm, w2, ex, wb,
+                                sig, False)
+            n_win = _visit_node(t + hs, x, du_end, s, d1, d2, h_op, u_op, post, n_win, w, f1, w2, ex, wb, sig, False)
+            _simpson(t, hs, u_op, w2, sig)
             t = t_end if last else t + hs
         if diverged:
             break
-    if diverged:
-        for i in range(N_METRICS):
-            metrics[i] = math.nan
-        return STATUS_DIVERGED, n_taken
-    for i in range(2):
-        y0 = h_op[i]
-        if ex_out[i, 0] < 0.0:
-            ts = 0.0
-        elif pending[i]:
-            ts = horizon - t_dist
-        else:
-            ts = _crossing(ex_prev[i, 0], ex_prev[i, 1], ex_out[i, 0], ex_out[i, 1], ex_in[i, 0], ex_in[i, 1],
-                           band[i], ex_has_prev[i]) - t_dist
-        metrics[i] = mp[i] / y0 * 100.0
-        metrics[2 + i] = ts
-        metrics[4 + i] = f1[i] / y0 * 100.0
-        metrics[6 + i] = iae[i]
-        metrics[8 + i] = ise[i]
-        metrics[10 + i] = itae[i]
-        metrics[12 + i] = jj[i]
-        metrics[14 + i] = jdev[i]
-        metrics[16 + i] = tv[i]
-    metrics[18] = min(min(lo[2], lo[3]), min(lo[4], lo[5]))
-    metrics[19] = max(max(hi[2], hi[3]), max(hi[4], hi[5]))
-    metrics[20] = min(lo[6], lo[7])
-    metrics[21] = max(hi[6], hi[7])
-    return STATUS_OK, n_taken
+    return _finish_metrics(diverged, n_taken, w2, ex, wb, sig, h_op, horizon, t_dist, metrics)
 
 
 def folded_workspace(n, n_levels=N_LEVELS):
