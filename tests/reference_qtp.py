@@ -75,7 +75,7 @@ def frac_integrator_ss(alpha, N=5, wb=1e-3, wh=1e3, realisation="direct"):
 
 
 def reference_loop(P, gains, t_eval, *, d=(1.0, 1.0), t_d=50.0, factor=1.0,
-                   realisation="direct", method="Radau", rtol=1e-9, atol=1e-11):
+                   realisation="direct", method="Radau", rtol=1e-9, atol=1e-11, integrals=False):
     """Continuous FOLQI loop ``u = u0 - K dx_meas + Ki/s^alpha (-dy_meas)``.
 
     Parameters
@@ -83,10 +83,14 @@ def reference_loop(P, gains, t_eval, *, d=(1.0, 1.0), t_d=50.0, factor=1.0,
     P : dict with A, a, k, gamma, levels (nominal plant)
     gains : dict with Q11..Q44, R11, R22, Ki1, Ki2 and optionally alpha1, alpha2 (default 1)
     t_eval : sample times; d, t_d : measured-level step; factor : scaling of A_i and a_i
+    integrals : bool
+        Also integrate ``|e1|``, ``|e2|`` and ``e1^2``, ``e2^2`` as four more states of the ODE
+        (the solver's own error control on them) and return their values at the last time.
 
     Returns
     -------
     y : (len(t_eval), 2) measured levels; u : (len(t_eval), 2) pump voltages
+    (and with ``integrals``: (4,) IAE1, IAE2, ISE1, ISE2 over [0, t_eval[-1]])
     """
     h0, _ = equilibrium(P)
     A, B = jacobians(P, h0, equilibrium(P)[1])
@@ -113,12 +117,18 @@ def reference_loop(P, gains, t_eval, *, d=(1.0, 1.0), t_d=50.0, factor=1.0,
             off += sizes[i]
         return u, np.concatenate(out)
 
-    def rhs(t, s, dist):
-        h, xc = s[:4], s[4:]
-        u, dxc = control_law(h.copy(), xc, dist)
-        return np.concatenate([plant_rhs(h, u, Pp), dxc])
+    nq = 4 if integrals else 0
 
-    s0 = np.concatenate([h0, np.zeros(sum(sizes))])
+    def rhs(t, s, dist):
+        h, xc = s[:4], s[4:len(s) - nq]
+        u, dxc = control_law(h.copy(), xc, dist)
+        parts = [plant_rhs(h, u, Pp), dxc]
+        if integrals:
+            e = h[:2] - h0[:2] + dist
+            parts.append(np.concatenate([np.abs(e), e * e]))
+        return np.concatenate(parts)
+
+    s0 = np.concatenate([h0, np.zeros(sum(sizes) + nq)])
     y = np.empty((len(t_eval), 2))
     u = np.empty((len(t_eval), 2))
     t_eval = np.asarray(t_eval)
@@ -133,10 +143,12 @@ def reference_loop(P, gains, t_eval, *, d=(1.0, 1.0), t_d=50.0, factor=1.0,
         if not sol.success:
             raise RuntimeError(sol.message)
         for j, idx in enumerate(np.flatnonzero(mask)):
-            h, xc = sol.y[:4, j], sol.y[4:, j]
+            h, xc = sol.y[:4, j], sol.y[4:sol.y.shape[0] - nq, j]
             y[idx] = h[:2] + dist
             u[idx], _ = control_law(h.copy(), xc, dist)
         s0 = sol.y[:, -1]
+    if integrals:
+        return y, u, s0[len(s0) - 4:]
     return y, u
 
 

@@ -75,6 +75,9 @@ SCHEMA = dict(COMMON_SCHEMA, **{
         # the continuous-time loop: largest level error (cm) or an explicit step (s), and the
         # spacing of its recorded trajectory
         "tolerance": NUMBER, "step": NUMBER, "output_dt": NUMBER,
+        # its method: "switching" (default; follows saturation and limits) or "linearised" (the
+        # whole linearised loop exact, adaptive steps; no saturation or limits)
+        "integrator": ("switching", "linearised"),
     },
     "problem": {
         "objective": tuple(OBJECTIVES) + ("weighted",),

@@ -18,6 +18,7 @@ from heurtune.objectives.qtp import continuous as _continuous
 from heurtune.objectives.qtp import continuous_kernels as _continuous_kernels
 from heurtune.objectives.qtp import design_kernels as _design_kernels
 from heurtune.objectives.qtp import kernels as _kernels
+from heurtune.objectives.qtp import linearised as _linearised
 from heurtune.objectives.qtp import structures as _structures
 from heurtune.objectives.qtp.batch_design import discretise_many
 from heurtune.objectives.qtp.bond_graph import BondGraphElements, pressure_coefficients
@@ -48,6 +49,10 @@ MAX_PLANT_STEP = 0.05
 
 # Allowed values of Scenario.limits: the thesis' unlimited model, or the plant's physical limits.
 LIMITS = ("none", "physical")
+# The continuous loop's integrators: "switching" (continuous.py: the controller's modes exact, the
+# plant and the feedback explicit, saturation and limits followed as events) and "linearised"
+# (linearised.py: the whole linearised loop exact, no saturation or limits).
+INTEGRATORS = ("switching", "linearised")
 
 # physical_range_flags uses the core's RANGE_RTOL: a clipped level or saturated voltage sits
 # exactly on its limit and must not count as leaving the range.
@@ -119,6 +124,13 @@ class Scenario:
     output_dt : float
         Spacing in s of the recorded trajectory of the continuous loop (its dense output);
         the sampled loop records every ``dt``.
+    integrator : {"switching", "linearised"}
+        The continuous loop's method. ``"switching"`` (default): exponential integration of
+        the controller's modes with the plant explicit, saturation and limits followed
+        (:mod:`heurtune.objectives.qtp.continuous`). ``"linearised"``: the whole loop's
+        linearisation integrated exactly, only the outflows' curvature explicit, adaptive
+        steps; metrics exact to about 1e-5 where the switching loop's can be 1e-3 off on weakly
+        damped loops, but no saturation or limits (:mod:`heurtune.objectives.qtp.linearised`).
     """
 
     horizon: float = 350.0
@@ -137,6 +149,7 @@ class Scenario:
     tolerance: float | None = None
     step: float | None = None
     output_dt: float = 0.01
+    integrator: str = "switching"
 
     def __post_init__(self):
         if self.dt is not None:
@@ -183,6 +196,23 @@ class Scenario:
         if self.limits == "physical" and self.saturation is not None:
             raise ConfigError("scenario.saturation and scenario.limits = 'physical' both set pump limits; give one")
         self._check_continuous()
+        self._check_integrator()
+
+    def _check_integrator(self):
+        """``integrator`` one of :data:`INTEGRATORS`; the linearised one only on a continuous
+        scenario without saturation or limits."""
+        if not isinstance(self.integrator, str) or self.integrator not in INTEGRATORS:
+            raise ConfigError(f"scenario.integrator must be one of {', '.join(map(repr, INTEGRATORS))}, "
+                              f"got {self.integrator!r}")
+        if self.integrator != "linearised":
+            return
+        if not self.continuous:
+            raise ConfigError("scenario.integrator = 'linearised' is a method of the continuous-time loop; leave "
+                              "scenario.dt and controller.sample_time unset, or use integrator = 'switching'")
+        if self.saturation is not None or self.limits != "none":
+            key = "saturation" if self.saturation is not None else "limits"
+            raise ConfigError(f"scenario.integrator = 'linearised' cannot follow pump saturation or level limits "
+                              f"(scenario.{key} is set); use integrator = 'switching' (the default) with them")
 
     def _check_sampled(self):
         """The sample period of the sampled loop: positive, no longer than the horizon, and a
@@ -635,11 +665,10 @@ class ClosedLoop:
 
     def _run_continuous(self, ctrl, scenario: Scenario, settling_band: float, record: bool,
                         record_levels: bool) -> SimulationResult:
-        """:meth:`run` of a continuous-time scenario (kernel ``simulate_continuous``)."""
+        """:meth:`run` of a continuous-time scenario (kernel ``simulate_continuous``, or the
+        linearised integrator's lane)."""
         table = self._scenario_table(scenario)
         u_op = table[_kernels.P_UOP:_kernels.P_UOP + 2]
-        cc = _continuous.ContinuousController.from_linear(ctrl)
-        plan = self.step_plan(ctrl, scenario, cc)
         n_out = int(round(scenario.horizon / scenario.output_dt))
         t = None
         if record or record_levels:
@@ -649,10 +678,16 @@ class ClosedLoop:
         y, u, h = np.empty((rows, 2)), np.empty((rows, 2)), np.empty((rows, 4))
         metrics = np.empty(_kernels.N_METRICS)
         pressure = self.plant_model == "qtp_bond_graph"
-        status, steps = _continuous_kernels.simulate_continuous(
-            table, self._level_per_state, self._state_op(), self.op.h, cc.lam, cc.b, cc.col,
-            cc.Cm, cc.Aq, cc.Bq, cc.Cq, cc.D, cc.channel, plan.table, float(settling_band), metrics,
-            float(scenario.output_dt), y, u, h)
+        run = self._run_linearised(ctrl, scenario, settling_band, metrics, y, u, h)
+        if run is None:
+            cc = _continuous.ContinuousController.from_linear(ctrl)
+            plan = self.step_plan(ctrl, scenario, cc)
+            status, steps = _continuous_kernels.simulate_continuous(
+                table, self._level_per_state, self._state_op(), self.op.h, cc.lam, cc.b, cc.col,
+                cc.Cm, cc.Aq, cc.Bq, cc.Cq, cc.D, cc.channel, plan.table, float(settling_band), metrics,
+                float(scenario.output_dt), y, u, h)
+        else:
+            status, steps = run
         P = None
         if record_levels and pressure:
             P, h = h, h * self._level_per_state
@@ -662,6 +697,11 @@ class ClosedLoop:
     def _continuous_metrics(self, ctrl, scenario: Scenario, settling_band: float) -> tuple:
         """``(diverged, metrics)`` of :meth:`_run_continuous` without records: the same kernel
         call on the same inputs, without the result object a tuning evaluation does not read."""
+        if scenario.integrator == "linearised":
+            metrics = np.empty(_kernels.N_METRICS)
+            run = self._run_linearised(ctrl, scenario, settling_band, metrics, _NO_RECORD2, _NO_RECORD2, _NO_RECORD4)
+            if run is not None:
+                return run[0] != _kernels.STATUS_OK, metrics
         cc = _continuous.ContinuousController.from_linear(ctrl)
         plan = self.step_plan(ctrl, scenario, cc)
         metrics = np.empty(_kernels.N_METRICS)
@@ -670,6 +710,30 @@ class ClosedLoop:
             cc.Cm, cc.Aq, cc.Bq, cc.Cq, cc.D, cc.channel, plan.table, float(settling_band), metrics,
             float(scenario.output_dt), _NO_RECORD2, _NO_RECORD2, _NO_RECORD4)
         return status != _kernels.STATUS_OK, metrics
+
+    def _run_linearised(self, ctrl, scenario: Scenario, settling_band: float, metrics, y, u, h):
+        """One run of the linearised integrator (``scenario.integrator = "linearised"``) into
+        ``metrics`` and the records ``y``, ``u``, ``h`` (0 rows: none): ``(status, steps)``, or
+        None where the scenario uses the switching integrator or the candidate's loop has an
+        ill-conditioned modal basis (said once per process; the caller runs the switching
+        kernel)."""
+        if scenario.integrator != "linearised":
+            return None
+        table = self._scenario_table(scenario)
+        x_op = self._state_op()
+        key = table[_kernels.P_COEF:_kernels.P_UOP + 2].tobytes()
+        forms = ctrl.__dict__.setdefault("_linearised_forms", {})
+        form = forms.get(key)
+        if form is None:
+            form = forms[key] = _linearised.linearised_form(ctrl, table, x_op, self._level_per_state)
+        if not form.ok:
+            _linearised.warn_fallback()
+            return None
+        plan = self._plans.get((scenario, "segments"))
+        if plan is None:
+            plan = self._plans[(scenario, "segments")] = scenario.step_plan(self.kind)
+        return _linearised.simulate(form, table, self._level_per_state, x_op, self.op.h, plan, settling_band,
+                                    _linearised.step_rule(scenario), metrics, float(scenario.output_dt), y, u, h)
 
     def _scenario_table(self, scenario: Scenario) -> np.ndarray:
         """The scenario's parameter table of the loop kernels (:func:`scenario_table`): plant
@@ -778,7 +842,10 @@ class ClosedLoop:
             return diverged, metrics
         steps, continuous = {}, []
         for s, sc in enumerate(scenarios):
-            if sc.continuous:
+            if sc.continuous and sc.integrator == "linearised":  # one candidate at a time, on the CPU
+                for i, ctrl in enumerate(ctrls):
+                    diverged[i, s], metrics[i, s] = self._continuous_metrics(ctrl, sc, settling_band)
+            elif sc.continuous:
                 continuous.append(s)
             elif sc.plant_substeps > 1:  # not batched (yet): one candidate at a time
                 for i, ctrl in enumerate(ctrls):

@@ -348,7 +348,7 @@ class Problem(TuningProblem):
         if payload["scenario"].get("limits", "none") == "none":
             payload["scenario"].pop("limits", None)
         for key, default in (("dt", None), ("tolerance", None), ("step", None), ("output_dt", 0.01),
-                             ("setpoint_step", (0.0, 0.0)), ("setpoint_time", 0.0)):
+                             ("setpoint_step", (0.0, 0.0)), ("setpoint_time", 0.0), ("integrator", "switching")):
             if payload["scenario"].get(key, default) == default:
                 payload["scenario"].pop(key, None)
         if self.loop.plant_model != "qtp":
@@ -393,7 +393,8 @@ class Problem(TuningProblem):
         ("scenario", "the scenario of the response: horizon (s), output_disturbance (cm, added to y1, y2 at "
                      "disturbance_time s), input_disturbance (V, added to u1, u2 at input_disturbance_time s), "
                      "saturation (V, NaN: none), limits, uncertainty (factor on every area), sample_time (s, NaN: "
-                     "the continuous loop), tolerance (cm), setpoint_step (cm, set-points from h0 at setpoint_time s)"),
+                     "the continuous loop), tolerance (cm), setpoint_step (cm, set-points from h0 at setpoint_time s), "
+                     "integrator (the continuous loop's method)"),
         ("controller.A, .B, .C, .D", "z' = A z + B w, du = C z + D w; w = [y1 - h1o, y2 - h2o, h3 - h3o, h4 - h4o] "
                                      "(cm), du = u - u0 (V); the error of a loop is -w"),
         ("controller.blocks", "one row per block of states: first and last state, 1-based, inclusive"),
@@ -439,7 +440,8 @@ class Problem(TuningProblem):
                     limits=str(sc.limits), uncertainty=float(sc.uncertainty), noise_sd=float(sc.noise_sd),
                     sample_time=float(np.nan if sc.dt is None else sc.dt),
                     tolerance=float(np.nan if sc.tolerance is None else sc.tolerance),
-                    setpoint_step=numbers(sc.setpoint_step), setpoint_time=float(sc.setpoint_time))
+                    setpoint_step=numbers(sc.setpoint_step), setpoint_time=float(sc.setpoint_time),
+                    integrator=str(sc.integrator))
         lin = self.loop.plant_linearisation
         return {
             "plant": {"model": self.loop.plant_model, "name": str(p.name), "tank_area": numbers(p.A),
