@@ -13,6 +13,7 @@ tests: the voltages carry the controller's high-frequency gain).
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -133,9 +134,7 @@ def test_an_ill_conditioned_basis_runs_on_the_switching_integrator(monkeypatch):
     real = linearised.linearised_form
 
     def ill(*args):
-        form = real(*args)
-        return linearised.LinearisedForm(False, *[getattr(form, f) for f in linearised.LinearisedForm.__dataclass_fields__
-                                                  if f != "ok"])
+        return dataclasses.replace(real(*args), ok=False)
 
     monkeypatch.setattr(linearised, "linearised_form", ill)
     monkeypatch.setattr(linearised, "_warned_fallback", False)
