@@ -18,7 +18,10 @@ tolerances (rtol 1e-3, atol 1e-6) on the same output grid: the ratio the issue a
 (>= 1,000x at 0.4 ms per candidate). ``benchmark_qtp`` (IOLQI with pairing and physical
 limits) has no such reference here (the projected-ODE reference of the tests covers the
 limits of one loop at a time); its rows give heurtune's times alone. Per set: median
-milliseconds per candidate over the repeats, the mean and largest number of kept steps.
+milliseconds per candidate over the repeats, the mean and largest number of kept steps; for
+``cs_folqi_qtp`` also the one-candidate path with ``[scenario] integrator = "linearised"``
+(milliseconds, the switching path's time over it, mean steps; ``benchmark_qtp`` has physical
+limits, which that integrator does not follow).
 """
 
 from __future__ import annotations
@@ -123,6 +126,16 @@ def lsoda_ms(prob, X, repeats):
     return 1e3 * float(np.median(times))
 
 
+def linearised_problem(name):
+    """The experiment's problem on its min case with ``[scenario] integrator = "linearised"``."""
+    from heurtune.core.families import make_experiment
+    from heurtune.runner.config import load_config
+
+    config = load_config(name)
+    config["scenario"]["integrator"] = "linearised"
+    return make_experiment(config).problem("min")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--candidates", type=int, default=40, help="candidates per set")
@@ -131,21 +144,26 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     print(f"Per simulated candidate, as a study sees it; one core, BLAS one thread, {cpu_name()}")
     print(f"{'problem':14} {'set':10} {'n':>3} {'cpu ms':>8} {'batch ms':>9} {'batch gain':>10} "
-          f"{'steps mean/max':>15} {'LSODA ms':>9} {'vs LSODA':>9}")
+          f"{'steps mean/max':>15} {'LSODA ms':>9} {'vs LSODA':>9} {'lin. ms':>8} {'lin. gain':>9} {'lin. steps':>10}")
     with threadpool_limits(1), warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for name in ("cs_folqi_qtp", "benchmark_qtp"):
             prob = heurtune.load_experiment(name).problem("min")
+            lin = linearised_problem(name) if name == "cs_folqi_qtp" else None
             for label, X in candidate_sets(prob, args.candidates, 1, name == "cs_folqi_qtp").items():
                 one = per_candidate_ms(prob, X, args.repeats, "cpu")
                 batch = per_candidate_ms(prob, X, args.repeats, "cpu-batch")
                 steps = steps_of(prob, X)
-                ref = ratio = ""
+                ref = ratio = lin_ms = lin_gain = lin_steps = ""
                 if name == "cs_folqi_qtp":
                     ms = lsoda_ms(prob, X[:args.reference], 1)
                     ref, ratio = f"{ms:9.1f}", f"{ms / one:8.0f}x"
+                    t_lin = per_candidate_ms(lin, X, args.repeats, "cpu")
+                    lin_ms, lin_gain = f"{t_lin:8.3f}", f"{one / t_lin:8.2f}x"
+                    lin_steps = f"{steps_of(lin, X).mean():10.0f}"
                 print(f"{name:14} {label:10} {len(X):3d} {one:8.3f} {batch:9.3f} {one / batch:9.2f}x "
-                      f"{steps.mean():8.0f}/{steps.max():<6d} {ref:>9} {ratio:>9}")
+                      f"{steps.mean():8.0f}/{steps.max():<6d} {ref:>9} {ratio:>9} {lin_ms:>8} {lin_gain:>9} "
+                      f"{lin_steps:>10}")
     return 0
 
 

@@ -4,8 +4,9 @@
 candidates of every case of every shipped experiment on each CPU device (``cpu``,
 ``cpu-batch``), and of the QTP experiments also with the sampled loop (``[controller]
 sample_time``) and under all their scenarios at once; a TITO problem, which simulates only the
-candidates its frequency check passes, also simulates one, and ``ga_pi_ccts`` (on the
-continuous loop to its tolerance) runs on that loop's fixed step too. Every kernel those evaluations call
+candidates its frequency check passes, also simulates one, ``ga_pi_ccts`` (on the
+continuous loop to its tolerance) runs on that loop's fixed step too, and ``cs_folqi_qtp`` with
+the linearised integrator. Every kernel those evaluations call
 is compiled and written to numba's cache (``__pycache__`` beside the sources, or
 ``NUMBA_CACHE_DIR``), so a later run, test or worker process loads it instead of compiling.
 ``make setup`` and ``make test`` call it; with a filled cache it takes seconds.
@@ -43,8 +44,12 @@ SAMPLED = ("cs_lqi_qtp", "robust_cs_folqi_qtp")
 # A TITO experiment run on the continuous loop's fixed step too ([scenario] loop = "continuous"
 # with dt; the experiment itself runs it to a tolerance).
 CONTINUOUS = ("ga_pi_ccts",)
+# A QTP experiment run with the linearised integrator too ([scenario] integrator = "linearised";
+# one candidate at a time on every device, so on the CPU alone).
+LINEARISED = ("cs_folqi_qtp",)
 _VARIANTS = {"sampled": "[controller]\nsample_time = 0.01\n",
-             "continuous": '[scenario]\nloop = "continuous"\ndt = 0.5\n'}
+             "continuous": '[scenario]\nloop = "continuous"\ndt = 0.5\n',
+             "linearised": '[scenario]\nintegrator = "linearised"\n'}
 
 
 DEVICES = ("cpu", "cpu-batch")
@@ -80,7 +85,8 @@ def warm(names: list[str]) -> list[str]:
     ----------
     names : list of str
         Shipped experiment names; ``"NAME:sampled"`` for a QTP experiment's sampled loop,
-        ``"NAME:continuous"`` for a TITO experiment's continuous loop;
+        ``"NAME:linearised"`` for its linearised integrator, ``"NAME:continuous"`` for a TITO
+        experiment's continuous loop;
         ``"NAME@DEVICE"`` (``cpu`` or ``cpu-batch``) for one device only (default: both).
 
     Returns
@@ -133,6 +139,7 @@ def _groups(jobs: int) -> list[list[str]]:
     qtp = by_family.pop("qtp", []) + [f"{name}:sampled" for name in SAMPLED]
     rest = [name for family in sorted(by_family) for name in by_family[family]]
     rest += [f"{name}:continuous" for name in CONTINUOUS]
+    rest += [f"{name}:linearised@cpu" for name in LINEARISED]
     if jobs <= 1:
         return [qtp + rest]
     return [[f"{name}@cpu" for name in qtp], [f"{name}@cpu-batch" for name in qtp] + rest]

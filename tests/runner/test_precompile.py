@@ -6,13 +6,14 @@ import subprocess
 import sys
 
 from heurtune.runner.config import list_experiments
-from heurtune.runner.precompile import CONTINUOUS, SAMPLED, _groups, warm
+from heurtune.runner.precompile import CONTINUOUS, LINEARISED, SAMPLED, _groups, warm
 
 
 def test_two_groups_cover_every_experiment_once_per_device():
     one, = _groups(1)
     a, b = _groups(2)
-    names = set(list_experiments()) | {f"{n}:sampled" for n in SAMPLED} | {f"{n}:continuous" for n in CONTINUOUS}
+    names = (set(list_experiments()) | {f"{n}:sampled" for n in SAMPLED} | {f"{n}:continuous" for n in CONTINUOUS}
+             | {f"{n}:linearised" for n in LINEARISED})
     assert {n.split("@")[0] for n in one} == names
     assert {n.split("@")[0] for n in a + b} == names
     # a QTP experiment's one-candidate kernels in one process, its batched ones in the other
