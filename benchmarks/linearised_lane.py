@@ -42,8 +42,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from heurtune.objectives.qtp import linearised  # noqa: E402
 from heurtune.objectives.qtp.kernels import N_METRICS  # noqa: E402
 
-# The step rules of the first table: (h_top, kappa, amp_floor in cm or V).
-RULES = ((1.0, 0.5, 1e-6), (1.0, 0.5, 1e-4), (1.0, 0.5, 1e-3), (1.0, 0.75, 1e-4), (1.0, 1.0, 1e-4))
+# The step rules of the first table: (h_top, kappa, amp_floor in cm s or V s); the first is the
+# shipped rule at the default tolerance.
+RULES = ((1.0, 0.35, 2.5e-4), (1.0, 0.25, 2.5e-4), (1.0, 0.5, 2.5e-4), (1.0, 0.35, 1e-3), (2.0, 0.35, 2.5e-4))
 
 
 def run_rule(loop, ctrl, scenario, rule):

@@ -404,24 +404,28 @@ def _small(SM, lv, base, r, a0, a1, a2, a3):
 
 @_kernel(inline="always")
 def _step_level(y, N, lam_r, lam_i, gain, n_real, amp_floor, kappa, h_top, n_levels):
-    """The step level ``l`` (step ``h_top 2^-l``) for the coming step: every mode whose transient
-    ``|y_j'| / |lam_j| = |lam_j y_j + N_j| / |lam_j|`` (its distance from where the present
-    drive ``N`` holds it) weighs more than ``amp_floor`` in the level errors and voltages is
-    resolved (``|lam| h <= kappa``); lighter modes are integrated exactly and left to the
-    quadrature."""
-    fast = 0.0
+    """The step level ``l`` (step ``h = h_top 2^-l``) for the coming step: the longest step at
+    which every mode is either resolved (``|lam| h <= kappa``) or light, its transient ``a_j =
+    |y_j'| / |lam_j| = |lam_j y_j + N_j| / |lam_j|`` (its distance from where the present drive
+    ``N`` holds it, weighted by its largest part in the level errors and voltages) such that
+    ``a_j h <= amp_floor`` (cm s or V s: what Simpson's rule can miss of a transient that decays
+    within the step). A light mode is integrated exactly and left to the quadrature."""
+    h_ok = h_top
     for j in range(n_real):
         lam = abs(lam_r[j])
-        if abs(lam_r[j] * y[j] + N[j]) * gain[j] > amp_floor * lam:
-            fast = max(fast, lam)
+        a = abs(lam_r[j] * y[j] + N[j]) * gain[j]
+        if lam * h_ok > kappa and a * h_ok > amp_floor * lam:
+            h_ok = max(kappa / lam, amp_floor * lam / a)
     for j in range(n_real, y.size, 2):
         lam = math.hypot(lam_r[j], lam_i[j])
-        dr = lam_r[j] * y[j] - lam_i[j] * y[j + 1] + N[j]
-        di = lam_r[j] * y[j + 1] + lam_i[j] * y[j] + N[j + 1]
-        if math.hypot(dr, di) * gain[j] > amp_floor * lam:
-            fast = max(fast, lam)
+        if lam * h_ok > kappa:
+            dr = lam_r[j] * y[j] - lam_i[j] * y[j + 1] + N[j]
+            di = lam_r[j] * y[j + 1] + lam_i[j] * y[j] + N[j + 1]
+            a = math.hypot(dr, di) * gain[j]
+            if a * h_ok > amp_floor * lam:
+                h_ok = max(kappa / lam, amp_floor * lam / a)
     lv = 0
-    while lv < n_levels - 1 and h_top * fast > kappa * 2.0 ** lv:
+    while lv < n_levels - 1 and h_top > h_ok * 2.0 ** lv:
         lv += 1
     return lv
 
