@@ -152,28 +152,55 @@ def _phi3(z):
     return e, p1, p2, (p2 - 0.5) / z
 
 
+@_kernel(inline="always")
+def _phi3_real(z):
+    """:func:`_phi3` of a real ``z``, in real arithmetic (``expm1`` above the series)."""
+    if abs(z) < _TAYLOR_BELOW:
+        p3 = 0.0
+        for j in range(_TAYLOR_TERMS - 1, -1, -1):
+            p3 = p3 * z + _INV_FACT_3[j]
+        p2 = 0.5 + z * p3
+        p1 = 1.0 + z * p2
+        return 1.0 + z * p1, p1, p2, p3
+    p1 = math.expm1(z) / z
+    p2 = (p1 - 1.0) / z
+    return math.exp(z), p1, p2, (p2 - 0.5) / z
+
+
+@_kernel(inline="always")
+def _weights(p0, p1, p2, p3, q0, q1, q2, q3, hl):
+    """The ``C_*`` coefficients of a step ``hl`` from ``phi_k(z)`` (p) and ``phi_k(z/2)`` (q), in
+    their order (real or complex alike)."""
+    qq = 0.5 * hl * q1
+    f1, f2, f3 = hl * (p1 - 3.0 * p2 + 4.0 * p3), 2.0 * hl * (p2 - 2.0 * p3), hl * (4.0 * p3 - p2)
+    g1, g2 = hl * (0.5 * q1 - 0.75 * q2 + 0.5 * q3), hl * (0.5 * q2 - 0.5 * q3)
+    g3 = hl * (0.5 * q3 - 0.25 * q2)
+    return (p0, q0, qq, f1, f2, f3, g1, g2, g3, q0 * qq - qq, q0 * qq + qq, f1 + 2.0 * f2 + f3,
+            g1 + 2.0 * g2 + g3)
+
+
 @_kernel
 def _coefficients(lam_r, lam_i, n_real, hl, T, lv):
     """The diagonal coefficients ``C_*`` of a step ``hl`` into ``T[lv]`` (N_COEF, n): a real
-    mode's value at its coordinate, a pair's real and imaginary parts at its two."""
-    n = lam_r.size
-    j = 0
-    while j < n:
+    mode's value at its coordinate (real arithmetic), a pair's real and imaginary parts at its
+    two."""
+    for j in range(n_real):
+        z = lam_r[j] * hl
+        p0, p1, p2, p3 = _phi3_real(z)
+        q0, q1, q2, q3 = _phi3_real(0.5 * z)
+        k = 0
+        for v in _weights(p0, p1, p2, p3, q0, q1, q2, q3, hl):
+            T[lv, k, j] = v
+            k += 1
+    for j in range(n_real, lam_r.size, 2):
         z = complex(lam_r[j], lam_i[j]) * hl
         p0, p1, p2, p3 = _phi3(z)
         q0, q1, q2, q3 = _phi3(0.5 * z)
-        qq = 0.5 * hl * q1
-        f1, f2, f3 = hl * (p1 - 3.0 * p2 + 4.0 * p3), 2.0 * hl * (p2 - 2.0 * p3), hl * (4.0 * p3 - p2)
-        g1, g2 = hl * (0.5 * q1 - 0.75 * q2 + 0.5 * q3), hl * (0.5 * q2 - 0.5 * q3)
-        g3 = hl * (0.5 * q3 - 0.25 * q2)
         k = 0
-        for v in (p0, q0, qq, f1, f2, f3, g1, g2, g3, q0 * qq - qq, q0 * qq + qq, f1 + 2.0 * f2 + f3,
-                  g1 + 2.0 * g2 + g3):
+        for v in _weights(p0, p1, p2, p3, q0, q1, q2, q3, hl):
             T[lv, k, j] = v.real
-            if j >= n_real:
-                T[lv, k, j + 1] = v.imag
+            T[lv, k, j + 1] = v.imag
             k += 1
-        j += 1 if j < n_real else 2
 
 
 @_kernel(inline="always")
@@ -567,25 +594,23 @@ def _dense(theta, hl, lam_r, lam_i, n_real, y, Ny, Nab, Nc, out):
     """The dense output of a step ``hl`` at ``t + theta hl`` in modal coordinates: ``out = E(theta)
     y + F1(theta) N(y) + F2(theta) (N(a) + N(b)) + F3(theta) N(c)``, each ``phi_k(z)`` of the
     step's weights replaced by ``theta^k phi_k(theta z)``."""
-    n = y.size
     t2 = theta * theta
     t3 = t2 * theta
-    j = 0
-    while j < n:
-        z = complex(lam_r[j], lam_i[j]) * (theta * hl)
-        p0, p1, p2, p3 = _phi3(z)
+    for j in range(n_real):
+        p0, p1, p2, p3 = _phi3_real(lam_r[j] * (theta * hl))
         f1 = hl * (theta * p1 - 3.0 * t2 * p2 + 4.0 * t3 * p3)
         f2 = 2.0 * hl * (t2 * p2 - 2.0 * t3 * p3)
         f3 = hl * (4.0 * t3 * p3 - t2 * p2)
-        if j < n_real:
-            out[j] = p0.real * y[j] + f1.real * Ny[j] + f2.real * Nab[j] + f3.real * Nc[j]
-            j += 1
-        else:
-            v = (p0 * complex(y[j], y[j + 1]) + f1 * complex(Ny[j], Ny[j + 1]) + f2 * complex(Nab[j], Nab[j + 1])
-                 + f3 * complex(Nc[j], Nc[j + 1]))
-            out[j] = v.real
-            out[j + 1] = v.imag
-            j += 2
+        out[j] = p0 * y[j] + f1 * Ny[j] + f2 * Nab[j] + f3 * Nc[j]
+    for j in range(n_real, y.size, 2):
+        p0, p1, p2, p3 = _phi3(complex(lam_r[j], lam_i[j]) * (theta * hl))
+        f1 = hl * (theta * p1 - 3.0 * t2 * p2 + 4.0 * t3 * p3)
+        f2 = 2.0 * hl * (t2 * p2 - 2.0 * t3 * p3)
+        f3 = hl * (4.0 * t3 * p3 - t2 * p2)
+        v = (p0 * complex(y[j], y[j + 1]) + f1 * complex(Ny[j], Ny[j + 1]) + f2 * complex(Nab[j], Nab[j + 1])
+             + f3 * complex(Nc[j], Nc[j + 1]))
+        out[j] = v.real
+        out[j + 1] = v.imag
 
 
 @_kernel(inline="always")
