@@ -64,9 +64,10 @@ from heurtune.objectives.qtp.kernels import (
 # IEEE arithmetic, no reference counting in the lane (as continuous_kernels, which says why).
 _kernel = functools.partial(njit, cache=True, **({"_nrt": False} if hasattr(CPUTargetOptions, "_nrt") else {}))
 
-# Step levels h_top 2^-l, l = 0 .. N_LEVELS - 1; one more slot of tables for a segment's
-# shortened last step.
-N_LEVELS = 8
+# Step levels h_top 2^-l, l = 0 .. N_LEVELS - 1 (down to 1/2048 s: LADR's observer modes, -250
+# and -660 rad/s in closed loop, resolved while their transients weigh); one more slot of tables
+# for a segment's shortened last step. Tables are built for the levels a run takes.
+N_LEVELS = 12
 # Per level and mode, the step's diagonal coefficients (z = lambda h): E = e^z, E2 = e^(z/2),
 # Q = h/2 phi_1(z/2), the weights F1, F2, F3 of N(y), N(a) + N(b), N(c) at the step's end, G1,
 # G2, G3 at its midpoint (the dense output: phi_k(z) replaced by theta^k phi_k(theta z)), and
@@ -670,7 +671,7 @@ def linearised_lane(P, level_per_state, x_op, h_op, lam_r, lam_i, n_real, V6, W,
     s = level_per_state
     n = lam_r.size
     state_limit = LEVEL_LIMIT / s
-    T, LT, SM, SC, KF, scr, vec, w4, w2, ex, wb, sig = work
+    T, LT, SM, SC, KF, scr, vec, w4, w2, ex, wb, sig, built = work
     y, Ny, k, tmp, Na, Nab, Nc, yd = vec[0], vec[1], vec[2], vec[3], vec[4], vec[5], vec[6], vec[7]
     x, x_mid, w, rt, f_op, xr = w4[0], w4[1], w4[2], w4[3], w4[4], w4[5]
     dur = w2[13]
@@ -679,8 +680,11 @@ def linearised_lane(P, level_per_state, x_op, h_op, lam_r, lam_i, n_real, V6, W,
     du0, du_mid, du_end, du_const = w2[0], w2[1], w2[2], w2[3]
     f0, fm, f1 = sig[0], sig[1], sig[2]
     n_levels = T.shape[0] - 1  # the last slot: a segment's shortened last step
-    for lv in range(n_levels):
-        _level_tables(lam_r, lam_i, n_real, V6, W, h_top / 2.0 ** lv, T, LT, SM, lv, scr)
+    # a level's tables are built when a step first takes it (built[0]), its segment constants
+    # when a segment first takes it (built[1]: the segment they were built for)
+    for lv in range(n_levels + 1):
+        built[0, lv] = 0
+        built[1, lv] = -1
     for j in range(n):
         y[j] = 0.0
     for i in range(4):
@@ -700,8 +704,6 @@ def linearised_lane(P, level_per_state, x_op, h_op, lam_r, lam_i, n_real, V6, W,
         _segment_drive(seg[sg], d1, d2, c, f_op, u_op, Dc, Bc, Br, Dr, Tinv, du_const, k)
         r1 = seg[sg, SEG_REF]
         r2 = seg[sg, SEG_REF + 1]
-        for lv in range(n_levels):
-            _segment_constants(T, V6, k, n_real, lv, SC, KF, tmp)
         _readout(V6, y, x_op, du_const, x, du0)
         n_win = _visit_node(t, x, du0, s, d1, d2, h_op, u_op, post, 0, w, f0, w2, ex, wb, sig, first_node)
         first_node = False
@@ -716,7 +718,14 @@ def linearised_lane(P, level_per_state, x_op, h_op, lam_r, lam_i, n_real, V6, W,
                 lv = n_levels
                 _level_tables(lam_r, lam_i, n_real, V6, W, hs, T, LT, SM, lv, scr)
                 _segment_constants(T, V6, k, n_real, lv, SC, KF, tmp)
-            # V6 E2 y and V4 E y, two partial sums per row
+            else:
+                if built[0, lv] == 0:
+                    _level_tables(lam_r, lam_i, n_real, V6, W, hs, T, LT, SM, lv, scr)
+                    built[0, lv] = 1
+                if built[1, lv] != sg:
+                    _segment_constants(T, V6, k, n_real, lv, SC, KF, tmp)
+                    built[1, lv] = sg
+            # V6 E2 y and V4 E y: what the stages and the midpoint read of y
             p0 = p1 = p2 = p3 = p4 = p5 = 0.0
             q0 = q1 = q2 = q3 = 0.0
             for j in range(n):
@@ -838,4 +847,5 @@ def workspace(n: int, n_levels: int = N_LEVELS) -> tuple:
     L = n_levels + 1
     return (np.empty((L, N_COEF, n)), np.empty((L, N_LT, n)), np.empty((L, N_SM, 4)), np.empty((L, N_SC)),
             np.empty((L, n)), np.empty((4, n)), np.empty((8, n)), np.empty((6, 4)), np.empty((14, 2)),
-            np.empty((3, 2, 2)), np.empty((2, 2), dtype=np.bool_), np.empty((9, _N_SIG)))
+            np.empty((3, 2, 2)), np.empty((2, 2), dtype=np.bool_), np.empty((9, _N_SIG)),
+            np.empty((2, L), dtype=np.int64))
