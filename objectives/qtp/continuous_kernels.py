@@ -830,6 +830,59 @@ def _crossing(t0, f0, t1, f1, t2, f2, band, has_prev):
     return lin
 
 
+@_kernel(inline="always")
+def _simpson_step(t, hs, u_op, f0, fm, f1, iae, ise, itae, jj, jdev):
+    """Simpson's rule over a step ``[t, t + hs]`` from the signals at its start, midpoint and end
+    (``f0``, ``fm``, ``f1``), into the integrals IAE, ISE, ITAE, J, Jdev (IAE and ITAE split at
+    the error's zero crossings, :func:`_abs_moments`); the end becomes the next step's start."""
+    wq = hs / 6.0
+    for i in range(2):
+        m0, m1 = _abs_moments(f0[8 + i], fm[8 + i], f1[8 + i])
+        iae[i] += hs * m0
+        ise[i] += wq * (f0[i] * f0[i] + 4.0 * fm[i] * fm[i] + f1[i] * f1[i])
+        itae[i] += hs * (t * m0 + hs * m1)
+        a0 = f0[6 + i]
+        am = fm[6 + i]
+        a1 = f1[6 + i]
+        jj[i] += wq * (a0 * a0 + 4.0 * am * am + a1 * a1)
+        b0 = a0 - u_op[i]
+        bmm = am - u_op[i]
+        b1 = a1 - u_op[i]
+        jdev[i] += wq * (b0 * b0 + 4.0 * bmm * bmm + b1 * b1)
+    for i in range(_N_SIG):
+        f0[i] = f1[i]
+
+
+@_kernel(inline="always")
+def _final_metrics(h_op, horizon, t_dist, band, mp, f1, lo, hi, iae, ise, itae, jj, jdev, tv, ex_prev, ex_out,
+                   ex_in, ex_has_prev, pending, metrics):
+    """The metrics, in the order of ``kernels.METRIC_NAMES``, from a run's accumulators: the
+    overshoot, the settling time from the last band exit (the parabola through its nodes), the
+    final error, the integrals and the extremes (``f1``: the signals at the last node)."""
+    for i in range(2):
+        y0 = h_op[i]
+        if ex_out[i, 0] < 0.0:
+            ts = 0.0
+        elif pending[i]:
+            ts = horizon - t_dist
+        else:
+            ts = _crossing(ex_prev[i, 0], ex_prev[i, 1], ex_out[i, 0], ex_out[i, 1], ex_in[i, 0], ex_in[i, 1],
+                           band[i], ex_has_prev[i]) - t_dist
+        metrics[i] = mp[i] / y0 * 100.0
+        metrics[2 + i] = ts
+        metrics[4 + i] = f1[i] / y0 * 100.0
+        metrics[6 + i] = iae[i]
+        metrics[8 + i] = ise[i]
+        metrics[10 + i] = itae[i]
+        metrics[12 + i] = jj[i]
+        metrics[14 + i] = jdev[i]
+        metrics[16 + i] = tv[i]
+    metrics[18] = min(min(lo[2], lo[3]), min(lo[4], lo[5]))
+    metrics[19] = max(max(hi[2], hi[3]), max(hi[4], hi[5]))
+    metrics[20] = min(lo[6], lo[7])
+    metrics[21] = max(hi[6], hi[7])
+
+
 # Switching: a pump is free (0) or saturated at its upper (+1) or lower (-1) limit; a tank is
 # free (0) or held at its rim (+1) or its floor (-1). Event codes: 0, 1 the pumps, 2..5 the tanks.
 N_EVENTS = 6
@@ -1315,24 +1368,8 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
             _signals(w, x_new, s, u_op, ua, f1)
             n_win = _visit(t + hs, f1, post, band, n_win, win_t, win_v, lo, hi, mp, ex_prev, ex_out, ex_in,
                            ex_has_prev, pending, tv, u_prev, False)
-            # Simpson's rule over the step (IAE and ITAE split at the error's zero crossings)
-            wq = hs / 6.0
             te = t + hs
-            for i in range(2):
-                m0, m1 = _abs_moments(f0[8 + i], fm[8 + i], f1[8 + i])
-                iae[i] += hs * m0
-                ise[i] += wq * (f0[i] * f0[i] + 4.0 * fm[i] * fm[i] + f1[i] * f1[i])
-                itae[i] += hs * (t * m0 + hs * m1)
-                a0 = f0[6 + i]
-                am = fm[6 + i]
-                a1 = f1[6 + i]
-                jj[i] += wq * (a0 * a0 + 4.0 * am * am + a1 * a1)
-                b0 = a0 - u_op[i]
-                bmm = am - u_op[i]
-                b1 = a1 - u_op[i]
-                jdev[i] += wq * (b0 * b0 + 4.0 * bmm * bmm + b1 * b1)
-            for i in range(_N_SIG):
-                f0[i] = f1[i]
+            _simpson_step(t, hs, u_op, f0, fm, f1, iae, ise, itae, jj, jdev)
             t = te
             x, x_new = x_new, x
             z, z_new = z_new, z
@@ -1410,28 +1447,8 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
         for i in range(4):
             h_rec[k_rec, i] = x[i]
         k_rec += 1
-    for i in range(2):
-        y0 = h_op[i]
-        if ex_out[i, 0] < 0.0:
-            ts = 0.0
-        elif pending[i]:
-            ts = horizon - t_dist
-        else:
-            ts = _crossing(ex_prev[i, 0], ex_prev[i, 1], ex_out[i, 0], ex_out[i, 1], ex_in[i, 0], ex_in[i, 1],
-                           band[i], ex_has_prev[i]) - t_dist
-        metrics[i] = mp[i] / y0 * 100.0
-        metrics[2 + i] = ts
-        metrics[4 + i] = f1[i] / y0 * 100.0
-        metrics[6 + i] = iae[i]
-        metrics[8 + i] = ise[i]
-        metrics[10 + i] = itae[i]
-        metrics[12 + i] = jj[i]
-        metrics[14 + i] = jdev[i]
-        metrics[16 + i] = tv[i]
-    metrics[18] = min(min(lo[2], lo[3]), min(lo[4], lo[5]))
-    metrics[19] = max(max(hi[2], hi[3]), max(hi[4], hi[5]))
-    metrics[20] = min(lo[6], lo[7])
-    metrics[21] = max(hi[6], hi[7])
+    _final_metrics(h_op, horizon, t_dist, band, mp, f1, lo, hi, iae, ise, itae, jj, jdev, tv, ex_prev, ex_out,
+                   ex_in, ex_has_prev, pending, metrics)
     # a parabola through a kink at a limit must not refine past it
     if saturate:
         metrics[20] = max(metrics[20], u_min)

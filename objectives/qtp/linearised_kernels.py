@@ -43,10 +43,10 @@ from heurtune.objectives.qtp.continuous_kernels import (
     SEG_REF,
     SEG_T0,
     SEG_UIN,
-    _abs_moments,
-    _crossing,
+    _final_metrics,
     _measure,
     _signals,
+    _simpson_step,
     _visit,
 )
 from heurtune.objectives.qtp.design_kernels import _N, _V, _data, _dgeev, _kept
@@ -511,26 +511,9 @@ def _visit_node(t, x, du, s, d1, d2, h_op, u_op, post, n_win, w, f, w2, ex, wb, 
 
 @_kernel(inline="always")
 def _simpson(t, hs, u_op, w2, sig):
-    """Simpson's rule over a step from its start, midpoint and end signals (``sig[0..2]``), IAE
-    and ITAE split at the error's zero crossings; the end becomes the next step's start."""
-    f0, fm, f1 = sig[0], sig[1], sig[2]
-    iae, ise, itae, jj, jdev = w2[6], w2[7], w2[8], w2[9], w2[10]
-    wq = hs / 6.0
-    for i in range(2):
-        m0, m1 = _abs_moments(f0[8 + i], fm[8 + i], f1[8 + i])
-        iae[i] += hs * m0
-        ise[i] += wq * (f0[i] * f0[i] + 4.0 * fm[i] * fm[i] + f1[i] * f1[i])
-        itae[i] += hs * (t * m0 + hs * m1)
-        a0 = f0[6 + i]
-        am = fm[6 + i]
-        a1 = f1[6 + i]
-        jj[i] += wq * (a0 * a0 + 4.0 * am * am + a1 * a1)
-        b0 = a0 - u_op[i]
-        bm = am - u_op[i]
-        b1 = a1 - u_op[i]
-        jdev[i] += wq * (b0 * b0 + 4.0 * bm * bm + b1 * b1)
-    for i in range(_N_SIG):
-        f0[i] = f1[i]
+    """:func:`~heurtune.objectives.qtp.continuous_kernels._simpson_step` on this lane's working
+    arrays (``sig[0..2]`` the step's start, midpoint and end signals)."""
+    _simpson_step(t, hs, u_op, sig[0], sig[1], sig[2], w2[6], w2[7], w2[8], w2[9], w2[10])
 
 
 @_kernel(inline="always")
@@ -540,28 +523,8 @@ def _finish_metrics(diverged, n_taken, w2, ex, wb, sig, h_op, horizon, t_dist, m
         for i in range(N_METRICS):
             metrics[i] = math.nan
         return STATUS_DIVERGED, n_taken
-    ex_prev, ex_out, ex_in = ex[0], ex[1], ex[2]
-    ex_has_prev, pending = wb[0], wb[1]
-    f1, lo, hi = sig[2], sig[3], sig[4]
-    band, mp = w2[4], w2[12]
-    for i in range(2):
-        y0 = h_op[i]
-        if ex_out[i, 0] < 0.0:
-            ts = 0.0
-        elif pending[i]:
-            ts = horizon - t_dist
-        else:
-            ts = _crossing(ex_prev[i, 0], ex_prev[i, 1], ex_out[i, 0], ex_out[i, 1], ex_in[i, 0], ex_in[i, 1],
-                           band[i], ex_has_prev[i]) - t_dist
-        metrics[i] = mp[i] / y0 * 100.0
-        metrics[2 + i] = ts
-        metrics[4 + i] = f1[i] / y0 * 100.0
-        for r in range(6):  # IAE, ISE, ITAE, J, Jdev, TV
-            metrics[6 + 2 * r + i] = w2[6 + r, i]
-    metrics[18] = min(min(lo[2], lo[3]), min(lo[4], lo[5]))
-    metrics[19] = max(max(hi[2], hi[3]), max(hi[4], hi[5]))
-    metrics[20] = min(lo[6], lo[7])
-    metrics[21] = max(hi[6], hi[7])
+    _final_metrics(h_op, horizon, t_dist, w2[4], w2[12], sig[2], sig[3], sig[4], w2[6], w2[7], w2[8], w2[9], w2[10],
+                   w2[11], ex[0], ex[1], ex[2], wb[0], wb[1], metrics)
     return STATUS_OK, n_taken
 
 
