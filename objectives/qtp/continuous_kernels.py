@@ -854,6 +854,17 @@ def _simpson_step(t, hs, u_op, f0, fm, f1, iae, ise, itae, jj, jdev):
 
 
 @_kernel(inline="always")
+def _nan_records(k_rec, rec, y_rec, u_rec, h_rec):
+    """Rows ``k_rec`` on of the records NaN (a run that diverged before them)."""
+    for kk in range(k_rec, y_rec.shape[0]):
+        for i in range(2):
+            y_rec[kk, i] = math.nan
+            u_rec[kk, i] = math.nan
+        for i in range(4):
+            h_rec[kk, i] = math.nan
+
+
+@_kernel(inline="always")
 def _final_metrics(h_op, horizon, t_dist, band, mp, f1, lo, hi, iae, ise, itae, jj, jdev, tv, ex_prev, ex_out,
                    ex_in, ex_has_prev, pending, metrics):
     """The metrics, in the order of ``kernels.METRIC_NAMES``, from a run's accumulators: the
@@ -1429,12 +1440,7 @@ def continuous_lane(P, level_per_state, x_init, h_op, lam, bm, mi, Cm, Aq, Bq, C
         if diverged:
             break
     if diverged:
-        for kk in range(k_rec, rec):
-            for i in range(2):
-                y_rec[kk, i] = math.nan
-                u_rec[kk, i] = math.nan
-            for i in range(4):
-                h_rec[kk, i] = math.nan
+        _nan_records(k_rec, rec, y_rec, u_rec, h_rec)
         for i in range(N_METRICS):
             metrics[i] = math.nan
         return STATUS_DIVERGED, n_taken

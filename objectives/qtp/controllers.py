@@ -260,13 +260,19 @@ class LinearController:
 
     def minimal_realisation(self) -> tuple:
         """``(A, B, C, D)``, reduced first by python-control's ``minreal`` (SLICOT TB01PD) unless
-        the controller is minimal (C-contiguous arrays)."""
+        the controller is minimal (C-contiguous arrays; reduced once per controller and kept on
+        it: the stability check and the linearised integrator both read it, and the arrays are
+        not to be written)."""
         Ac, Bc, Cc, Dc = self.A, self.B, self.C, self.D
         if not self.minimal and Ac.shape[0]:
+            cached = self.__dict__.get("_minimal_realisation")
+            if cached is not None:
+                return cached
             import control
 
             red = control.ss(Ac, Bc, Cc, Dc).minreal()
             Ac, Bc, Cc = (np.ascontiguousarray(red.A), np.ascontiguousarray(red.B), np.ascontiguousarray(red.C))
+            object.__setattr__(self, "_minimal_realisation", (Ac, Bc, Cc, Dc))
         return Ac, Bc, Cc, Dc
 
 

@@ -45,6 +45,7 @@ from heurtune.objectives.qtp.continuous_kernels import (
     SEG_UIN,
     _final_metrics,
     _measure,
+    _nan_records,
     _signals,
     _simpson_step,
     _visit,
@@ -781,12 +782,7 @@ def linearised_lane(P, level_per_state, x_op, h_op, lam_r, lam_i, n_real, V6, W,
         if diverged:
             break
     if diverged:
-        for kk in range(k_rec, rec):
-            for i in range(2):
-                y_rec[kk, i] = math.nan
-                u_rec[kk, i] = math.nan
-            for i in range(4):
-                h_rec[kk, i] = math.nan
+        _nan_records(k_rec, rec, y_rec, u_rec, h_rec)
     else:  # the end point T
         while k_rec < rec:
             _record(k_rec, x, du_end, s, d1 + r1, d2 + r2, u_op, y_rec, u_rec, h_rec)

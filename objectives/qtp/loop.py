@@ -526,8 +526,11 @@ class ClosedLoop:
             h, top = _continuous.feedback_rule(A, B, cc, h_max, radius)
             if h >= h_max:
                 h = None
-        # Plans are read-only for the kernels; a scenario has one per step of the ladder h_max 2^-k
-        # and adaptive range.
+        return self._cached_plan(scenario, h, top)
+
+    def _cached_plan(self, scenario: Scenario, h=None, top: int = 0):
+        """``scenario.step_plan(kind, step=h, top=top)``, kept: plans are read-only for the
+        kernels, and a scenario has one per step of the ladder h_max 2^-k and adaptive range."""
         key = (scenario, h, top)
         plan = self._plans.get(key)
         if plan is None:
@@ -729,9 +732,7 @@ class ClosedLoop:
         if not form.ok:
             _linearised.warn_fallback()
             return None
-        plan = self._plans.get((scenario, "segments"))
-        if plan is None:
-            plan = self._plans[(scenario, "segments")] = scenario.step_plan(self.kind)
+        plan = self._cached_plan(scenario)  # its segments; the lane chooses its own steps
         return _linearised.simulate(form, table, self._level_per_state, x_op, self.op.h, plan, settling_band,
                                     _linearised.step_rule(scenario), metrics, float(scenario.output_dt), y, u, h)
 
