@@ -3,7 +3,9 @@
 The floor every tuning method must beat, and the reference of the tuning suite's easiest
 targets (``heurtune.suite``: the median best value random search reaches at the budget, as
 COCO places its targets). Nothing is learned from the evaluations; the engine keeps the best
-so far by its own comparator (Deb's rules or the penalty), as for every optimiser.
+so far by its own comparator (Deb's rules or the penalty), as for every optimiser, and with
+several objectives the front of everything drawn (so it is also the floor of the suite's
+multi-objective problems).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ class RandomSearchSettings:
 @register(
     "random_search",
     settings=RandomSearchSettings,
+    multi_objective=True,
     source="Brooks (1958); the baseline of COCO's and IOHprofiler's benchmarks",
     description="Random search: n points uniform in the box per generation (the floor to beat)",
 )

@@ -23,7 +23,7 @@ from heurtune.analysis import anytime
 from heurtune.analysis.stats import FriedmanResult, critical_difference
 from heurtune.core.io import atomic_path
 
-__all__ = ["N_TARGETS", "targets_of", "collect", "targets_table", "suite_measures", "friedman_final",
+__all__ = ["N_TARGETS", "targets_of", "suite_value", "collect", "targets_table", "suite_measures", "friedman_final",
            "nemenyi_groups", "write_leaderboard"]
 
 
@@ -55,13 +55,35 @@ def targets_of(f_best: float, f_random: float, n: int = N_TARGETS) -> np.ndarray
     return out
 
 
-def collect(folders) -> tuple:
+def suite_value(best_f, volume=None):
+    """The suite's value of a run's ``best_f``: itself for one objective; for several, the
+    hypervolume deficit ``1 - HV / volume`` (``best_f`` is minus the front's hypervolume, 0
+    while nothing dominates the reference point; ``volume`` the box's between the origin and
+    the reference point), in [0, 1] and lower is better like a single objective.
+
+    Parameters
+    ----------
+    best_f : float, ndarray or pandas.Series
+    volume : float, optional
+        ``None`` for one objective.
+
+    Returns
+    -------
+    The same type as ``best_f``.
+    """
+    return best_f if volume is None else 1.0 + best_f / volume
+
+
+def collect(folders, volumes=None) -> tuple:
     """The runs and histories of the suite's results folders, cases renamed ``problem/case``.
 
     Parameters
     ----------
     folders : sequence of (str, str, Path)
         ``(problem, algorithm, folder)`` per results folder.
+    volumes : dict, optional
+        Problem name to its reference box's volume, for the problems with several objectives:
+        their ``best_f`` becomes the hypervolume deficit (:func:`suite_value`).
 
     Returns
     -------
@@ -74,6 +96,7 @@ def collect(folders) -> tuple:
         r = pd.read_parquet(folder / "runs.parquet")
         h = pd.read_parquet(folder / "history.parquet")
         for df in (r, h):
+            df["best_f"] = suite_value(df["best_f"].astype(float), (volumes or {}).get(problem))
             df["problem"] = problem
             df["instance"] = df["case"].str.lstrip("i").astype(int)
             df["case"] = problem + "/" + df["case"].astype(str)
@@ -319,7 +342,8 @@ def _plot_ecdf(ecdf: pd.DataFrame, group: str, multiplier: float, path) -> None:
 
 
 def write_leaderboard(out, runs: pd.DataFrame, measures: dict, friedman: FriedmanResult, sources: pd.DataFrame,
-                      *, multiplier: float, figures: bool = True) -> list:
+                      *, multiplier: float, figures: bool = True, title: str = "Suite leaderboard",
+                      note: str = "") -> list:
     """Write ``leaderboard.md``, ``.csv``, ``.tex``, the per-problem areas, the ERT table and the
     figures (ECDF of all problems and of each group, critical-difference diagram) into ``out``.
 
@@ -335,6 +359,10 @@ def write_leaderboard(out, runs: pd.DataFrame, measures: dict, friedman: Friedma
         From :func:`targets_table`.
     multiplier : float
     figures : bool
+    title : str
+        The page's heading (and the LaTeX caption's).
+    note : str
+        A sentence after the heading (what the values are, where the figures are).
 
     Returns
     -------
@@ -380,12 +408,14 @@ def write_leaderboard(out, runs: pd.DataFrame, measures: dict, friedman: Friedma
         notes.append(f"Friedman across {len(friedman.medians)} cases: chi2 = {friedman.statistic:.1f}, "
                      f"p = {friedman.p:.2g}; Nemenyi critical difference {friedman.cd:.2f} (alpha "
                      f"{friedman.alpha:g}); groups: " + "; ".join("{" + ", ".join(g) + "}" for g in groups) + ".")
-    md = ["# Suite leaderboard", "", *notes, "", "Ranked by the area under the ECDF of all (problem, instance, "
+    if note:
+        notes.insert(0, note)
+    md = [f"# {title}", "", *notes, "", "Ranked by the area under the ECDF of all (problem, instance, "
           "target, run) over evaluations / dimension (log axis, 1 to the budget); `reached`: the fraction "
           "reached within the budget.", "", _markdown(board), "## Area under the ECDF per problem", "",
           _markdown(per_problem)]
     _write_text(paths["leaderboard.md"], "\n".join(md))
-    _write_text(paths["leaderboard.tex"], _latex(board, "heurtune suite leaderboard (area under the ECDF)",
+    _write_text(paths["leaderboard.tex"], _latex(board, f"heurtune {title[0].lower()}{title[1:]} (area under the ECDF)",
                                                  "tab:heurtune-suite-leaderboard"))
     written += list(paths.values())
     if figures:

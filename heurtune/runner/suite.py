@@ -16,6 +16,13 @@ best value known (the best of long reference runs of strong optimisers) and the 
 value random search reaches at the budget; :func:`targets_of` spaces ``N_TARGETS`` targets
 logarithmically between the two, as COCO does. The measures and the leaderboard are in
 :mod:`heurtune.analysis.leaderboard`; the command (``python -m heurtune.suite``) is :func:`main`.
+
+A problem whose config names several objectives (``[problem] objectives`` with a
+``reference_point``) is a multi-objective row: only the optimisers registered as
+multi-objective (and random search, the floor of both kinds) run it, and its value is the
+hypervolume deficit ``1 - HV / prod(reference_point)`` of the run's front (lower is better, in
+(0, 1]), so that the same targets, ECDF, ERT and Friedman test apply; its leaderboard is written
+apart (``OUT/multiobjective/``), since its algorithms are not the single-objective rows'.
 """
 
 from __future__ import annotations
@@ -61,6 +68,19 @@ class SuiteProblem:
     case: str
     group: str = ""
     overrides: dict = dataclasses.field(default_factory=dict)
+    objectives: tuple = ()
+    reference_point: tuple = ()
+
+    @property
+    def multi_objective(self) -> bool:
+        """Whether the problem has several objectives (scored by hypervolume)."""
+        return len(self.objectives) > 1
+
+    @property
+    def volume(self) -> float:
+        """The volume of the box between the origin and the reference point (several objectives):
+        the hypervolume of a front that reached the origin."""
+        return float(np.prod(self.reference_point)) if self.multi_objective else float("nan")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -147,11 +167,29 @@ def load_suite(path=None) -> Suite:
         if not isinstance(row.get("overrides", {}), dict):
             raise ConfigError(f"{where} ({name}): overrides must be a table")
         seen.add(name)
+        objectives, reference = _objectives(row, f"{where} ({name})")
         problems.append(SuiteProblem(name, row["experiment"], row["case"], row.get("group", ""),
-                                     row.get("overrides", {})))
+                                     row.get("overrides", {}), objectives, reference))
     if not problems:
         raise ConfigError(f"{src}: no [[problem]] tables")
     return Suite(tuple(problems), instances, multiplier, runs, seed, perturbation)
+
+
+def _objectives(row: dict, where: str) -> tuple:
+    """The objectives and reference point of a row's merged config (several objectives: every
+    reference value a finite number > 0, since the score is ``1 - HV / prod(reference_point)``
+    with the objectives >= 0)."""
+    problem = _merge(load_config(row["experiment"]).get("problem", {}), row.get("overrides", {}).get("problem", {}))
+    objectives = tuple(problem.get("objectives") or ())
+    if len(objectives) < 2:
+        return (), ()
+    reference = problem.get("reference_point")
+    if (not isinstance(reference, (list, tuple)) or len(reference) != len(objectives)
+            or not all(isinstance(r, (int, float)) and not isinstance(r, bool) and math.isfinite(r) and r > 0
+                       for r in reference)):
+        raise ConfigError(f"{where}: problem.reference_point must be {len(objectives)} numbers > 0 (one per "
+                          f"objective, the suite scores a front by 1 - HV / their product), got {reference!r}")
+    return objectives, tuple(float(r) for r in reference)
 
 
 def _half_width(value, where) -> None:
@@ -312,20 +350,51 @@ def _commit() -> str:
         return "unknown"
 
 
-def _best_feasible(results_dir: Path) -> pd.DataFrame:
-    """Per case and run: the best feasible value (inf for a run that found none)."""
+def _best_feasible(results_dir: Path, problem: SuiteProblem) -> pd.DataFrame:
+    """Per case and run: the best feasible value, the suite's score of it (the hypervolume
+    deficit for several objectives), inf for a run that found none."""
+    from heurtune.analysis.leaderboard import suite_value
+
     runs = pd.read_parquet(results_dir / "runs.parquet")
-    f = runs["best_f"].astype(float).where(runs["feasible"].astype(bool), np.inf)
+    f = suite_value(runs["best_f"], problem.volume if problem.multi_objective else None)
+    f = f.where(runs["feasible"].astype(bool), np.inf)
     return pd.DataFrame({"case": runs["case"], "run": runs["run"], "f": f})
 
 
-def make_targets(suite: Suite, problems, instances, out, *, reference=("cmaes_sqp", "lshade", "jso"),
+# Random search runs both kinds of rows (the floor of each); every other optimiser runs the rows
+# of its kind: the multi-objective ones (registered so) the rows with several objectives.
+BOTH_KINDS = ("random_search",)
+REFERENCE = ("cmaes_sqp", "lshade", "jso")
+MULTI_OBJECTIVE_REFERENCE = ("nsga2", "sms_emoa")
+
+
+def takes(algorithm: str, problem: SuiteProblem) -> bool:
+    """Whether the suite runs ``algorithm`` on ``problem`` (see :data:`BOTH_KINDS`).
+
+    Parameters
+    ----------
+    algorithm : str
+        A registered optimiser.
+    problem : SuiteProblem
+
+    Returns
+    -------
+    bool
+    """
+    from heurtune.core import registry
+
+    return algorithm in BOTH_KINDS or registry.get(algorithm).multi_objective == problem.multi_objective
+
+
+def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
                  reference_multiplier: float = 50.0, runs: int | None = None, jobs: int = 1, path=None,
                  stream=None) -> pd.DataFrame:
     """Run the reference and random-search runs and write the targets table.
 
     Per problem and instance: ``f_best``, the best feasible value of the ``reference``
-    algorithms' runs at ``reference_multiplier`` times the suite's budget, and ``f_random``, the
+    algorithms' runs (those of them that take the problem's kind, else :data:`REFERENCE` or
+    :data:`MULTI_OBJECTIVE_REFERENCE`; values are the suite's scores, the hypervolume deficit for
+    several objectives) at ``reference_multiplier`` times the suite's budget, and ``f_random``, the
     median of random search's best feasible values at the budget (a run that found none counts
     as infinite, so the median is infinite when half of them failed). Rows of other problems
     and instances already in the table are kept.
@@ -358,18 +427,20 @@ def make_targets(suite: Suite, problems, instances, out, *, reference=("cmaes_sq
     rows = []
     for p in problems:
         best = {}
-        for alg in reference:
+        used = tuple(a for a in reference if takes(a, p)) or (MULTI_OBJECTIVE_REFERENCE if p.multi_objective
+                                                              else REFERENCE)
+        for alg in used:
             d = _run_one(suite, p, alg, instances, suite.budget_multiplier * reference_multiplier, runs, base,
                          jobs, stream)
-            for case, g in _best_feasible(d).groupby("case"):
+            for case, g in _best_feasible(d, p).groupby("case"):
                 best[case] = min(best.get(case, np.inf), float(g["f"].min()))
         d = _run_one(suite, p, "random_search", instances, suite.budget_multiplier, runs, base, jobs, stream)
-        rand = _best_feasible(d)
+        rand = _best_feasible(d, p)
         for k in instances:
             g = rand[rand["case"] == f"i{k}"]["f"].to_numpy(float)
             rows.append(dict(problem=p.name, instance=k, f_best=best.get(f"i{k}", np.inf),
                              f_random=float(np.median(g)) if g.size else np.inf, random_runs=int(g.size),
-                             random_feasible=int(np.isfinite(g).sum()), reference="+".join(reference),
+                             random_feasible=int(np.isfinite(g).sum()), reference="+".join(used),
                              reference_multiplier=reference_multiplier, budget_multiplier=suite.budget_multiplier,
                              commit=_commit(), date=datetime.date.today().isoformat()))
     new = pd.DataFrame(rows, columns=TARGET_COLUMNS)
@@ -444,15 +515,32 @@ def run_suite(suite: Suite, problems, algorithms, instances, out, *, multiplier=
     Returns
     -------
     list of (SuiteProblem, str, Path)
+        The pairs run: each problem with the algorithms that take it (:func:`takes`); a problem
+        that none takes is named on ``stream`` and skipped.
+
+    Raises
+    ------
+    ConfigError
+        No algorithm takes any of the problems.
     """
     multiplier = suite.budget_multiplier if multiplier is None else multiplier
     runs = suite.runs if runs is None else runs
+    pairs = [(p, alg) for p in problems for alg in algorithms if takes(alg, p)]
+    if not pairs:
+        raise ConfigError(f"--algorithms: none of {', '.join(algorithms)} takes these problems (several objectives "
+                          f"need a multi-objective optimiser, e.g. {', '.join(MULTI_OBJECTIVE_REFERENCE)}; one "
+                          f"objective a single-objective one)")
+    for p in problems:
+        if not any(q is p for q, _ in pairs):
+            kind = f"{len(p.objectives)} objectives" if p.multi_objective else "one objective"
+            print(f"suite: {p.name}: skipped, no algorithm of --algorithms takes {kind}", file=stream or sys.stderr,
+                  flush=True)
     return [(p, alg, _run_one(suite, p, alg, instances, multiplier, runs, out, jobs, stream, plugins))
-            for p in problems for alg in algorithms]
+            for p, alg in pairs]
 
 
 # -- the command -------------------------------------------------------------------------------
-DEFAULT_ALGORITHMS = ("cs", "pso", "cmaes", "cmaes_sqp", "lshade", "jso")
+DEFAULT_ALGORITHMS = ("cs", "pso", "cmaes", "cmaes_sqp", "lshade", "jso") + MULTI_OBJECTIVE_REFERENCE
 
 
 def _parser():
@@ -479,8 +567,9 @@ def _parser():
                     help=f"problems {', '.join(SMOKE['problems'])}, instances 1-2, 2 runs, budget 5 x dimension")
     ap.add_argument("--make-targets", action="store_true",
                     help="run the reference algorithms and random search and write experiments/suite/targets.csv")
-    ap.add_argument("--reference", default="cmaes_sqp,lshade,jso",
-                    help="reference algorithms of --make-targets (default cmaes_sqp,lshade,jso)")
+    ap.add_argument("--reference", default=",".join(REFERENCE + MULTI_OBJECTIVE_REFERENCE),
+                    help="reference algorithms of --make-targets, each on the rows of its kind (default "
+                         f"{','.join(REFERENCE + MULTI_OBJECTIVE_REFERENCE)})")
     ap.add_argument("--reference-multiplier", type=float, default=50.0,
                     help="their budget, in multiples of the suite's (default 50)")
     ap.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
@@ -538,7 +627,7 @@ def run(argv=None) -> int:
         suite = load_suite()
         if args.list:
             for p in suite.problems:
-                print(f"{p.name:26s} {p.group:8s} {p.experiment} ({p.case})"
+                print(f"{p.name:26s} {p.group:14s} {p.experiment} ({p.case})"
                       + (f", {json.dumps(p.overrides)}" if p.overrides else ""))
             return 0
         if args.smoke:
@@ -611,11 +700,48 @@ def leaderboard(suite: Suite, done, out, *, multiplier: float, figures: bool = T
     -------
     list of Path
     """
+    out = Path(out)
+    single = [d for d in done if not d[0].multi_objective]
+    multi = [d for d in done if d[0].multi_objective]
+    written = []
+    if single:
+        written += _board(suite, single, out, multiplier, figures, targets_path, "Suite leaderboard", "")
+    if multi:
+        sub = out / MULTI_OBJECTIVE_FOLDER
+        written += _board(suite, multi, sub, multiplier, figures, targets_path,
+                          "Suite leaderboard: multi-objective problems",
+                          "Values: the hypervolume deficit 1 - HV / prod(reference point) of each run's front "
+                          "(lower is better; the objectives are >= 0, so a front at the origin scores 0). The "
+                          "figures and tables of these rows are in this folder.")
+        text = (sub / "leaderboard.md").read_text(encoding="utf-8")
+        if single:  # one page: the single-objective board, then this one a heading level down
+            text = "\n".join("#" + line if line.startswith("#") else line for line in text.splitlines())
+            text = (out / "leaderboard.md").read_text(encoding="utf-8") + "\n" + text.replace(
+                "The figures and tables of these rows are in this folder.",
+                f"The figures and tables of these rows are in `{MULTI_OBJECTIVE_FOLDER}/`.") + "\n"
+        from heurtune.core.io import atomic_path
+
+        with atomic_path(out / "leaderboard.md") as tmp:
+            tmp.write_text(text, encoding="utf-8")
+    if ioh:
+        from heurtune.analysis.export import export_ioh
+
+        for p, alg, folder in done:
+            written += export_ioh(folder, out / "ioh" / f"{p.name}__{alg}")
+    return written
+
+
+# Where the leaderboard of the rows with several objectives goes, inside the suite's folder.
+MULTI_OBJECTIVE_FOLDER = "multiobjective"
+
+
+def _board(suite, done, out, multiplier, figures, targets_path, title, note) -> list:
+    """The measures and leaderboard of one kind of rows (:func:`leaderboard`)."""
     from heurtune.analysis import leaderboard as lb
     from heurtune.core.families import make_experiment
 
-    out = Path(out)
-    runs, history = lb.collect([(p.name, alg, folder) for p, alg, folder in done])
+    runs, history = lb.collect([(p.name, alg, folder) for p, alg, folder in done],
+                               {p.name: p.volume for p, _, _ in done if p.multi_objective})
     dims = {}
     for p, _, folder in done:
         if p.name not in dims:
@@ -628,14 +754,8 @@ def leaderboard(suite: Suite, done, out, *, multiplier: float, figures: bool = T
     targets, sources = lb.targets_table(load_targets(targets_path), runs, N_TARGETS)
     measures = lb.suite_measures(runs, history, targets, dims, multiplier, {p.name: p.group or "all"
                                                                            for p in suite.problems})
-    written = lb.write_leaderboard(out, runs, measures, lb.friedman_final(runs), sources, multiplier=multiplier,
-                                   figures=figures)
-    if ioh:
-        from heurtune.analysis.export import export_ioh
-
-        for p, alg, folder in done:
-            written += export_ioh(folder, out / "ioh" / f"{p.name}__{alg}")
-    return written
+    return lb.write_leaderboard(out, runs, measures, lb.friedman_final(runs), sources, multiplier=multiplier,
+                                figures=figures, title=title, note=note)
 
 
 def main() -> None:

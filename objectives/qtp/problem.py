@@ -37,11 +37,14 @@ OBJECTIVES = {
     "iae": ("IAE1", "IAE2"),
     "ise": ("ISE1", "ISE2"),
     "itae": ("ITAE1", "ITAE2"),
+    "tv": ("TV1", "TV2"),
 }
 # The unit of each objective (levels in cm, voltages in V, times in s) and its name on axes; an
 # objective added to OBJECTIVES without them is drawn by its key alone.
-OBJECTIVE_UNITS = {"effort": "V² s", "effort_deviation": "V² s", "iae": "cm s", "ise": "cm² s", "itae": "cm s²"}
-OBJECTIVE_LABELS = {"effort": "effort J", "effort_deviation": "effort Jdev", "iae": "IAE", "ise": "ISE", "itae": "ITAE"}
+OBJECTIVE_UNITS = {"effort": "V² s", "effort_deviation": "V² s", "iae": "cm s", "ise": "cm² s", "itae": "cm s²",
+                   "tv": "V"}
+OBJECTIVE_LABELS = {"effort": "effort J", "effort_deviation": "effort Jdev", "iae": "IAE", "ise": "ISE", "itae": "ITAE",
+                    "tv": "TV"}
 _METRIC_INDEX = {name: i for i, name in enumerate(METRIC_NAMES)}
 # Metrics a weighted objective may combine (each summed over both loops or pumps).
 WEIGHTED_METRICS = ("J", "Jdev", "IAE", "ISE", "ITAE", "TV")

@@ -7,7 +7,7 @@ import textwrap
 import numpy as np
 import pandas as pd
 import pytest
-from numerics import assert_same_bits
+from numerics import assert_close, assert_same_bits
 
 from heurtune.analysis import leaderboard as lb
 from heurtune.core.errors import ConfigError
@@ -29,6 +29,24 @@ def test_the_shipped_table_has_the_problems_the_issue_asks_for(suite):
         for case in ("min", "nmp"):
             assert {f"{kind}-{case}", f"{kind}-{case}-limits"} <= names
     assert sum(p.group == "robust" for p in suite.problems) >= 2
+    assert {"tito-csts-pi", "tito-ccts-pid", "tito-qts-pid"} <= names
+    pair = [p for p in suite.problems if p.multi_objective]  # IAE against TV, scored by hypervolume
+    assert pair and all(p.objectives == ("iae", "tv") for p in pair)
+    assert all(p.volume == p.reference_point[0] * p.reference_point[1] > 0 for p in pair)
+
+
+def test_multi_objective_rows_go_to_the_multi_objective_optimisers_and_random_search_runs_both(suite):
+    mo, so = suite.problem("pid-min-iae-tv"), suite.problem("pid-min")
+    assert S.takes("nsga2", mo) and S.takes("sms_emoa", mo) and not S.takes("cs", mo)
+    assert S.takes("cs", so) and not S.takes("nsga2", so)
+    assert S.takes("random_search", mo) and S.takes("random_search", so)
+
+
+def test_the_score_of_a_front_is_its_hypervolume_deficit_in_the_reference_box():
+    # best_f is minus the front's hypervolume; 0 when nothing dominates the reference point
+    hv = pd.Series([-60.0, 0.0, -240.0])
+    assert lb.suite_value(hv, 240.0).tolist() == [0.75, 1.0, 0.0]
+    assert lb.suite_value(hv, None) is hv  # one objective: the value itself
 
 
 def test_instance_one_is_the_preset_and_the_others_are_seeded_draws_in_range(suite):
@@ -78,6 +96,9 @@ def test_a_problem_config_runs_the_instances_as_cases_with_the_budget(tmp_path, 
     ("[[problem]]\nname='a b'\nexperiment='benchmark_qtp'\ncase='min'\n", "may hold only letters"),
     ("[[problem]]\nname='a'\nexperiment='benchmark_qtp'\n", "case must be a non-empty string"),
     ("[suite]\n", "no [[problem]] tables"),
+    ("[[problem]]\nname='a'\nexperiment='cs_pid_qtp'\ncase='min'\n"
+     "overrides = { problem = { objectives = ['iae', 'tv'], reference_point = [20.0, 0.0] } }\n",
+     "problem.reference_point must be 2 numbers > 0"),
 ])
 def test_a_bad_table_is_one_line_naming_the_key(tmp_path, text, message):
     path = tmp_path / "problems.toml"
@@ -184,6 +205,7 @@ def _run(capsys, *argv):
     (["--instances", "x"], "--instances: 'x' is not an instance number"),
     (["--budget-multiplier", "0"], "--budget-multiplier must be a number > 0"),
     (["--runs", "0"], "--runs must be >= 1"),
+    (["--algorithms", "cs", "--problems", "pid-min-iae-tv"], "--algorithms: none of cs takes these problems"),
 ])
 def test_bad_input_is_one_line_and_exit_2(capsys, argv, message):
     code, _, err = _run(capsys, *argv)
@@ -245,6 +267,27 @@ def test_a_plugin_optimiser_joins_the_suite_with_one_command(tmp_path):
                 "--no-ioh")
     assert done.returncode == 0, done.stderr
     assert set(pd.read_csv(out / "leaderboard.csv")["algorithm"]) == {"suite_walk", "random_search"}
+
+
+@pytest.mark.long
+def test_the_multi_objective_pair_has_its_own_leaderboard_by_hypervolume(tmp_path, suite):
+    out = tmp_path / "suite"
+    done = _cli("--algorithms", "nsga2,random_search,cs", "--problems", "pid-min-iae-tv,pid-min", "--instances",
+                "1", "--runs", "2", "--budget-multiplier", "20", "--out", str(out), "--no-figures", "--no-ioh")
+    assert done.returncode == 0, done.stderr
+    assert set(pd.read_csv(out / "leaderboard.csv")["algorithm"]) == {"cs", "random_search"}
+    board = pd.read_csv(out / "multiobjective" / "leaderboard.csv")
+    assert set(board["algorithm"]) == {"nsga2", "random_search"}  # cs takes one objective
+    used = pd.read_csv(out / "multiobjective" / "targets_used.csv")
+    runs = pd.read_parquet(out / "pid-min-iae-tv" / "nsga2" / "runs.parquet")
+    volume = suite.problem("pid-min-iae-tv").volume
+    # the best known is the best deficit of the runs: 1 - HV / volume of the best front
+    best = min(1.0 - pd.read_parquet(out / "pid-min-iae-tv" / alg / "runs.parquet")["hypervolume"].max() / volume
+               for alg in ("nsga2", "random_search"))
+    assert 0.0 < used["f_best"].iloc[0] < 1.0
+    assert_close(used["f_best"].iloc[0], best, rtol=1e-12, because="the same division of the same hypervolume")
+    assert runs["hypervolume"].gt(0).all()
+    assert "## Suite leaderboard: multi-objective problems" in (out / "leaderboard.md").read_text()
 
 
 @pytest.mark.long

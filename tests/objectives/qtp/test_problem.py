@@ -2,10 +2,11 @@
 
 import numpy as np
 import pytest
-from numerics import assert_exact, assert_same_bits
+from numerics import assert_close, assert_exact, assert_same_bits
 
 import heurtune
 from heurtune.core.problem import FAILED_OBJECTIVE, FAILED_VIOLATION
+from heurtune.objectives.qtp.problem import OBJECTIVES
 
 THESIS_MIN = dict(Q11=0.4431, Q22=0.3027, Q33=0.4434, Q44=1.5722, R11=4.2253, R22=2.5994,
                   Ki1=1.7411, Ki2=7.1716, alpha1=0.9814, alpha2=0.8437)
@@ -162,3 +163,15 @@ def test_bookkeeping_of_simulated_candidates_equals_the_general_path(problem, ob
                 assert got.dtype == ref.dtype and got.shape == ref.shape
                 assert_same_bits(got, ref, because="same code", err_msg=field)  # the same numbers, other masks
             assert a.F is b.F is None and a.objective_names == b.objective_names == ()
+
+
+@pytest.mark.parametrize("objective", sorted(OBJECTIVES))
+def test_each_named_objective_is_the_sum_of_its_two_metrics(objective, tmp_path):
+    path = tmp_path / f"{objective}.toml"
+    path.write_text(f'extends = "cs_folqi_qtp"\n[problem]\nobjective = "{objective}"\n')
+    prob = heurtune.load_experiment(str(path)).problem("min")
+    ev = prob.evaluate(vector(prob, THESIS_MIN))
+    m = dict(zip(ev.metric_names, ev.metrics[0]))
+    first, second = OBJECTIVES[objective]
+    assert np.isfinite(ev.f[0]) and ev.f[0] > 0
+    assert_close(ev.f[0], m[first] + m[second], rtol=1e-12, because="the same two metrics, summed")
