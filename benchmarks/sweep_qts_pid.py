@@ -66,7 +66,8 @@ def main(argv=None) -> int:
     for j, name in enumerate(prob.names):
         print(f"  {name}: " + " ".join(f"{v:.4g}" for v in np.percentile(feasible[:, j], [0, 5, 50, 95, 100])))
     prob = row_problem()
-    X = prob.lower + np.random.default_rng(args.seed + 1).random((args.box_samples, prob.dim)) * (prob.upper - prob.lower)
+    draws = np.random.default_rng(args.seed + 1).random((args.box_samples, prob.dim))
+    X = prob.lower + draws * (prob.upper - prob.lower)
     t0 = time.perf_counter()
     ev = prob.evaluate(X)
     ms = 1e3 * (time.perf_counter() - t0) / len(X)
