@@ -49,8 +49,9 @@ from heurtune.runner.config import experiments_dir, list_experiments, load_confi
 __all__ = ["Suite", "SuiteProblem", "load_suite", "instance_plant", "problem_config", "run_suite", "make_targets",
            "load_targets", "targets_of", "N_TARGETS", "SMOKE"]
 
-# --smoke: two problems, two instances, two runs, a budget of 5 x dim.
-SMOKE = dict(problems=("iolqi-min-limits", "pid-min"), instances=(1, 2), runs=2, budget_multiplier=5.0)
+# --smoke: three problems (one with two objectives), two instances, two runs, a budget of 5 x dim.
+SMOKE = dict(problems=("iolqi-min-limits", "pid-min", "pid-min-iae-tv"), instances=(1, 2), runs=2,
+             budget_multiplier=5.0)
 
 
 def suite_dir() -> Path:

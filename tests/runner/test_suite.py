@@ -230,6 +230,8 @@ def test_smoke_runs_resumes_and_writes_the_leaderboard(tmp_path):
                  "ecdf_all.png", "cd_diagram.png"):
         assert (out / name).is_file(), name
     assert any((out / "ioh").rglob("*.json"))
+    # the smoke's multi-objective row: random search alone takes it of these three
+    assert pd.read_csv(out / "multiobjective" / "leaderboard.csv")["algorithm"].tolist() == ["random_search"]
     again = _cli("--smoke", "--algorithms", "random_search,cs,pso", "--out", str(out), "--jobs", "2")
     assert again.returncode == 0
     assert_same_bits(pd.read_csv(out / "leaderboard.csv"), board, because="resume")
