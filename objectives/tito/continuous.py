@@ -66,7 +66,7 @@ from .model import ParallelPID, PIController
 from .sim import _poly, controller_tf, input_noise, measurement_noise, vary_plant
 
 __all__ = ["DEFAULT_TOLERANCE", "ContinuousRun", "ContinuousTITOLoop", "ContinuousTITOSimulator", "ErrorCubics",
-           "balanced", "check_continuous_plant", "coarsest_step"]
+           "PlantSide", "balanced", "check_continuous_plant", "coarsest_step"]
 
 # Gauss-Lobatto nodes on [0, 1] (cubic through both ends and two interior points)
 NODES = np.array([0.0, 0.5 - 0.5 / math.sqrt(5.0), 0.5 + 0.5 / math.sqrt(5.0), 1.0])
@@ -384,6 +384,71 @@ def _stack(paths):
     return arrays, by_kp, by_ki, loop, nm, np.array(order, np.int64)
 
 
+class PlantSide:
+    """What every loop of one plant, decoupler and step ``h`` shares whatever its controllers:
+    the decoupler's and plant's routes from each error (their rational parts and dead times in
+    steps, the pairs that an inverted decoupler cancels left out) and the paths of the input
+    disturbances, which no controller is on. :class:`ContinuousTITOSimulator` keeps one per step
+    of its ladder, so that a candidate builds only its controllers' paths.
+
+    Parameters
+    ----------
+    plant : TITOPlant
+        Every element strictly proper, with a dead time > 0.
+    decoupler : Decoupler or None
+    h : float
+        The step (s).
+
+    Attributes
+    ----------
+    decoupler_routes : list of (k, j, system, shift)
+        From the error ``e_j`` to the decoupler output ``u_k`` (before the controller ``c_j``).
+    output_routes : list of (i, j, system, shift)
+        From ``e_j`` to the output ``y_i`` through ``D_kj`` and ``g_ik`` (before ``c_j``).
+    disturbance_paths : list of _Path
+        From the input disturbance ``d_in_k`` to ``y_i`` through ``g_ik``.
+    """
+
+    def __init__(self, plant, decoupler, h: float):
+        self.h = h = float(h)
+        self.unit = unit = _ss([1.0], [1.0])
+        self.integrator = _ss([1.0], [1.0, 0.0])
+        if decoupler is None:
+            D = {(0, 0): (unit, 0.0), (1, 1): (unit, 0.0)}
+        else:
+            p, (c1, c2) = plant, decoupler.column_delays
+            if decoupler.case == 1:
+                D = {(0, 0): (unit, c1), (1, 1): (unit, c2),
+                     (1, 0): (_ratio(p.g21, p.g22), p.g21.L - p.g22.L + c1),
+                     (0, 1): (_ratio(p.g12, p.g11), p.g12.L - p.g11.L + c2)}
+            else:
+                D = {(1, 0): (unit, c1), (0, 1): (unit, c2),
+                     (0, 0): (_ratio(p.g22, p.g21), p.g22.L - p.g21.L + c1),
+                     (1, 1): (_ratio(p.g11, p.g12), p.g11.L - p.g12.L + c2)}
+        check_continuous_plant(plant)
+        G = {}
+        for i in range(2):
+            for k in range(2):
+                e = plant.element(i + 1, k + 1)
+                G[(i, k)] = (_element(e), _shift(e.L, h, f"the dead time of g{i + 1}{k + 1}"), e.L)
+        # e_j -> u_k through D_kj; e_j -> y_i through D_kj, g_ik; d_in_k -> y_i through g_ik
+        self.decoupler_routes, to_y = [], {}
+        for (k, j), (sys_d, Ld) in D.items():
+            # the decoupler outputs follow the step's own errors: any delay will do
+            self.decoupler_routes.append((k, j, sys_d, _shift(Ld, h, "a decoupler dead time", 0.0)))
+            for i in range(2):
+                sys_g, _, Lg = G[(i, k)]
+                to_y.setdefault((i, j), []).append((_series(sys_d, sys_g), Lg + Ld))
+        self.output_routes = []
+        for (i, j), routes in to_y.items():
+            # the decoupler's purpose: y_i's two routes from e_j (i != j) cancel on the plant it
+            # inverts (same dead time, opposite rational parts); both are left out then
+            if len(routes) == 2 and _cancel(*routes):
+                continue
+            self.output_routes += [(i, j, system, _shift(L, h, "a path's dead time")) for system, L in routes]
+        self.disturbance_paths = [_Path(sys_g, h, ng, kern.TARGET_Y, i, 2 + k) for (i, k), (sys_g, ng, _) in G.items()]
+
+
 class ContinuousTITOLoop:
     """The continuous closed loop of a plant, a decoupler and decentralised PI/PID controllers.
 
@@ -410,64 +475,22 @@ class ContinuousTITOLoop:
         tuning problems' controllers)."""
         return cls(plant, decoupler, tuple(parallel_controller(*map(float, g), N) for g in gains), scenario, step)
 
-    def __init__(self, plant, decoupler, controllers, scenario, step=None):
+    def __init__(self, plant, decoupler, controllers, scenario, step=None, *, signals="yuv", plant_side=None):
         h = float(scenario.dt if step is None else step)
         self.h, self.sc = h, scenario
         # the noise is held over scenario.dt: a whole number of steps
         self._hold = _multiple(float(scenario.dt), h, "the noise sample time (dt)") if _noisy(scenario) else 1
-        unit = _ss([1.0], [1.0])
         self.pi = _pi_gains(controllers) is not None
-        integrator = _ss([1.0], [1.0, 0.0])
-        if decoupler is None:
-            D = {(0, 0): (unit, 0.0), (1, 1): (unit, 0.0)}
-        else:
-            p, (c1, c2) = plant, decoupler.column_delays
-            if decoupler.case == 1:
-                D = {(0, 0): (unit, c1), (1, 1): (unit, c2),
-                     (1, 0): (_ratio(p.g21, p.g22), p.g21.L - p.g22.L + c1),
-                     (0, 1): (_ratio(p.g12, p.g11), p.g12.L - p.g11.L + c2)}
-            else:
-                D = {(1, 0): (unit, c1), (0, 1): (unit, c2),
-                     (0, 0): (_ratio(p.g22, p.g21), p.g22.L - p.g21.L + c1),
-                     (1, 1): (_ratio(p.g11, p.g12), p.g11.L - p.g12.L + c2)}
-        check_continuous_plant(plant)
-        G = {}
-        for i in range(2):
-            for k in range(2):
-                e = plant.element(i + 1, k + 1)
-                sys_g = _element(e)
-                G[(i, k)] = (sys_g, _shift(e.L, h, f"the dead time of g{i + 1}{k + 1}"), e.L)
-
-        def route(system, shift, target, out, j):
-            """The path(s) of one route from the error ``e_j`` through ``c_j`` and ``system``."""
-            if not self.pi:
-                return _Path(_series(_ss(*controller_tf(controllers[j], j + 1)), system), h, shift, target, out, j)
-            # a PI is Kp + Ki/s: built from the bases 1 and 1/s once; a new PI only recombines
-            # the two (run(controllers))
-            return _PIPath(_Path(_series(unit, system), h, shift, target, out, j),
-                           _Path(_series(integrator, system), h, shift, target, out, j), j)
-
-        # e_j -> y_i through c_j, D_kj, g_ik; d_in_k -> y_i through g_ik; e_j -> u_k; e_j -> v_j
-        paths, to_y = [], {}
-        for (k, j), (sys_d, Ld) in D.items():
-            # the decoupler outputs follow the step's own errors: any delay will do
-            paths.append(route(sys_d, _shift(Ld, h, "a decoupler dead time", 0.0), kern.TARGET_U, k, j))
-            for i in range(2):
-                sys_g, _, Lg = G[(i, k)]
-                to_y.setdefault((i, j), []).append((_series(sys_d, sys_g), Lg + Ld))
-        for (i, j), routes in to_y.items():
-            # the decoupler's purpose: y_i's two routes from e_j (i != j) cancel on the plant it
-            # inverts (same dead time, opposite rational parts); both are left out then
-            if len(routes) == 2 and _cancel(*routes):
-                continue
-            for system, L in routes:
-                paths.append(route(system, _shift(L, h, "a path's dead time"), kern.TARGET_Y, i, j))
-        for (i, k), (sys_g, ng, _) in G.items():
-            paths.append(_Path(sys_g, h, ng, kern.TARGET_Y, i, 2 + k))
-        for j in range(2):
-            paths.append(route(unit, 0, kern.TARGET_V, j, j))
-        self._arrays, self._by_kp, self._by_ki, self._loop_of, self._nmax, order = _stack(paths)
-        self.paths = [paths[k] for k in order]
+        if plant_side is None:
+            plant_side = PlantSide(plant, decoupler, h)
+        elif plant_side.h != h:
+            raise ValueError(f"plant_side was built for the step {plant_side.h!r} s, not {h!r} s")
+        self._side, self._controllers = plant_side, controllers
+        # a PI loop is built once and reused (run(controllers)): all its paths; another loop only
+        # the outputs' when asked for "y" (complete() adds the others to the step that is kept)
+        self._y_paths = self._routes("y")
+        paths = self._y_paths if signals == "y" and not self.pi else self._y_paths + self._routes("uv")
+        self._restack(paths)
         self._gains = None if not self.pi else np.array(_pi_gains(controllers))
         self.n = _multiple(scenario.horizon, h, "the horizon")
         for steps in scenario.setpoints:
@@ -476,6 +499,32 @@ class ContinuousTITOLoop:
         _multiple(scenario.input_disturbance[0], h, "the input disturbance time")
         _multiple(scenario.output_disturbance[0], h, "the output disturbance time")
         self._inputs = self._signals()
+
+    def _restack(self, paths) -> None:
+        self._arrays, self._by_kp, self._by_ki, self._loop_of, self._nmax, order = _stack(paths)
+        self.paths = [paths[k] for k in order]
+
+    def _routes(self, targets: str) -> list:
+        """The paths into ``targets`` (``"y"``: the outputs, from the errors and the input
+        disturbances; ``"uv"``: the decoupler and controller outputs), the controllers' in series
+        with the plant side's routes."""
+        side, h, controllers = self._side, self.h, self._controllers
+        if self.pi:
+            def route(system, shift, target, out, j):
+                # a PI is Kp + Ki/s: built from the bases 1 and 1/s once; a new PI only recombines
+                # the two (run(controllers))
+                return _PIPath(_Path(_series(side.unit, system), h, shift, target, out, j),
+                               _Path(_series(side.integrator, system), h, shift, target, out, j), j)
+        else:
+            own = [_ss(*controller_tf(c, j + 1)) for j, c in enumerate(controllers)]
+
+            def route(system, shift, target, out, j):
+                return _Path(_series(own[j], system), h, shift, target, out, j)
+        if targets == "y":
+            return [route(system, shift, kern.TARGET_Y, i, j) for i, j, system, shift in side.output_routes] \
+                + side.disturbance_paths
+        return [route(system, shift, kern.TARGET_U, k, j) for k, j, system, shift in side.decoupler_routes] \
+            + [route(side.unit, 0, kern.TARGET_V, j, j) for j in range(2)]
 
     def _combined(self, gains) -> dict:
         """The PI routes' matrices for ``gains`` (rows ``(Kp, Ki)`` per loop): ``F + Kp A + Ki B``."""
@@ -558,6 +607,9 @@ class ContinuousTITOLoop:
     def complete(self, signals="uv"):
         """Add ``u`` (and ``v``) to the last :meth:`run` of ``signals = "y"``: their paths read
         the errors that run stored. Returns ``(t, y, u, v)`` as :meth:`run`."""
+        if signals and len(self.paths) == len(self._y_paths):  # built for the outputs alone
+            self._restack(self._y_paths + self._routes("uv"))
+            self._last = (self._arrays,) + self._last[1:]
         if signals:
             self._stages(1 if "u" in signals else 2, 3 if "v" in signals else 2)
         _, _, _, _, y, u, v = self._last
@@ -721,16 +773,21 @@ class ContinuousTITOSimulator:
         else:
             h0 = coarsest_step(self.plant, scenario)
             self.steps = tuple(h0 / 2 ** j for j in range(self.MAX_HALVINGS + 1))
-        self._pi_loops = {}
+        self._pi_loops, self._sides = {}, {}
 
     def _loop(self, controllers, level: int, signals: str):
         h = self.steps[level]
+        if level not in self._sides:  # the plant's side of the loop, once per step
+            self._sides[level] = PlantSide(self.plant, self.decoupler, h)
+        side = self._sides[level]
         if _pi_gains(controllers) is not None:
             if level not in self._pi_loops:  # built once per step: a new PI only recombines its routes
-                self._pi_loops[level] = ContinuousTITOLoop(self.plant, self.decoupler, controllers, self.scenario, h)
+                self._pi_loops[level] = ContinuousTITOLoop(self.plant, self.decoupler, controllers, self.scenario, h,
+                                                           plant_side=side)
             loop = self._pi_loops[level]
             return loop, loop.run(controllers, signals)
-        loop = ContinuousTITOLoop(self.plant, self.decoupler, controllers, self.scenario, h)
+        loop = ContinuousTITOLoop(self.plant, self.decoupler, controllers, self.scenario, h, signals=signals,
+                                  plant_side=side)
         return loop, loop.run(None, signals)
 
     def _record(self, loop, t, y, u, v, estimate):
