@@ -21,7 +21,7 @@ A problem whose config names several objectives (``[problem] objectives`` with a
 ``reference_point``) is a multi-objective row: only the optimisers registered as
 multi-objective (and random search, the floor of both kinds) run it, and its value is the
 hypervolume deficit ``1 - HV / prod(reference_point)`` of the run's front (lower is better, in
-(0, 1]), so that the same targets, ECDF, ERT and Friedman test apply; its leaderboard is written
+[0, 1]), so that the same targets, ECDF, ERT and Friedman test apply; its leaderboard is written
 apart (``OUT/multiobjective/``), since its algorithms are not the single-objective rows'.
 """
 
@@ -44,10 +44,11 @@ import pandas as pd
 
 from heurtune.analysis.leaderboard import N_TARGETS, targets_of
 from heurtune.core.errors import ConfigError
+from heurtune.core.io import atomic_path
 from heurtune.runner.config import experiments_dir, list_experiments, load_config
 
 __all__ = ["Suite", "SuiteProblem", "load_suite", "instance_plant", "problem_config", "run_suite", "make_targets",
-           "load_targets", "targets_of", "N_TARGETS", "SMOKE"]
+           "load_targets", "targets_of", "takes", "N_TARGETS", "SMOKE"]
 
 # --smoke: three problems (one with two objectives), two instances, two runs, a budget of 5 x dim.
 SMOKE = dict(problems=("iolqi-min-limits", "pid-min", "pid-min-iae-tv"), instances=(1, 2), runs=2,
@@ -685,6 +686,10 @@ def leaderboard(suite: Suite, done, out, *, multiplier: float, figures: bool = T
                 targets_path=None) -> list:
     """Measures, leaderboard and figures of finished suite runs (:func:`run_suite`'s list).
 
+    The rows with several objectives get their own measures and leaderboard in
+    ``OUT/multiobjective/`` (their algorithms are not the other rows'), appended to
+    ``OUT/leaderboard.md`` a heading level down (or that page alone when no other row ran).
+
     Parameters
     ----------
     suite : Suite
@@ -712,16 +717,12 @@ def leaderboard(suite: Suite, done, out, *, multiplier: float, figures: bool = T
         written += _board(suite, multi, sub, multiplier, figures, targets_path,
                           "Suite leaderboard: multi-objective problems",
                           "Values: the hypervolume deficit 1 - HV / prod(reference point) of each run's front "
-                          "(lower is better; the objectives are >= 0, so a front at the origin scores 0). The "
-                          "figures and tables of these rows are in this folder.")
+                          "(lower is better; the objectives are >= 0, so a front at the origin scores 0).")
         text = (sub / "leaderboard.md").read_text(encoding="utf-8")
         if single:  # one page: the single-objective board, then this one a heading level down
-            text = "\n".join("#" + line if line.startswith("#") else line for line in text.splitlines())
-            text = (out / "leaderboard.md").read_text(encoding="utf-8") + "\n" + text.replace(
-                "The figures and tables of these rows are in this folder.",
-                f"The figures and tables of these rows are in `{MULTI_OBJECTIVE_FOLDER}/`.") + "\n"
-        from heurtune.core.io import atomic_path
-
+            lines = ["#" + line if line.startswith("#") else line for line in text.splitlines()]
+            lines[1:1] = ["", f"Its figures and tables are in `{MULTI_OBJECTIVE_FOLDER}/`."]
+            text = (out / "leaderboard.md").read_text(encoding="utf-8") + "\n" + "\n".join(lines) + "\n"
         with atomic_path(out / "leaderboard.md") as tmp:
             tmp.write_text(text, encoding="utf-8")
     if ioh:
