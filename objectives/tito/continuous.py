@@ -467,6 +467,12 @@ class ContinuousTITOLoop:
         The step ``h`` (s), also the output sample time: no longer than the shortest dead time
         into the outputs, dividing the horizon, the set-point and disturbance times and (with
         noise) ``dt``; one-line ConfigError otherwise.
+    signals : {"yuv", "y"}
+        ``"y"``: a loop of other than PI controllers builds the paths into the outputs alone;
+        :meth:`complete` adds those into ``u`` and ``v`` when asked for them.
+    plant_side : PlantSide, optional
+        The plant's side of the routes for this step, shared between loops (built here if not
+        given).
     """
 
     @classmethod
