@@ -34,6 +34,7 @@ import datetime
 import io
 import json
 import math
+import os
 import subprocess
 import sys
 import tomllib
@@ -389,8 +390,8 @@ def takes(algorithm: str, problem: SuiteProblem) -> bool:
 
 
 def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
-                 reference_multiplier: float = 50.0, runs: int | None = None, jobs: int = 1, path=None,
-                 stream=None) -> pd.DataFrame:
+                 reference_multiplier: float = 50.0, reference_runs: int = 1, runs: int | None = None,
+                 jobs: int = 1, path=None, stream=None) -> pd.DataFrame:
     """Run the reference and random-search runs and write the targets table.
 
     Per problem and instance: ``f_best``, the best feasible value of the ``reference``
@@ -398,8 +399,14 @@ def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
     :data:`MULTI_OBJECTIVE_REFERENCE`; values are the suite's scores, the hypervolume deficit for
     several objectives) at ``reference_multiplier`` times the suite's budget, and ``f_random``, the
     median of random search's best feasible values at the budget (a run that found none counts
-    as infinite, so the median is infinite when half of them failed). Rows of other problems
-    and instances already in the table are kept.
+    as infinite, so the median is infinite when half of them failed).
+
+    The table is written after each problem (a long call interrupted keeps the problems it
+    finished; the runs themselves resume from ``out``). A row already in the table for the same
+    budgets is merged, not replaced: ``f_best`` is the better of the two, ``reference`` names
+    the algorithms of both and ``commit``/``date`` are those of the better value, so the
+    reference algorithms can be run by separate calls (or sessions, or machines) into one
+    table. Rows of other problems and instances are kept.
 
     Parameters
     ----------
@@ -410,8 +417,11 @@ def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
         Where the reference runs' results go (``OUT/reference/...``).
     reference : sequence of str
     reference_multiplier : float
+    reference_runs : int
+        Runs per reference algorithm and instance (default 1: one long run, as COCO's best
+        known values come from the best long runs).
     runs : int, optional
-        Runs per algorithm and instance (default the suite's).
+        Random search's runs per instance (default the suite's).
     jobs : int
     path : str or Path, optional
         The table written (default ``experiments/suite/targets.csv``).
@@ -426,18 +436,20 @@ def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
     runs = suite.runs if runs is None else runs
     base = Path(out) / "reference"
     reference = tuple(reference)
-    rows = []
+    path = Path(path) if path is not None else suite_dir() / "targets.csv"
+    table = load_targets(path)
     for p in problems:
         best = {}
         used = tuple(a for a in reference if takes(a, p)) or (MULTI_OBJECTIVE_REFERENCE if p.multi_objective
                                                               else REFERENCE)
         for alg in used:
-            d = _run_one(suite, p, alg, instances, suite.budget_multiplier * reference_multiplier, runs, base,
-                         jobs, stream)
+            d = _run_one(suite, p, alg, instances, suite.budget_multiplier * reference_multiplier, reference_runs,
+                         base, jobs, stream)
             for case, g in _best_feasible(d, p).groupby("case"):
                 best[case] = min(best.get(case, np.inf), float(g["f"].min()))
         d = _run_one(suite, p, "random_search", instances, suite.budget_multiplier, runs, base, jobs, stream)
         rand = _best_feasible(d, p)
+        rows = []
         for k in instances:
             g = rand[rand["case"] == f"i{k}"]["f"].to_numpy(float)
             rows.append(dict(problem=p.name, instance=k, f_best=best.get(f"i{k}", np.inf),
@@ -445,17 +457,52 @@ def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
                              random_feasible=int(np.isfinite(g).sum()), reference="+".join(used),
                              reference_multiplier=reference_multiplier, budget_multiplier=suite.budget_multiplier,
                              commit=_commit(), date=datetime.date.today().isoformat()))
-    new = pd.DataFrame(rows, columns=TARGET_COLUMNS)
-    path = Path(path) if path is not None else suite_dir() / "targets.csv"
-    old = load_targets(path)
-    if not old.empty:
-        keep = ~old.set_index(["problem", "instance"]).index.isin(new.set_index(["problem", "instance"]).index)
-        new = pd.concat([old[keep], new], ignore_index=True)
-    new = new.sort_values(["problem", "instance"], kind="mergesort").reset_index(drop=True)
-    tmp = path.with_suffix(".csv.tmp")
-    new.to_csv(tmp, index=False)
-    tmp.replace(path)
-    return new
+        table = _write_targets(path, pd.DataFrame(rows, columns=TARGET_COLUMNS))
+    return table
+
+
+def _merge_target(old: dict, new: dict) -> dict:
+    """One case's row from an earlier call and this one (:func:`make_targets`)."""
+    same = all(float(old[k]) == float(new[k]) for k in ("reference_multiplier", "budget_multiplier"))
+    if not same:
+        return new
+    names = list(dict.fromkeys(str(old["reference"]).split("+") + str(new["reference"]).split("+")))
+    better = new if float(new["f_best"]) <= float(old["f_best"]) else old
+    return {**new, "f_best": float(better["f_best"]), "commit": better["commit"], "date": better["date"],
+            "reference": "+".join(names)}
+
+
+def _write_targets(path: Path, new: pd.DataFrame) -> pd.DataFrame:
+    """Merge ``new`` rows into the table at ``path`` (read and written under a lock, atomically)."""
+    with _table_lock(path):
+        old = load_targets(path)
+        rows = {(str(r["problem"]), int(r["instance"])): r for r in old.to_dict("records")}
+        for r in new.to_dict("records"):
+            key = (str(r["problem"]), int(r["instance"]))
+            rows[key] = _merge_target(rows[key], r) if key in rows else r
+        table = pd.DataFrame(list(rows.values()), columns=TARGET_COLUMNS)
+        table = table.sort_values(["problem", "instance"], kind="mergesort").reset_index(drop=True)
+        with atomic_path(path) as tmp:
+            table.to_csv(tmp, index=False)
+    return table
+
+
+@contextlib.contextmanager
+def _table_lock(path: Path):
+    """Hold an exclusive lock on the folder of ``path`` (waits for another writer; none on
+    systems without ``fcntl``, where one writer at a time is the user's to keep)."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows
+        yield
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # closing releases the lock
 
 
 # -- running -----------------------------------------------------------------------------------
@@ -574,6 +621,8 @@ def _parser():
                          f"{','.join(REFERENCE + MULTI_OBJECTIVE_REFERENCE)})")
     ap.add_argument("--reference-multiplier", type=float, default=50.0,
                     help="their budget, in multiples of the suite's (default 50)")
+    ap.add_argument("--reference-runs", type=int, default=1,
+                    help="runs per reference algorithm and instance (default 1; --runs sets random search's)")
     ap.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     ap.add_argument("--no-ioh", action="store_true", help="skip the IOHprofiler export")
     ap.add_argument("--plugin", action="append", default=[],
@@ -654,9 +703,11 @@ def run(argv=None) -> int:
         if args.make_targets:
             reference = _algorithms(args.reference)
             _multiplier(args.reference_multiplier, "--reference-multiplier")
+            if args.reference_runs < 1:
+                raise ConfigError(f"--reference-runs must be >= 1, got {args.reference_runs}")
             table = make_targets(suite, problems, instances, out, reference=reference,
-                                 reference_multiplier=args.reference_multiplier, runs=runs, jobs=args.jobs,
-                                 stream=stream)
+                                 reference_multiplier=args.reference_multiplier, reference_runs=args.reference_runs,
+                                 runs=runs, jobs=args.jobs, stream=stream)
             print(f"suite: targets of {len(problems)} problem(s) x {len(instances)} instance(s) written "
                   f"({len(table)} rows in experiments/suite/targets.csv)", file=stream)
             return 0
