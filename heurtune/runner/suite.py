@@ -466,7 +466,9 @@ def _merge_target(old: dict, new: dict) -> dict:
     same = all(float(old[k]) == float(new[k]) for k in ("reference_multiplier", "budget_multiplier"))
     if not same:
         return new
-    names = list(dict.fromkeys(str(old["reference"]).split("+") + str(new["reference"]).split("+")))
+    order = REFERENCE + MULTI_OBJECTIVE_REFERENCE
+    names = sorted(set(str(old["reference"]).split("+") + str(new["reference"]).split("+")),
+                   key=lambda a: (order.index(a) if a in order else len(order), a))
     better = new if float(new["f_best"]) <= float(old["f_best"]) else old
     return {**new, "f_best": float(better["f_best"]), "commit": better["commit"], "date": better["date"],
             "reference": "+".join(names)}

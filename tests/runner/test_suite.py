@@ -205,11 +205,61 @@ def _run(capsys, *argv):
     (["--instances", "x"], "--instances: 'x' is not an instance number"),
     (["--budget-multiplier", "0"], "--budget-multiplier must be a number > 0"),
     (["--runs", "0"], "--runs must be >= 1"),
+    (["--make-targets", "--reference-runs", "0"], "--reference-runs must be >= 1"),
     (["--algorithms", "cs", "--problems", "pid-min-iae-tv"], "--algorithms: none of cs takes these problems"),
 ])
 def test_bad_input_is_one_line_and_exit_2(capsys, argv, message):
     code, _, err = _run(capsys, *argv)
     assert code == 2 and err.startswith(f"error: {message}") and err.count("\n") == 1
+
+
+def _target_row(problem, instance, f_best, reference, commit, reference_multiplier=50.0):
+    return dict(problem=problem, instance=instance, f_best=f_best, f_random=9.0, random_runs=5, random_feasible=5,
+                reference=reference, reference_multiplier=reference_multiplier, budget_multiplier=100.0,
+                commit=commit, date="2026-12-07")
+
+
+def test_separate_make_targets_calls_fill_one_table_with_the_better_value(tmp_path):
+    path = tmp_path / "targets.csv"
+    S._write_targets(path, pd.DataFrame([_target_row("a", 1, 2.0, "cmaes_sqp", "c1"),
+                                         _target_row("a", 2, 3.0, "cmaes_sqp", "c1")], columns=S.TARGET_COLUMNS))
+    S._write_targets(path, pd.DataFrame([_target_row("a", 1, 2.5, "lshade", "c2"),
+                                         _target_row("a", 2, 1.0, "lshade", "c2"),
+                                         _target_row("b", 1, 4.0, "lshade", "c2")], columns=S.TARGET_COLUMNS))
+    table = S.load_targets(path).set_index(["problem", "instance"])
+    assert table.loc[("a", 1), ["f_best", "commit"]].tolist() == [2.0, "c1"]  # the earlier run was better
+    assert table.loc[("a", 2), ["f_best", "commit"]].tolist() == [1.0, "c2"]
+    assert set(table["reference"].iloc[:2]) == {"cmaes_sqp+lshade"} and table.loc[("b", 1), "reference"] == "lshade"
+    # a row made for other budgets is replaced, not merged: its value answers another question
+    S._write_targets(path, pd.DataFrame([_target_row("a", 1, 5.0, "jso", "c3", reference_multiplier=10.0)],
+                                        columns=S.TARGET_COLUMNS))
+    row = S.load_targets(path).set_index(["problem", "instance"]).loc[("a", 1)]
+    assert (row["f_best"], row["reference"], row["reference_multiplier"]) == (5.0, "jso", 10.0)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["targets.csv"]  # no temporary or lock file left
+
+
+def test_the_shipped_targets_rows_are_made_at_the_suite_budgets_by_a_commit_of_this_history(suite):
+    table = S.load_targets()
+    if table.empty:
+        pytest.skip("experiments/suite/targets.csv is not made yet")
+    names = {p.name: p for p in suite.problems}
+    assert list(table.columns) == S.TARGET_COLUMNS
+    assert set(table["problem"]) <= set(names), "a row names a problem the suite no longer has"
+    assert table["instance"].between(1, suite.instances).all()
+    assert not table.duplicated(["problem", "instance"]).any()
+    assert (table["budget_multiplier"] == suite.budget_multiplier).all() and (table["reference_multiplier"] > 1).all()
+    for row in table.itertuples():
+        kind = S.MULTI_OBJECTIVE_REFERENCE if names[row.problem].multi_objective else S.REFERENCE
+        assert set(row.reference.split("+")) <= set(kind), f"{row.problem}: reference {row.reference}"
+        assert np.isfinite(row.f_best) and row.f_best <= row.f_random, row  # the reference beats random's median
+        assert row.random_runs == suite.runs and len(str(row.commit)) >= 7
+    root = S.suite_dir().parents[1]
+    shallow = subprocess.run(["git", "rev-parse", "--is-shallow-repository"], cwd=root, capture_output=True, text=True)
+    if (root / ".git").exists() and shallow.stdout.strip() == "false":  # a shallow clone lacks the older commits
+        for commit in set(table["commit"].astype(str)):
+            known = subprocess.run(["git", "merge-base", "--is-ancestor", commit, "HEAD"], cwd=root,
+                                   capture_output=True)
+            assert known.returncode == 0, f"targets.csv: commit {commit} is not in this checkout's history"
 
 
 def test_list_names_every_problem(capsys, suite):
@@ -297,9 +347,11 @@ def test_make_targets_writes_the_table_the_leaderboard_reads(tmp_path, suite):
     table_path = tmp_path / "targets.csv"
     problem = suite.problem("pid-min")
     table = S.make_targets(suite, [problem], [1, 2], tmp_path / "ref", reference=("cs",), reference_multiplier=0.05,
-                           runs=2, path=table_path, stream=open(tmp_path / "log", "w"))
+                           reference_runs=2, runs=2, path=table_path, stream=open(tmp_path / "log", "w"))
     assert list(table["instance"]) == [1, 2] and set(table["problem"]) == {"pid-min"}
     assert (table["random_runs"] == 2).all() and table["reference"].eq("cs").all()
+    ref = pd.read_parquet(tmp_path / "ref" / "reference" / "pid-min" / "cs" / "runs.parquet")
+    assert len(ref) == 4 and ref["n_evals"].max() <= round(0.05 * 100 * 6)
     assert np.isfinite(table["f_best"]).all() and np.isfinite(table["f_random"]).all()
     done = S.run_suite(suite, [problem], ["cs"], [1, 2], tmp_path / "runs", multiplier=2.0, runs=2,
                        stream=open(tmp_path / "log2", "w"))
