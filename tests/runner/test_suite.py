@@ -336,9 +336,15 @@ def test_the_multi_objective_pair_has_its_own_leaderboard_by_hypervolume(tmp_pat
     used = pd.read_csv(out / "multiobjective" / "targets_used.csv")
     runs = pd.read_parquet(out / "pid-min-iae-tv" / "nsga2" / "runs.parquet")
     volume = suite.problem("pid-min-iae-tv").volume
-    # the best known is the best deficit of the runs: 1 - HV / volume of the best front
+    # the best known is the best deficit of the runs, 1 - HV / volume of the best front, or the
+    # shipped targets table's value where it has the case and is better
     best = min(1.0 - pd.read_parquet(out / "pid-min-iae-tv" / alg / "runs.parquet")["hypervolume"].max() / volume
                for alg in ("nsga2", "random_search"))
+    table = S.load_targets().set_index(["problem", "instance"])
+    key = ("pid-min-iae-tv", 1)
+    if key in table.index:
+        best = min(best, float(table.loc[key, "f_best"]))
+    assert used["source"].iloc[0] == ("table" if key in table.index else "results")
     assert 0.0 < used["f_best"].iloc[0] < 1.0
     assert_close(used["f_best"].iloc[0], best, rtol=1e-12, because="the same division of the same hypervolume")
     assert runs["hypervolume"].gt(0).all()
