@@ -116,8 +116,14 @@ def _final(runs: pd.DataFrame) -> pd.Series:
     return runs["best_f"].astype(float).where(runs["feasible"].astype(bool), np.inf)
 
 
-def targets_table(targets: pd.DataFrame, runs: pd.DataFrame, n_targets: int) -> tuple:
-    """The targets of every case: from the suite's table where it has the case, else from the runs.
+def targets_table(targets: pd.DataFrame, runs: pd.DataFrame, n_targets: int, *, multiplier: float) -> tuple:
+    """The targets of every case: from the suite's table where it has the case for this budget,
+    else from the runs.
+
+    A table row is made for one budget (its ``budget_multiplier``): its ``f_random`` is random
+    search's median at that budget and its targets are spaced up to it. Runs at another budget
+    (``--smoke``, ``--budget-multiplier``) take their targets from their own results, as a
+    table made for 100 x dim evaluations would leave every target out of reach of 5 x dim.
 
     Parameters
     ----------
@@ -126,6 +132,8 @@ def targets_table(targets: pd.DataFrame, runs: pd.DataFrame, n_targets: int) -> 
     runs : pandas.DataFrame
         The runs of :func:`collect`.
     n_targets : int
+    multiplier : float
+        The runs' budget in evaluations per dimension; only table rows made for it are used.
 
     Returns
     -------
@@ -135,8 +143,9 @@ def targets_table(targets: pd.DataFrame, runs: pd.DataFrame, n_targets: int) -> 
         ``random_search``'s where it ran, else the largest final value of a successful run).
     """
     rows, sources = [], []
-    known = {(str(p), int(i)): (float(b), float(r)) for p, i, b, r in
-             targets[["problem", "instance", "f_best", "f_random"]].itertuples(index=False)} if len(targets) else {}
+    known = {(str(p), int(i)): (float(b), float(r)) for p, i, b, r, m in
+             targets[["problem", "instance", "f_best", "f_random", "budget_multiplier"]].itertuples(index=False)
+             if np.isclose(float(m), float(multiplier), rtol=1e-12, atol=0.0)} if len(targets) else {}
     finals = runs.assign(_f=_final(runs))
     for case, g in finals.groupby("case", sort=False):
         key = (str(g["problem"].iloc[0]), int(g["instance"].iloc[0]))
@@ -398,8 +407,8 @@ def write_leaderboard(out, runs: pd.DataFrame, measures: dict, friedman: Friedma
         sources.to_csv(tmp, index=False)
     from_table = int((sources["source"] == "table").sum())
     notes = [f"Budget: {multiplier:g} x dimension evaluations per run. Targets: {len(sources)} (problem, instance) "
-             f"cases, {from_table} from experiments/suite/targets.csv, {len(sources) - from_table} from these "
-             f"results (best final value; easiest target the median of random_search, else the largest "
+             f"cases, {from_table} from experiments/suite/targets.csv (rows made for this budget), "
+             f"{len(sources) - from_table} from these results (best final value; easiest target the median of random_search, else the largest "
              f"successful final value)."]
     if friedman.skipped:
         notes.append(f"Friedman test not run: {friedman.skipped}.")

@@ -806,7 +806,7 @@ def _board(suite, done, out, multiplier, figures, targets_path, title, note) -> 
                 if config else None
     if any(d is None for d in dims.values()):
         raise ConfigError("suite: a results folder has no config in its meta.json; rerun the suite")
-    targets, sources = lb.targets_table(load_targets(targets_path), runs, N_TARGETS)
+    targets, sources = lb.targets_table(load_targets(targets_path), runs, N_TARGETS, multiplier=multiplier)
     measures = lb.suite_measures(runs, history, targets, dims, multiplier, {p.name: p.group or "all"
                                                                            for p in suite.problems})
     return lb.write_leaderboard(out, runs, measures, lb.friedman_final(runs), sources, multiplier=multiplier,
