@@ -408,8 +408,8 @@ def write_leaderboard(out, runs: pd.DataFrame, measures: dict, friedman: Friedma
     from_table = int((sources["source"] == "table").sum())
     notes = [f"Budget: {multiplier:g} x dimension evaluations per run. Targets: {len(sources)} (problem, instance) "
              f"cases, {from_table} from experiments/suite/targets.csv (rows made for this budget), "
-             f"{len(sources) - from_table} from these results (best final value; easiest target the median of random_search, else the largest "
-             f"successful final value)."]
+             f"{len(sources) - from_table} from these results (best final value; easiest target the median of "
+             f"random_search, else the largest successful final value)."]
     if friedman.skipped:
         notes.append(f"Friedman test not run: {friedman.skipped}.")
     else:
