@@ -67,6 +67,7 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_engine.py
 	$(BIN)/python benchmarks/bench_robust.py
 	$(BIN)/python benchmarks/bench_tito_margins.py
+	$(BIN)/python benchmarks/bench_qtp_margins.py
 	$(BIN)/python benchmarks/work_precision_tito.py
 	$(BIN)/python benchmarks/bench_batch.py --gpu
 	$(BIN)/python benchmarks/work_precision.py

@@ -133,3 +133,21 @@ def test_import_heurtune_loads_no_plant_family_and_no_plotting():
               "assert heurtune.Experiment.__module__ == 'heurtune.objectives.qtp.family'\n")
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
+
+
+def test_a_config_loads_only_the_family_of_its_plant():
+    """A QTP config imports the QTP family, not the TITO one (scipy.signal with it: 1.7 s of a
+    command's start); a model no family has loads them all and the error names every model."""
+    import subprocess
+    import sys
+
+    script = ("import sys\n"
+              "from heurtune.core.errors import ConfigError\n"
+              "from heurtune.core.families import available, get_family\n"
+              "assert get_family('qtp').name == 'qtp'\n"
+              "assert 'heurtune.objectives.tito.family' not in sys.modules\n"
+              "try:\n    get_family('no_such_plant')\nexcept ConfigError as e:\n    message = str(e)\n"
+              "assert 'heurtune.objectives.tito.family' in sys.modules\n"
+              "assert all(m in message for m in available()) and 'tito' in available(), message\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr

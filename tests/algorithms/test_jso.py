@@ -98,6 +98,7 @@ def test_sphere_and_rosenbrock_at_the_cec_budget():
     assert heurtune.minimize(rosenbrock, [-100.0] * 10, [100.0] * 10, "jso", max_evals=100000, seed=1).f < 1e-4
 
 
+@pytest.mark.long  # 7 s on the EPYC: `make test` has the sphere and Rosenbrock at the CEC budget
 def test_shifted_rotated_rastrigin_10d():
     """CEC 2017's F5 form, ``z = M (0.0512 (x - o))``, with a rotation and shift of our own (the
     competition's matrices are not here): the CEC 2017 entries of the SHADE family end a few

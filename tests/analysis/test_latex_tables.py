@@ -24,6 +24,10 @@ from heurtune.analysis.render import report
 from heurtune.objectives.qtp.thesis import tables as thesis_tables
 from heurtune.objectives.tito.papers import tables as paper_tables
 
+# writing every chapter's and paper's tables takes 25 s on the EPYC (the printed gains' margins):
+# `make test-long`; `make test` checks the tables of test_thesis_tables and test_printed_papers
+pytestmark = pytest.mark.long
+
 PDFLATEX = shutil.which("pdflatex")
 needs_pdflatex = pytest.mark.skipif(PDFLATEX is None, reason="pdflatex is not installed (an optional tool)")
 

@@ -49,6 +49,7 @@ def test_every_family_meets_the_contract(family, check):
     assert ok, f"{family}: {name}: {reason}"
 
 
+@pytest.mark.long  # 18 s on the EPYC: `make test` runs the same contract on every family above
 def test_check_plugin_runs_the_family_contract_and_names_a_broken_check(tmp_path):
     """``check_plugin FAMILY.py --config EXPERIMENT.toml``: the example family passes every
     check; a copy whose identity is not reproducible fails ``identity`` only."""

@@ -238,6 +238,7 @@ def test_configs_are_checked_with_one_line_errors(ct):
         assert "\n" not in str(info.value) and str(info.value).startswith("t: ")
 
 
+@pytest.mark.long  # 9 s on the EPYC: `make test` runs the family contract on the plugin (test_family_contract)
 def test_plugin_end_to_end_resume_and_evaluate(ct, tmp_path):
     from heurtune.runner.evaluate import run as evaluate
     from heurtune.runner.experiment import run_experiment

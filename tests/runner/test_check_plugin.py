@@ -78,6 +78,7 @@ def test_load_plugin_returns_the_module_it_loaded_for_unit_tests_of_its_update(t
     assert opt.X.shape == (0, 2) and opt.ask().shape == (20, 2)  # empty population, then the initial one
 
 
+@pytest.mark.long  # 7 s on the EPYC: `make test` checks the guide's plugin and a bridge below
 def test_a_shipped_optimiser_passes_by_file_or_module(capsys):
     """A shipped module is checked as imported (loading its file as a plugin would register
     its optimiser twice)."""

@@ -158,6 +158,7 @@ def test_compare_reads_two_smoke_experiments(smoke, tmp_path, capsys):
     assert "problem_id" in capsys.readouterr().err
 
 
+@pytest.mark.long  # 15 s on the EPYC: `make test` runs tasks on a local Dask cluster (test_parallel)
 def test_dask_backend_runs_whole_runs(smoke, tmp_path, capfd):
     distributed = pytest.importorskip("distributed")
     out = tmp_path / "dask"

@@ -94,6 +94,7 @@ def interrupted_line(stderr):
     return lines[0]
 
 
+@pytest.mark.long  # 40 s on the EPYC: `make test` interrupts the lockstep runs and blocked signals below
 def test_interrupts_at_start_mid_run_and_at_the_end_then_resume(tmp_path):
     out = tmp_path / "r"
     # 1. Ctrl-C while the workers start
@@ -127,7 +128,8 @@ def test_interrupts_at_start_mid_run_and_at_the_end_then_resume(tmp_path):
     assert (out / "runs.parquet").exists()
 
 
-@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+# SIGINT in `make test`, SIGTERM (the same handler, another exit code) in `make test-long`
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), pytest.param(signal.SIGTERM, 143, marks=pytest.mark.long)])
 def test_interrupt_in_lockstep(tmp_path, sig, code):
     out = tmp_path / "r"
     proc = start(out, "--lockstep")
@@ -139,7 +141,8 @@ def test_interrupt_in_lockstep(tmp_path, sig, code):
 
 
 @pytest.mark.skipif(not hasattr(signal, "pthread_sigmask"), reason="needs pthread_sigmask")
-@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+# SIGINT in `make test`, SIGTERM (the same handler, another exit code) in `make test-long`
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), pytest.param(signal.SIGTERM, 143, marks=pytest.mark.long)])
 def test_a_command_started_with_the_signals_blocked_still_stops(tmp_path, sig, code):
     """A block inherited from the parent is lifted at start-up: without that the signal waits,
     pending, and the experiment runs to its end with exit code 0. One worker: with a pool, the

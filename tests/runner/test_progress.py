@@ -120,7 +120,8 @@ class _Terminal(io.StringIO):
         return True
 
 
-@pytest.mark.parametrize("jobs", [1, 2])
+# two workers: 17 s on the EPYC, `make test-long` (one worker moves the same line)
+@pytest.mark.parametrize("jobs", [1, pytest.param(2, marks=pytest.mark.long)])
 def test_a_terminal_sees_the_line_move_inside_a_run(tmp_path, jobs, monkeypatch):
     """In this process (one worker) and from the workers' heartbeats (two workers, whole runs),
     the line counts evaluations before any run has finished. The line is read every second and

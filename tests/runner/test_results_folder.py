@@ -333,6 +333,7 @@ def test_a_full_disk_is_one_line_and_the_finished_runs_are_kept(clean, tmp_path,
     assert_same_bits(results(out), results(expected), because="resume")
 
 
+@pytest.mark.long  # 50 s on the EPYC: `make test` kills a worker under a spread run below
 def test_a_killed_worker_names_the_run_and_the_folder_resumes(tmp_path, capsys):
     """An optimiser plugin that kills its worker process (as the OOM killer would)."""
     (tmp_path / "die_opt.py").write_text(

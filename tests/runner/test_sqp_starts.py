@@ -119,6 +119,7 @@ def test_same_starts_with_one_and_two_workers(reference):
     _same(_read(out), whole, "workers")
 
 
+@pytest.mark.long  # 23 s on the EPYC: `make test` has the same starts with one and two workers
 def test_a_stop_at_max_epochs_keeps_the_closed_rounds_whatever_the_workers_or_lockstep(tmp_path):
     """Solves that end after the run's stop (begun on another worker, or in the lockstep's
     window) are saved for a resume but are not in starts.parquet, which is therefore the same

@@ -82,17 +82,28 @@ def test_matrix_phi_levels_match_expm(h):
 
 # -- the loop against the independent FOLQI model ----------------------------------------------
 
+# The FOLQI loops checked against Radau: name -> (case, gains, realisation).
+FOLQI_REFERENCES = {"min": ("min", THESIS_MIN, "direct"), "nmp": ("nmp", THESIS_NMP, "direct"),
+                    "weak": ("min", WEAK, "direct"),
+                    "weak-split": ("min", WEAK, "integer_split")}  # two exact integrators per pump: a dense block
+
+
+class _References(dict):
+    """Radau solutions of the independent FOLQI loop on a 0.05 s grid, each computed once, when
+    a test first asks for it (the weakly damped ones take 10 s each and only `make test-long`
+    reads them)."""
+
+    def __missing__(self, name):
+        case, gains, realisation = FOLQI_REFERENCES[name]
+        t = np.arange(0.0, T + 1e-9, 0.05)
+        y, u = ref.reference_loop(plant_dict(case), gains, t, realisation=realisation, rtol=1e-11, atol=1e-12)
+        self[name] = (t, y, u)
+        return self[name]
+
+
 @pytest.fixture(scope="module")
 def folqi_references():
-    """Radau solutions of the independent FOLQI loop on a 0.05 s grid, computed once."""
-    t = np.arange(0.0, T + 1e-9, 0.05)
-    out = {}
-    for name, case, gains, realisation in [("min", "min", THESIS_MIN, "direct"), ("nmp", "nmp", THESIS_NMP, "direct"),
-                                           ("weak", "min", WEAK, "direct"),
-                                           ("weak-split", "min", WEAK, "integer_split")]:
-        y, u = ref.reference_loop(plant_dict(case), gains, t, realisation=realisation, rtol=1e-11, atol=1e-12)
-        out[name] = (t, y, u)
-    return out
+    return _References()
 
 
 def continuous_run(case, kind, gains, *, realisation="direct", plant_model="qtp", **scenario):
@@ -101,13 +112,11 @@ def continuous_run(case, kind, gains, *, realisation="direct", plant_model="qtp"
     return loop, loop.run(loop.controller(gains), sc)
 
 
-@pytest.mark.parametrize("name, case, gains, realisation", [
-    ("min", "min", THESIS_MIN, "direct"),
-    ("nmp", "nmp", THESIS_NMP, "direct"),
-    ("weak", "min", WEAK, "direct"),
-    ("weak-split", "min", WEAK, "integer_split"),  # two exact integrators per pump: a dense block
-])
-def test_levels_within_the_tolerance_of_the_continuous_reference(folqi_references, name, case, gains, realisation):
+# the weakly damped candidate's Radau references take 10 s each: `make test-long`
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.long) if n.startswith("weak") else n
+                                  for n in FOLQI_REFERENCES])
+def test_levels_within_the_tolerance_of_the_continuous_reference(folqi_references, name):
+    case, gains, realisation = FOLQI_REFERENCES[name]
     t, y_ref, u_ref = folqi_references[name]
     _, sim = continuous_run(case, "folqi", gains, realisation=realisation, tolerance=TOL)
     assert not sim.diverged

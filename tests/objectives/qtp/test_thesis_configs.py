@@ -146,6 +146,9 @@ CHAPTER_TABLES = {
 }
 
 
+# 17-22 s a chapter on the EPYC: `make test-long`; `make test` runs the inline baseline above and
+# writes the tables from printed rows (test_thesis_tables)
+@pytest.mark.long
 @pytest.mark.parametrize("name", sorted(CHAPTER_TABLES))
 def test_chapter_smoke_run_writes_its_tables(name, tmp_path):
     # Chapter 5's end-to-end run is in test_thesis_tables.py.

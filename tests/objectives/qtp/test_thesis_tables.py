@@ -375,6 +375,7 @@ def test_rendering_markdown_and_latex(tmp_path):
 # End to end on a real smoke run
 # ----------------------------------------------------------------------------------------------
 
+@pytest.mark.long  # 18 s on the EPYC: `make test` writes the tables from printed rows
 def test_write_chapter5_on_a_real_smoke_run(tmp_path):
     import heurtune
     from heurtune.runner.experiment import run_experiment

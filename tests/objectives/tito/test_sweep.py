@@ -94,6 +94,7 @@ def test_gpm_phim_sweep_on_the_exact_line(exp):
     assert all(df.attrs["status"] == "ok" for df in resp["fopdt"].values())
 
 
+@pytest.mark.long  # 13 s on the EPYC: `make test` runs the GPM sweep
 def test_mt_sweep_as_gamma_m_meets_its_bound(exp, tmp_path):
     written = run_sweep(exp, "gamma_m", [1.2, 1.5], tmp_path, max_evals=500, settings={"starts": 5}, seed=1)
     assert [p.name for p in written] == ["sweep_gamma_m.parquet", "sweep_gamma_m_fopdt.png"]

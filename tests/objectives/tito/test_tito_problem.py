@@ -252,6 +252,7 @@ def test_runner_writes_tito_outputs_and_resumes(tmp_path, capsys):
     assert_same_bits(pd.read_parquet(out / "runs.parquet")["best_f"], runs["best_f"], because="resume")
 
 
+@pytest.mark.long  # 15 s on the EPYC: `make test` has the QTP's (test_experiment) and the SQP starts'
 def test_same_seed_same_results_with_two_workers(tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     assert run(["ga_pi_ccts", "--smoke", "--no-figures", "--out", str(a)]) == 0
