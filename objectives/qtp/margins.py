@@ -125,12 +125,15 @@ def _crossings(sys, omega) -> tuple:
     def response(w):
         return complex(np.squeeze(sys(1j * w)))
 
-    values = np.asarray(np.squeeze(sys(1j * omega)), dtype=complex).ravel()
+    with np.errstate(all="ignore"):  # a pole on the grid: an infinite sample, no interval there
+        values = np.asarray(np.squeeze(sys(1j * omega)), dtype=complex).ravel()
+    finite = np.isfinite(values)
+    usable = finite[:-1] & finite[1:]
     arg = np.angle(-values)
-    at = np.flatnonzero(np.diff(np.sign(arg)))
+    at = np.flatnonzero((np.diff(np.sign(arg)) != 0) & usable)
     at = at[values.real[at] <= 0.0]
     w_phase = np.array([brentq(lambda w: np.angle(-response(w)), omega[i], omega[i + 1]) for i in at])
-    at = np.flatnonzero(np.diff(np.sign(np.abs(values) - 1.0)))
+    at = np.flatnonzero((np.diff(np.sign(np.abs(values) - 1.0)) != 0) & usable)
     w_gain = np.array([brentq(lambda w: abs(response(w)) - 1.0, omega[i], omega[i + 1]) for i in at])
     with np.errstate(divide="ignore"):
         gain_margin = np.array([1.0 / abs(response(w)) for w in w_phase])

@@ -10,6 +10,7 @@ far inside the tolerances used below.
 """
 
 import math
+import warnings
 
 import control
 import numpy as np
@@ -160,6 +161,16 @@ def test_textbook_integrator_loop_has_infinite_gain_margin():
     assert m["gain_crossover_rad_s"] == pytest.approx(wc, rel=1e-11)
     assert m["phase_margin_deg"] == pytest.approx(90.0 - math.degrees(math.atan(wc)), abs=1e-9)
     assert m["gain_margin_db"] == math.inf and math.isnan(m["phase_crossover_rad_s"])
+
+
+def test_a_pole_on_the_grid_leaves_out_its_intervals():
+    # L = 1/(s^2 + 1) sampled at its pole w = 1: the infinite sample bounds no crossover (the
+    # real crossovers of this L are at w = 0 and w = sqrt(2), outside or at a left-out interval)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = siso_margins(control.tf([1.0], [1.0, 0.0, 1.0]), [0.5, 1.0, 2.0, 3.0])
+    assert (m["n_gain_crossovers"], m["n_phase_crossovers"]) == (0, 0)
+    assert m["gain_margin_db"] == math.inf and m["phase_margin_deg"] == math.inf
 
 
 def test_no_gain_crossover_gives_infinite_phase_margin():
