@@ -48,8 +48,11 @@ def one_by_one(loop, ctrls, scenarios):
     return np.array([[r.diverged for r in row] for row in runs]), np.array([[r.metrics for r in row] for row in runs])
 
 
+# the integer split (a dense controller block, the weak candidate's long run one by one): 9 s on
+# the EPYC, `make test-long`
 @pytest.mark.parametrize("kind, options", [("folqi", {}), ("folqi", {"plant_model": "qtp_bond_graph"}),
-                                           ("folqi", {"realisation": "integer_split"}), ("iolqi", {})])
+                                           pytest.param("folqi", {"realisation": "integer_split"},
+                                                        marks=pytest.mark.long), ("iolqi", {})])
 def test_cpu_lanes_equal_the_one_candidate_path_bit_for_bit(kind, options):
     """Lanes of two structures in one batch (the modal controllers and a stateless one, which
     diverges in two scenarios): same flags, same metrics to the bit."""
@@ -111,6 +114,7 @@ print(json.dumps(out))
 """
 
 
+@pytest.mark.long  # 6 s on the EPYC: `make test` runs the sampled kernel under the simulator (test_batch_kernels)
 def test_cuda_kernel_under_the_simulator_follows_the_one_candidate_path():
     """The CUDA kernel of the continuous loop, run by Numba's CUDA simulator: the thesis gains
     under the plain scenario, and a weakly damped and a diverging controller under 3 scenarios
