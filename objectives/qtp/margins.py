@@ -114,8 +114,9 @@ def _crossings(sys, omega) -> tuple:
     between two grid points where ``arg(-L)`` (with ``Re L <= 0`` at the first) or ``|L| - 1``
     changes sign, and Brent's method finds it. Here the root is found on ``L(jw)`` itself,
     evaluated by python-control from the state space, not on a spline through the samples:
-    exact to the root finder's tolerance (2e-12 rad/s) and ten times faster, as the spline's
-    evaluations and the stability margin (which heurtune does not report) were 90 % of the time.
+    exact to the root finder's tolerance (2e-12 rad/s) and 4-5 times faster per loop, the
+    sampling included (the spline's evaluations and the stability margin, which heurtune does
+    not report, were most of python-control's time; ``benchmarks/bench_qtp_margins.py``).
 
     Returns
     -------

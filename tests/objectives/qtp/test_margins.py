@@ -164,8 +164,9 @@ def test_textbook_integrator_loop_has_infinite_gain_margin():
 
 
 def test_a_pole_on_the_grid_leaves_out_its_intervals():
-    # L = 1/(s^2 + 1) sampled at its pole w = 1: the infinite sample bounds no crossover (the
-    # real crossovers of this L are at w = 0 and w = sqrt(2), outside or at a left-out interval)
+    # L = 1/(s^2 + 1) sampled at its pole w = 1: the infinite sample bounds no bracket (|L| = 1
+    # at w = 0, off the grid, and at sqrt(2), inside the left-out interval; beyond w = 1, L is
+    # real negative throughout, so no sign of arg(-L) changes)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         m = siso_margins(control.tf([1.0], [1.0, 0.0, 1.0]), [0.5, 1.0, 2.0, 3.0])
