@@ -55,7 +55,6 @@ import math
 from fractions import Fraction
 
 import numpy as np
-import scipy.linalg
 import scipy.signal
 
 from heurtune.core.errors import ConfigError
@@ -66,11 +65,14 @@ from .model import ParallelPID, PIController
 from .sim import _poly, controller_tf, input_noise, measurement_noise, vary_plant
 
 __all__ = ["DEFAULT_TOLERANCE", "ContinuousRun", "ContinuousTITOLoop", "ContinuousTITOSimulator", "ErrorCubics",
-           "PlantSide", "balanced", "check_continuous_plant", "coarsest_step"]
+           "PlantSide", "check_continuous_plant", "coarsest_step"]
 
 # Gauss-Lobatto nodes on [0, 1] (cubic through both ends and two interior points)
 NODES = np.array([0.0, 0.5 - 0.5 / math.sqrt(5.0), 0.5 + 0.5 / math.sqrt(5.0), 1.0])
 _COMMENSURATE_TOL = 1e-9
+# node values -> the coefficients a_k of w(tau) = sum a_k tau^k / k! (the chain of integrators'
+# initial state in a path's transition matrices)
+_FROM_NODES = np.linalg.inv(np.array([[tau ** k / math.factorial(k) for k in range(NODES.size)] for tau in NODES]))
 SIGNAL_LIMIT = 1.0e12
 # the continuous loop's default tolerance on the outputs (a config without sample_time or
 # tolerance): 0.1 % of the presets' unit set-point steps
@@ -85,6 +87,18 @@ def _ss(num, den):
         return np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0)), float(num[-1] / den[0]) if num.size else 0.0
     A, B, C, D = scipy.signal.tf2ss(num, den)
     return A, B.reshape(-1, 1), C.reshape(1, -1), float(D[0, 0])
+
+
+def _controller_ss(num, den):
+    """:func:`_ss` of a controller, remembered for the candidate's other steps of the ladder
+    (fresh copies: the callers own their arrays)."""
+    A, B, C, D = _controller_ss_cached(tuple(np.asarray(num, float).ravel()), tuple(np.asarray(den, float).ravel()))
+    return A.copy(), B.copy(), C.copy(), D
+
+
+@functools.lru_cache(maxsize=64)
+def _controller_ss_cached(num: tuple, den: tuple):
+    return _ss(num, den)
 
 
 def _series(first, second):
@@ -216,7 +230,7 @@ class _Path:
     def __init__(self, system, h: float, shift, target: int, out: int, src: int):
         A, B, C, D = system
         C, D = C.reshape(-1), float(D)
-        self._A, self._B = A, B[:, 0]
+        self._A, self._B = np.ascontiguousarray(A, float), np.ascontiguousarray(B[:, 0], float)
         n, q = A.shape[0], NODES.size
         self.n = n
         self.target, self.out, self.src = target, out, src
@@ -258,50 +272,9 @@ class _Path:
 
     def _transitions(self, length: float, offsets):
         """``E[i]``, ``H[i]``: the state at ``offsets[i]`` (fractions of a sub-step of ``length``
-        seconds) is ``E[i] x + H[i] w`` for a cubic input with values ``w`` at its nodes."""
-        n, q = self.n, NODES.size
-        # chain of integrators: a0' = a1, ..., input w(tau) = a0(tau) = sum_k alpha_k tau^k / k!
-        M = np.zeros((n + q, n + q))
-        M[:n, :n] = self._A * length
-        M[:n, n] = self._B * length
-        for k in range(q - 1):
-            M[n + k, n + k + 1] = 1.0
-        V = np.array([[tau ** k / math.factorial(k) for k in range(q)] for tau in NODES])
-        Vinv = np.linalg.inv(V)
-        E = np.empty((len(offsets), n, n))
-        H = np.empty((len(offsets), n, q))
-        # balanced first (M = D Mb D^-1, D a diagonal of powers of 2, exact): a stiff filter's
-        # realisation can put 1/Tf^2 beside 1 in M, and its norm (1e8 for a 10 us filter) would
-        # cost the small entries of exp(M) their relative accuracy in the squarings
-        Mb, scale = balanced(M)
-        for i, tau in enumerate(offsets):
-            F = scale[:, None] * kern.expm(Mb * tau) / scale[None, :]
-            E[i] = F[:n, :n]
-            H[i] = F[:n, n:] @ Vinv
-        return E, H
-
-
-def balanced(M: np.ndarray) -> tuple:
-    """``(Mb, scale)`` with ``M = diag(scale) Mb diag(scale)^-1``, the scaling by powers of 2 of
-    LAPACK's ``gebal`` (no permutation).
-
-    scipy's ``matrix_balance`` also casts the scaling factors to int to read a permutation out of
-    them, which warns (``invalid value encountered in cast``) when a factor exceeds 2^63: a
-    perturbed plant's stiff route reached one in the suite. Without permutation that cast is
-    not used; its warning is silenced here, and the scaling is the float one.
-
-    Parameters
-    ----------
-    M : ndarray (m, m)
-
-    Returns
-    -------
-    Mb : ndarray (m, m)
-    scale : ndarray (m,)
-    """
-    with np.errstate(invalid="ignore"):
-        Mb, (scale, _) = scipy.linalg.matrix_balance(M, permute=False, separate=True)
-    return Mb, scale
+        seconds) is ``E[i] x + H[i] w`` for a cubic input with values ``w`` at its nodes
+        (:func:`continuous_kernels.transitions`)."""
+        return kern.transitions(self._A, self._B, float(length), np.asarray(offsets, float), _FROM_NODES)
 
 
 _MATRICES = ("Ox", "O1", "O2", "Sx", "S1", "S2")
@@ -473,6 +446,16 @@ class ContinuousTITOLoop:
     plant_side : PlantSide, optional
         The plant's side of the routes for this step, shared between loops (built here if not
         given).
+    inputs : tuple, optional
+        The scenario's signals on this step, :attr:`inputs` of another loop of the same
+        scenario and step (made here if not given; they do not depend on the controllers).
+
+    Attributes
+    ----------
+    inputs : tuple
+        ``(r, dout, hist, noise)``: set-points less the measurement noise and output
+        disturbances per step, the history holding the input disturbances and input noise at
+        the nodes, the measurement noise at the step boundaries (read only).
     """
 
     @classmethod
@@ -481,7 +464,8 @@ class ContinuousTITOLoop:
         tuning problems' controllers)."""
         return cls(plant, decoupler, tuple(parallel_controller(*map(float, g), N) for g in gains), scenario, step)
 
-    def __init__(self, plant, decoupler, controllers, scenario, step=None, *, signals="yuv", plant_side=None):
+    def __init__(self, plant, decoupler, controllers, scenario, step=None, *, signals="yuv", plant_side=None,
+                 inputs=None):
         h = float(scenario.dt if step is None else step)
         self.h, self.sc = h, scenario
         # the noise is held over scenario.dt: a whole number of steps
@@ -504,7 +488,8 @@ class ContinuousTITOLoop:
                 _multiple(t, h, "a set-point step time")
         _multiple(scenario.input_disturbance[0], h, "the input disturbance time")
         _multiple(scenario.output_disturbance[0], h, "the output disturbance time")
-        self._inputs = self._signals()
+        self.inputs = self._signals() if inputs is None else inputs
+        self.noise = self.inputs[3]
 
     def _restack(self, paths) -> None:
         self._arrays, self._by_kp, self._by_ki, self._loop_of, self._nmax, order = _stack(paths)
@@ -522,7 +507,7 @@ class ContinuousTITOLoop:
                 return _PIPath(_Path(_series(side.unit, system), h, shift, target, out, j),
                                _Path(_series(side.integrator, system), h, shift, target, out, j), j)
         else:
-            own = [_ss(*controller_tf(c, j + 1)) for j, c in enumerate(controllers)]
+            own = [_controller_ss(*controller_tf(c, j + 1)) for j, c in enumerate(controllers)]
 
             def route(system, shift, target, out, j):
                 return _Path(_series(own[j], system), h, shift, target, out, j)
@@ -544,8 +529,7 @@ class ContinuousTITOLoop:
         return out
 
     def _signals(self):
-        """Set-points less the measurement noise and output disturbances per step, and the
-        history holding the input disturbances and input noise at their nodes."""
+        """:attr:`inputs` of this loop's scenario and step."""
         n, h, sc = self.n, self.h, self.sc
         mid = (np.arange(n) + 0.5) * h
         r = np.zeros((n, 2))
@@ -553,10 +537,10 @@ class ContinuousTITOLoop:
             for ts, val in steps:
                 r[mid >= ts, k] = val
         hold = np.arange(n + 1) // self._hold  # the noise sample over each step (and at the end)
-        self.noise = np.zeros((n + 1, 2))
+        noise = np.zeros((n + 1, 2))
         if max(sc.noise_power) > 0:  # e = r - (y + n): the noise held over the step
-            self.noise = measurement_noise(sc)[hold]
-            r -= self.noise[:n]
+            noise = measurement_noise(sc)[hold]
+            r -= noise[:n]
         hold = hold[:n]
         t_out, d_out = sc.output_disturbance
         dout = np.where((mid >= t_out)[:, None], np.asarray(d_out, float)[None, :], 0.0)
@@ -565,7 +549,7 @@ class ContinuousTITOLoop:
         hist[:n, 2:, :] = np.where((mid >= t_in)[:, None, None], np.asarray(d_in, float)[None, :, None], 0.0)
         if sc.has_input_noise:
             hist[:n, 2:, :] += input_noise(sc)[hold, :, None]
-        return r, dout, hist
+        return r, dout, hist, noise
 
     def run(self, controllers=None, signals="yuv"):
         """Simulate the scenario.
@@ -590,7 +574,7 @@ class ContinuousTITOLoop:
             (from the right at a step).
         """
         n = self.n
-        r, dout, hist = self._inputs
+        r, dout, hist, _ = self.inputs
         hist = hist.copy()
         y, u, v = (np.zeros((n + 1, 2)) for _ in range(3))
         a = self._arrays
@@ -779,7 +763,7 @@ class ContinuousTITOSimulator:
         else:
             h0 = coarsest_step(self.plant, scenario)
             self.steps = tuple(h0 / 2 ** j for j in range(self.MAX_HALVINGS + 1))
-        self._pi_loops, self._sides = {}, {}
+        self._pi_loops, self._sides, self._inputs = {}, {}, {}
 
     def _loop(self, controllers, level: int, signals: str):
         h = self.steps[level]
@@ -789,11 +773,13 @@ class ContinuousTITOSimulator:
         if _pi_gains(controllers) is not None:
             if level not in self._pi_loops:  # built once per step: a new PI only recombines its routes
                 self._pi_loops[level] = ContinuousTITOLoop(self.plant, self.decoupler, controllers, self.scenario, h,
-                                                           plant_side=side)
+                                                           plant_side=side, inputs=self._inputs.get(level))
+                self._inputs[level] = self._pi_loops[level].inputs
             loop = self._pi_loops[level]
             return loop, loop.run(controllers, signals)
         loop = ContinuousTITOLoop(self.plant, self.decoupler, controllers, self.scenario, h, signals=signals,
-                                  plant_side=side)
+                                  plant_side=side, inputs=self._inputs.get(level))
+        self._inputs[level] = loop.inputs
         return loop, loop.run(None, signals)
 
     def _record(self, loop, t, y, u, v, estimate):
