@@ -49,7 +49,8 @@ from heurtune.core.io import atomic_path
 from heurtune.runner.config import experiments_dir, list_experiments, load_config
 
 __all__ = ["Suite", "SuiteProblem", "load_suite", "instance_plant", "problem_config", "run_suite", "make_targets",
-           "load_targets", "targets_of", "takes", "N_TARGETS", "SMOKE"]
+           "load_targets", "load_reference_runs", "reference_run_rows", "write_reference_runs", "reference_agreement",
+           "targets_of", "takes", "N_TARGETS", "SMOKE"]
 
 # --smoke: three problems (one with two objectives), two instances, two runs, a budget of 5 x dim.
 SMOKE = dict(problems=("iolqi-min-limits", "pid-min", "pid-min-iae-tv"), instances=(1, 2), runs=2,
@@ -337,6 +338,12 @@ TARGET_COLUMNS = ["problem", "instance", "f_best", "f_random", "random_runs", "r
                   "reference_multiplier", "budget_multiplier", "commit", "date"]
 
 
+# One row per reference algorithm and case: what each reference algorithm reached, beside the best
+# of them that targets.csv keeps (the evidence of how far independent optimisers agree).
+REFERENCE_RUN_COLUMNS = ["problem", "instance", "algorithm", "f_best", "runs", "evaluations", "converged_at",
+                         "seconds", "reference_multiplier", "budget_multiplier", "commit", "date"]
+
+
 def load_targets(path=None) -> pd.DataFrame:
     """``experiments/suite/targets.csv`` (columns :data:`TARGET_COLUMNS`), empty when absent."""
     path = Path(path) if path is not None else suite_dir() / "targets.csv"
@@ -362,6 +369,122 @@ def _best_feasible(results_dir: Path, problem: SuiteProblem) -> pd.DataFrame:
     f = suite_value(runs["best_f"], problem.volume if problem.multi_objective else None)
     f = f.where(runs["feasible"].astype(bool), np.inf)
     return pd.DataFrame({"case": runs["case"], "run": runs["run"], "f": f})
+
+
+def reference_run_rows(results_dir, problem: SuiteProblem, reference_multiplier: float,
+                       budget_multiplier: float) -> list:
+    """Rows of :data:`REFERENCE_RUN_COLUMNS` for one reference algorithm's results folder (one
+    per case): its best feasible score over the runs (inf where none was feasible), the number
+    of runs, their evaluations, the best run's ``convergence_evals``, the median seconds per run, and the commit and date that ``meta.json`` records for the folder.
+
+    Parameters
+    ----------
+    results_dir : str or Path
+        ``OUT/reference/<problem>/<algorithm>`` of :func:`make_targets`.
+    problem : SuiteProblem
+    reference_multiplier, budget_multiplier : float
+        The budgets the runs had (recorded with the rows).
+
+    Returns
+    -------
+    list of dict
+    """
+    results_dir = Path(results_dir)
+    runs = pd.read_parquet(results_dir / "runs.parquet")
+    scores = _best_feasible(results_dir, problem)
+    meta = json.loads((results_dir / "meta.json").read_text(encoding="utf-8"))
+    commit = str(meta.get("git_commit") or "unknown")[:7]
+    date = str(meta.get("written", ""))[:10] or datetime.date.today().isoformat()
+    rows = []
+    for case, g in runs.groupby("case", sort=True):
+        f = scores.loc[g.index, "f"].to_numpy(float)
+        best = int(np.argmin(f))
+        rows.append(dict(problem=problem.name, instance=int(str(case).lstrip("i")),
+                         algorithm=str(g["algorithm"].iloc[0]), f_best=float(f[best]), runs=int(len(g)),
+                         evaluations=int(g["n_evals"].max()), converged_at=int(g["convergence_evals"].iloc[best]),
+                         seconds=float(g["wall_time_s"].median()), reference_multiplier=float(reference_multiplier),
+                         budget_multiplier=float(budget_multiplier), commit=commit, date=date))
+    return rows
+
+
+def load_reference_runs(path=None) -> pd.DataFrame:
+    """``experiments/suite/reference_runs.csv`` (columns :data:`REFERENCE_RUN_COLUMNS`), empty when
+    absent."""
+    path = Path(path) if path is not None else suite_dir() / "reference_runs.csv"
+    if not path.is_file():
+        return pd.DataFrame(columns=REFERENCE_RUN_COLUMNS)
+    return pd.read_csv(path)
+
+
+def write_reference_runs(path, new) -> pd.DataFrame:
+    """Merge rows (:func:`reference_run_rows`) into the table at ``path``, read and written under a
+    lock, atomically: a row replaces the one of the same problem, instance, algorithm and budgets
+    unless its value is the same (then the earlier row, with the commit that made it, stays).
+
+    Parameters
+    ----------
+    path : str or Path
+    new : list of dict or pandas.DataFrame
+
+    Returns
+    -------
+    pandas.DataFrame
+        The table written.
+    """
+    path = Path(path)
+    new = pd.DataFrame(new, columns=REFERENCE_RUN_COLUMNS)
+    key = ["problem", "instance", "algorithm", "reference_multiplier", "budget_multiplier"]
+    with _table_lock(path):
+        old = load_reference_runs(path)
+        # the same value again (a resumed call that ran nothing new) keeps the row's commit and date
+        same = new.merge(old[key + ["f_best"]], on=key + ["f_best"], how="left", indicator=True)["_merge"] == "both"
+        table = pd.concat([old, new[~same.to_numpy()]], ignore_index=True)
+        table = table.drop_duplicates(key, keep="last")
+        table = table.sort_values(["problem", "instance", "algorithm"], kind="mergesort").reset_index(drop=True)
+        with atomic_path(path) as tmp:
+            table.to_csv(tmp, index=False)
+    return table
+
+
+def reference_agreement(runs=None, *, gap: float = 1e-6) -> pd.DataFrame:
+    """Per problem (and budgets), how far its reference algorithms agree.
+
+    Columns: ``reference`` (the algorithms, ``+``-joined), ``cases``, ``largest_gap`` (over the
+    cases, the largest relative distance of an algorithm's best from the best of all),
+    ``cases_apart`` (cases where some algorithm is more than ``gap`` from the best), ``won``
+    (per algorithm, the cases where it holds the best value, ``name:count``), ``converged_by``
+    (per algorithm, the largest fraction of its budget at its best run's ``convergence_evals``,
+    after which that run's best improved by less than the engine's tolerance, 1e-6 relative)
+    and ``seconds`` (median seconds per run).
+
+    Parameters
+    ----------
+    runs : pandas.DataFrame, optional
+        :func:`load_reference_runs` (default the shipped table).
+    gap : float
+        Relative distance counted in ``cases_apart``.
+
+    Returns
+    -------
+    pandas.DataFrame
+    """
+    runs = load_reference_runs() if runs is None else runs
+    out = []
+    for (name, ref_m, budget_m), g in runs.groupby(["problem", "reference_multiplier", "budget_multiplier"],
+                                                   sort=True):
+        algs = sorted(g["algorithm"].unique())
+        piv = g.pivot_table(index="instance", columns="algorithm", values="f_best", aggfunc="min")
+        best = piv.min(axis=1)
+        rel = piv.sub(best, axis=0).div(best.abs().where(best.abs() > 0, 1.0), axis=0)
+        won = (piv.eq(best, axis=0)).sum()
+        conv = (g["converged_at"] / g["evaluations"]).groupby(g["algorithm"]).max()
+        out.append(dict(problem=name, reference="+".join(algs), cases=int(len(piv)),
+                        largest_gap=float(rel.max().max()) if len(algs) > 1 else float("nan"),
+                        cases_apart=int((rel > gap).any(axis=1).sum()),
+                        won=", ".join(f"{a}:{int(won[a])}" for a in algs),
+                        converged_by=", ".join(f"{a}:{conv[a]:.0%}" for a in algs),
+                        seconds=float(g["seconds"].median()), reference_multiplier=ref_m, budget_multiplier=budget_m))
+    return pd.DataFrame(out)
 
 
 # Random search runs both kinds of rows (the floor of each); every other optimiser runs the rows
@@ -439,7 +562,7 @@ def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
     path = Path(path) if path is not None else suite_dir() / "targets.csv"
     table = load_targets(path)
     for p in problems:
-        best = {}
+        best, per_algorithm = {}, []
         used = tuple(a for a in reference if takes(a, p)) or (MULTI_OBJECTIVE_REFERENCE if p.multi_objective
                                                               else REFERENCE)
         for alg in used:
@@ -447,6 +570,7 @@ def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
                          base, jobs, stream)
             for case, g in _best_feasible(d, p).groupby("case"):
                 best[case] = min(best.get(case, np.inf), float(g["f"].min()))
+            per_algorithm += reference_run_rows(d, p, reference_multiplier, suite.budget_multiplier)
         d = _run_one(suite, p, "random_search", instances, suite.budget_multiplier, runs, base, jobs, stream)
         rand = _best_feasible(d, p)
         rows = []
@@ -457,6 +581,7 @@ def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
                              random_feasible=int(np.isfinite(g).sum()), reference="+".join(used),
                              reference_multiplier=reference_multiplier, budget_multiplier=suite.budget_multiplier,
                              commit=_commit(), date=datetime.date.today().isoformat()))
+        write_reference_runs(path.with_name("reference_runs.csv"), per_algorithm)
         table = _write_targets(path, pd.DataFrame(rows, columns=TARGET_COLUMNS))
     return table
 
@@ -469,7 +594,8 @@ def _merge_target(old: dict, new: dict) -> dict:
     order = REFERENCE + MULTI_OBJECTIVE_REFERENCE
     names = sorted(set(str(old["reference"]).split("+") + str(new["reference"]).split("+")),
                    key=lambda a: (order.index(a) if a in order else len(order), a))
-    better = new if float(new["f_best"]) <= float(old["f_best"]) else old
+    # a tie keeps the earlier row's commit and date: a resumed call that ran nothing new made nothing
+    better = new if float(new["f_best"]) < float(old["f_best"]) else old
     return {**new, "f_best": float(better["f_best"]), "commit": better["commit"], "date": better["date"],
             "reference": "+".join(names)}
 
@@ -630,7 +756,23 @@ def _parser():
     ap.add_argument("--plugin", action="append", default=[],
                     help="plugin module or .py file registering an optimiser (repeatable)")
     ap.add_argument("--list", action="store_true", help="list the problems and stop")
+    ap.add_argument("--reference-report", action="store_true",
+                    help="print how far the reference algorithms agree per problem "
+                         "(experiments/suite/reference_runs.csv) as a markdown table and stop")
     return ap
+
+
+def _reference_report(agreement: pd.DataFrame) -> str:
+    """:func:`reference_agreement` as the markdown table of docs/suite.md."""
+    from heurtune.analysis.render import _md_table
+
+    if agreement.empty:
+        return "no reference runs recorded (experiments/suite/reference_runs.csv)"
+    table = agreement.rename(columns={"largest_gap": "largest gap", "cases_apart": "cases > 1e-6 apart",
+                                      "won": "best value held by", "converged_by": "converged by",
+                                      "seconds": "s per run"})
+    table = table.drop(columns=["reference_multiplier", "budget_multiplier"])
+    return _md_table(table, {"largest gap": 2, "s per run": 3})
 
 
 def _instances(text, k_max: int) -> list:
@@ -678,6 +820,9 @@ def run(argv=None) -> int:
         for spec in args.plugin:
             load_registering_plugin(spec)
         suite = load_suite()
+        if args.reference_report:
+            print(_reference_report(reference_agreement()))
+            return 0
         if args.list:
             for p in suite.problems:
                 print(f"{p.name:26s} {p.group:14s} {p.experiment} ({p.case})"

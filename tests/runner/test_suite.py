@@ -232,6 +232,9 @@ def test_separate_make_targets_calls_fill_one_table_with_the_better_value(tmp_pa
     assert table.loc[("a", 1), ["f_best", "commit"]].tolist() == [2.0, "c1"]  # the earlier run was better
     assert table.loc[("a", 2), ["f_best", "commit"]].tolist() == [1.0, "c2"]
     assert set(table["reference"].iloc[:2]) == {"cmaes_sqp+lshade"} and table.loc[("b", 1), "reference"] == "lshade"
+    # a tie (a resumed call that ran nothing new) keeps the commit that made the value
+    S._write_targets(path, pd.DataFrame([_target_row("a", 2, 1.0, "lshade", "c9")], columns=S.TARGET_COLUMNS))
+    assert S.load_targets(path).set_index(["problem", "instance"]).loc[("a", 2), "commit"] == "c2"
     # a row made for other budgets is replaced, not merged: its value answers another question
     S._write_targets(path, pd.DataFrame([_target_row("a", 1, 5.0, "jso", "c3", reference_multiplier=10.0)],
                                         columns=S.TARGET_COLUMNS))
@@ -277,6 +280,53 @@ def test_the_shipped_targets_rows_are_made_at_the_suite_budgets_by_a_commit_of_t
             known = subprocess.run(["git", "merge-base", "--is-ancestor", commit, "HEAD"], cwd=root,
                                    capture_output=True)
             assert known.returncode == 0, f"targets.csv: commit {commit} is not in this checkout's history"
+
+
+def _reference_row(problem, instance, algorithm, f_best, converged_at=10, evaluations=100):
+    return dict(problem=problem, instance=instance, algorithm=algorithm, f_best=f_best, runs=1, evaluations=evaluations,
+                converged_at=converged_at, seconds=5.0, reference_multiplier=50.0, budget_multiplier=100.0,
+                commit="c1", date="2026-12-07")
+
+
+def test_the_reference_runs_table_keeps_each_algorithms_value_and_says_how_far_they_agree(tmp_path):
+    path = tmp_path / "reference_runs.csv"
+    S.write_reference_runs(path, [_reference_row("a", 1, "cmaes_sqp", 2.0), _reference_row("a", 1, "lshade", 2.0),
+                                  _reference_row("a", 2, "cmaes_sqp", 3.0, converged_at=90),
+                                  _reference_row("a", 2, "lshade", 3.3)])
+    # the same algorithm, case and budgets again: replaced, not added
+    table = S.write_reference_runs(path, [_reference_row("a", 2, "lshade", 3.03)])
+    again = table[(table["instance"] == 2) & (table["algorithm"] == "lshade")]
+    assert len(table) == 4 and again["f_best"].tolist() == [3.03]
+    # the same value from a later commit (a resume that ran nothing): the commit that made it stays
+    table = S.write_reference_runs(path, [{**_reference_row("a", 1, "lshade", 2.0), "commit": "c9"}])
+    assert len(table) == 4 and set(table["commit"]) == {"c1"}
+    agreement = S.reference_agreement(S.load_reference_runs(path)).iloc[0]
+    assert agreement["reference"] == "cmaes_sqp+lshade" and agreement["cases"] == 2
+    assert_close(agreement["largest_gap"], 0.01, rtol=1e-12, because="(3.03 - 3) / 3 in floating point")
+    assert agreement["cases_apart"] == 1  # instance 1 is a tie
+    assert agreement["won"] == "cmaes_sqp:2, lshade:1" and agreement["converged_by"] == "cmaes_sqp:90%, lshade:10%"
+    report = S._reference_report(S.reference_agreement(S.load_reference_runs(path)))
+    assert report.splitlines()[2].startswith("| a | cmaes_sqp+lshade | 2 | 0.01 | 1 |")
+
+
+def test_the_shipped_reference_runs_give_the_targets_best_values(suite):
+    """Every row of targets.csv has its reference algorithms' own values in reference_runs.csv,
+    and its best known value is the best of them (the same floats, written by the same calls)."""
+    from numerics import assert_exact
+
+    table, runs = S.load_targets(), S.load_reference_runs()
+    if table.empty:
+        pytest.skip("experiments/suite/targets.csv is not made yet")
+    assert list(runs.columns) == S.REFERENCE_RUN_COLUMNS
+    assert not runs.duplicated(["problem", "instance", "algorithm", "reference_multiplier", "budget_multiplier"]).any()
+    for row in table.itertuples():
+        own = runs[(runs["problem"] == row.problem) & (runs["instance"] == row.instance)
+                   & (runs["reference_multiplier"] == row.reference_multiplier)
+                   & (runs["budget_multiplier"] == row.budget_multiplier)]
+        names = row.reference.split("+")
+        assert set(names) <= set(own["algorithm"]), f"{row.problem} i{row.instance}: {names} not all recorded"
+        assert_exact(own[own["algorithm"].isin(names)]["f_best"].min(), row.f_best,
+                     err_msg=f"{row.problem} i{row.instance}")
 
 
 def test_list_names_every_problem(capsys, suite):
@@ -374,6 +424,9 @@ def test_make_targets_writes_the_table_the_leaderboard_reads(tmp_path, suite):
     ref = pd.read_parquet(tmp_path / "ref" / "reference" / "pid-min" / "cs" / "runs.parquet")
     assert len(ref) == 4 and ref["n_evals"].max() <= round(2.5 * 2 * 6)
     assert np.isfinite(table["f_best"]).all() and np.isfinite(table["f_random"]).all()
+    recorded = S.load_reference_runs(tmp_path / "reference_runs.csv")  # beside the table
+    assert recorded[["instance", "algorithm", "runs"]].values.tolist() == [[1, "cs", 2], [2, "cs", 2]]
+    assert_same_bits(recorded["f_best"].to_numpy(), table["f_best"].to_numpy(), because="same code")
     done = S.run_suite(suite, [problem], ["cs"], [1, 2], tmp_path / "runs", multiplier=2.0, runs=2,
                        stream=open(tmp_path / "log2", "w"))
     S.leaderboard(suite, done, tmp_path / "board", multiplier=2.0, figures=False, ioh=False, targets_path=table_path)
