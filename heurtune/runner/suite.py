@@ -375,7 +375,8 @@ def reference_run_rows(results_dir, problem: SuiteProblem, reference_multiplier:
                        budget_multiplier: float) -> list:
     """Rows of :data:`REFERENCE_RUN_COLUMNS` for one reference algorithm's results folder (one
     per case): its best feasible score over the runs (inf where none was feasible), the number
-    of runs, their evaluations, the best run's ``convergence_evals``, the median seconds per run, and the commit and date that ``meta.json`` records for the folder.
+    of runs, their evaluations, the best run's ``convergence_evals``, the median seconds per
+    run, and the commit and date that ``meta.json`` records for the folder.
 
     Parameters
     ----------
