@@ -718,7 +718,8 @@ def run_suite(suite: Suite, problems, algorithms, instances, out, *, multiplier=
 
 
 # -- the command -------------------------------------------------------------------------------
-DEFAULT_ALGORITHMS = ("cs", "pso", "cmaes", "cmaes_sqp", "lshade", "jso") + MULTI_OBJECTIVE_REFERENCE
+# random search is the floor of both boards, and gives f_random where the targets table has no row
+DEFAULT_ALGORITHMS = ("cs", "pso", "cmaes", "cmaes_sqp", "lshade", "jso", "random_search") + MULTI_OBJECTIVE_REFERENCE
 
 
 def _parser():
@@ -832,8 +833,8 @@ def run(argv=None) -> int:
         if args.smoke:
             names = args.problems.split(",") if args.problems else list(SMOKE["problems"])
             instances = _instances(args.instances, suite.instances) if args.instances else list(SMOKE["instances"])
-            runs = args.runs or SMOKE["runs"]
-            multiplier = args.budget_multiplier or SMOKE["budget_multiplier"]
+            runs = SMOKE["runs"] if args.runs is None else args.runs  # 0 is refused below, not replaced
+            multiplier = SMOKE["budget_multiplier"] if args.budget_multiplier is None else args.budget_multiplier
         else:
             names = args.problems.split(",") if args.problems else [p.name for p in suite.problems]
             instances = _instances(args.instances, suite.instances)

@@ -207,6 +207,8 @@ def _run(capsys, *argv):
     (["--instances", "x"], "--instances: 'x' is not an instance number"),
     (["--budget-multiplier", "0"], "--budget-multiplier must be a number > 0"),
     (["--runs", "0"], "--runs must be >= 1"),
+    (["--smoke", "--runs", "0"], "--runs must be >= 1"),  # not replaced by the smoke default
+    (["--smoke", "--budget-multiplier", "0"], "--budget-multiplier must be a number > 0"),
     (["--make-targets", "--reference-runs", "0"], "--reference-runs must be >= 1"),
     (["--algorithms", "cs", "--problems", "pid-min-iae-tv"], "--algorithms: none of cs takes these problems"),
 ])
