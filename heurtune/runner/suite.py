@@ -562,6 +562,7 @@ def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
     reference = tuple(reference)
     path = Path(path) if path is not None else suite_dir() / "targets.csv"
     table = load_targets(path)
+    started = _commit()
     for p in problems:
         best, per_algorithm = {}, []
         used = tuple(a for a in reference if takes(a, p)) or (MULTI_OBJECTIVE_REFERENCE if p.multi_objective
@@ -577,11 +578,15 @@ def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
         rows = []
         for k in instances:
             g = rand[rand["case"] == f"i{k}"]["f"].to_numpy(float)
+            # the commit and date of the run that holds the best value (its results folder's, so a
+            # checkout pulled while a long call ran does not relabel what the call computed)
+            made = min((r for r in per_algorithm if r["instance"] == k), key=lambda r: r["f_best"],
+                       default=dict(commit=started, date=datetime.date.today().isoformat()))
             rows.append(dict(problem=p.name, instance=k, f_best=best.get(f"i{k}", np.inf),
                              f_random=float(np.median(g)) if g.size else np.inf, random_runs=int(g.size),
                              random_feasible=int(np.isfinite(g).sum()), reference="+".join(used),
                              reference_multiplier=reference_multiplier, budget_multiplier=suite.budget_multiplier,
-                             commit=_commit(), date=datetime.date.today().isoformat()))
+                             commit=made["commit"], date=made["date"]))
         write_reference_runs(path.with_name("reference_runs.csv"), per_algorithm)
         table = _write_targets(path, pd.DataFrame(rows, columns=TARGET_COLUMNS))
     return table

@@ -429,6 +429,7 @@ def test_make_targets_writes_the_table_the_leaderboard_reads(tmp_path, suite):
     recorded = S.load_reference_runs(tmp_path / "reference_runs.csv")  # beside the table
     assert recorded[["instance", "algorithm", "runs"]].values.tolist() == [[1, "cs", 2], [2, "cs", 2]]
     assert_same_bits(recorded["f_best"].to_numpy(), table["f_best"].to_numpy(), because="same code")
+    assert table["commit"].tolist() == recorded["commit"].tolist()  # the commit its results folder records
     done = S.run_suite(suite, [problem], ["cs"], [1, 2], tmp_path / "runs", multiplier=2.0, runs=2,
                        stream=open(tmp_path / "log2", "w"))
     S.leaderboard(suite, done, tmp_path / "board", multiplier=2.0, figures=False, ioh=False, targets_path=table_path)
