@@ -551,3 +551,8 @@ def test_balancing_is_lapacks_and_silent_and_exact():
         Mb, scale = kern.balance(M)
     assert scale.max() > 2.0 ** 63
     assert_exact(scale[:, None] * Mb / scale[None, :], M)
+    # a NaN (LAPACK stops with an error there) leaves the matrix as it is: the run that reads it
+    # diverges and is flagged, nothing raises
+    M[0, 1] = np.nan
+    Mb, scale = kern.balance(M)
+    assert np.isnan(Mb[0, 1]) and (scale == 1.0).all()
