@@ -526,7 +526,9 @@ def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
     as infinite, so the median is infinite when half of them failed).
 
     The table is written after each problem (a long call interrupted keeps the problems it
-    finished; the runs themselves resume from ``out``). A row already in the table for the same
+    finished; the runs themselves resume from ``out``), and each reference algorithm's own
+    values (:func:`reference_run_rows`) to ``reference_runs.csv`` beside it. A row's commit and
+    date are those its best run's results folder records. A row already in the table for the same
     budgets is merged, not replaced: ``f_best`` is the better of the two, ``reference`` names
     the algorithms of both and ``commit``/``date`` are those of the better value, so the
     reference algorithms can be run by separate calls (or sessions, or machines) into one
