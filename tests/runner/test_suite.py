@@ -331,6 +331,16 @@ def test_the_shipped_reference_runs_give_the_targets_best_values(suite):
                      err_msg=f"{row.problem} i{row.instance}")
 
 
+def test_the_docs_agreement_table_is_the_reference_report_of_the_shipped_table():
+    """docs/suite.md shows ``--reference-report``'s table of the shipped reference_runs.csv: a row
+    merged into the table without the docs brought along fails here."""
+    docs = (S.suite_dir().parents[1] / "docs" / "suite.md").read_text(encoding="utf-8").splitlines()
+    report = S._reference_report(S.reference_agreement()).splitlines()
+    start = docs.index(report[0])
+    assert docs[start:start + len(report)] == report
+    assert not docs[start + len(report)].startswith("|"), "the docs table has rows the report does not"
+
+
 def test_list_names_every_problem(capsys, suite):
     code, out, _ = _run(capsys, "--list")
     assert code == 0
