@@ -551,10 +551,15 @@ def _git(*args) -> str | None:
         return None
 
 
+# The checkout's state is read once per process, when run_experiment first starts (before any
+# run): a checkout pulled while a long process runs must not relabel what that process computed
+# with the code it had imported.
+@functools.lru_cache(maxsize=1)
 def _git_commit() -> str:
     return _git("rev-parse", "HEAD") or ""
 
 
+@functools.lru_cache(maxsize=1)
 def _git_dirty() -> bool | None:
     """Whether the checkout has uncommitted changes to tracked files (None outside git)."""
     status = _git("status", "--porcelain", "--untracked-files=no")
@@ -712,6 +717,7 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     """
     if lockstep is None:
         lockstep = device != "cpu"
+    _git_commit(), _git_dirty()  # the source this process runs, read before any run (see _git_commit)
     progress_stream = sys.stdout if progress_stream is None else progress_stream  # the current one
     load_plugins(plugins)
     config = load_config(name)

@@ -31,6 +31,7 @@ import argparse
 import contextlib
 import dataclasses
 import datetime
+import functools
 import io
 import json
 import math
@@ -352,7 +353,10 @@ def load_targets(path=None) -> pd.DataFrame:
     return pd.read_csv(path)
 
 
+@functools.lru_cache(maxsize=1)
 def _commit() -> str:
+    # read once per process (make_targets reads it before its first run): see
+    # heurtune.runner.experiment._git_commit
     try:
         return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                               cwd=Path(__file__).resolve().parent, check=True).stdout.strip()

@@ -239,3 +239,31 @@ def test_progress_shows_the_best_including_runs_kept_from_before_a_resume():
     lines = stream.getvalue().splitlines()
     assert lines[0].startswith("[################........] 2/3 runs") and "best min: 10 [cs]" in lines[0]
     assert "nmp: 3 (infeasible) [pso]" in lines[1]
+
+
+def test_the_commit_recorded_is_the_checkouts_when_the_process_started(tmp_path, monkeypatch):
+    """meta.json names the commit the checkout had when run_experiment started, not when it
+    wrote the file: a checkout pulled while a long process runs must not relabel what the process
+    computed with the code it had imported (it did, for a reference run of the suite)."""
+    import heurtune.runner.experiment as E
+
+    finished = []
+    persist = E._persist
+
+    def counting_persist(*args, **kwargs):
+        finished.append(1)
+        return persist(*args, **kwargs)
+
+    def fake_git(*args):
+        # the "checkout" moves on as soon as a run has finished
+        return ("after" if finished else "before") if args[0] == "rev-parse" else ""
+
+    monkeypatch.setattr(E, "_persist", counting_persist)
+    monkeypatch.setattr(E, "_git", fake_git)
+    E._git_commit.cache_clear(), E._git_dirty.cache_clear()
+    try:
+        out = E.run_experiment("cs_folqi_qtp", runs=1, max_epochs=2, out=tmp_path / "r", figures=False,
+                               progress_stream=open(os.devnull, "w"))
+        assert finished and json.loads((out / "meta.json").read_text())["git_commit"] == "before"
+    finally:
+        E._git_commit.cache_clear(), E._git_dirty.cache_clear()  # the real checkout for later tests
