@@ -117,13 +117,15 @@ def _final(runs: pd.DataFrame) -> pd.Series:
 
 
 def targets_table(targets: pd.DataFrame, runs: pd.DataFrame, n_targets: int, *, multiplier: float) -> tuple:
-    """The targets of every case: from the suite's table where it has the case for this budget,
-    else from the runs.
+    """The targets of every case: from the suite's table where it has the case for this budget
+    and this definition of the problem, else from the runs.
 
     A table row is made for one budget (its ``budget_multiplier``): its ``f_random`` is random
     search's median at that budget and its targets are spaced up to it. Runs at another budget
     (``--smoke``, ``--budget-multiplier``) take their targets from their own results, as a
-    table made for 100 x dim evaluations would leave every target out of reach of 5 x dim.
+    table made for 100 x dim evaluations would leave every target out of reach of 5 x dim. So do
+    runs whose ``problem_id`` is not the row's (the problem was redefined after the row was
+    made: its best known value answers another problem), with the source ``stale``.
 
     Parameters
     ----------
@@ -140,18 +142,22 @@ def targets_table(targets: pd.DataFrame, runs: pd.DataFrame, n_targets: int, *, 
     (table, sources) : pandas.DataFrame
         ``case, target`` rows, and per case ``case, f_best, f_random, source`` (``table``:
         ``targets.csv``; ``results``: the best final value of these runs, and the median of
-        ``random_search``'s where it ran, else the largest final value of a successful run).
+        ``random_search``'s where it ran, else the largest final value of a successful run;
+        ``stale``: the same, where the table's row is of another ``problem_id``).
     """
     rows, sources = [], []
-    known = {(str(p), int(i)): (float(b), float(r)) for p, i, b, r, m in
-             targets[["problem", "instance", "f_best", "f_random", "budget_multiplier"]].itertuples(index=False)
+    known = {(str(p), int(i)): (str(pid), float(b), float(r)) for p, i, pid, b, r, m in
+             targets[["problem", "instance", "problem_id", "f_best", "f_random", "budget_multiplier"]]
+             .itertuples(index=False)
              if np.isclose(float(m), float(multiplier), rtol=1e-12, atol=0.0)} if len(targets) else {}
     finals = runs.assign(_f=_final(runs))
     for case, g in finals.groupby("case", sort=False):
         key = (str(g["problem"].iloc[0]), int(g["instance"].iloc[0]))
         ok = g["_f"][np.isfinite(g["_f"])]
-        if key in known and np.isfinite(known[key][0]):
-            f_best, f_random = known[key]
+        ids = set(g["problem_id"].astype(str)) if "problem_id" in g else set()
+        stale = key in known and ids and ids != {known[key][0]}
+        if key in known and not stale and np.isfinite(known[key][1]):
+            _, f_best, f_random = known[key]
             f_best = min(f_best, float(ok.min())) if ok.size else f_best
             source = "table"
         else:
@@ -160,7 +166,7 @@ def targets_table(targets: pd.DataFrame, runs: pd.DataFrame, n_targets: int, *, 
             f_best = float(ok.min())
             rand = g.loc[g["algorithm"] == "random_search", "_f"]
             f_random = float(np.median(rand)) if rand.size else np.inf
-            source = "results"
+            source = "stale" if stale else "results"
         if not np.isfinite(f_random):
             f_random = float(ok.max()) if ok.size else f_best
         values = targets_of(f_best, max(f_random, f_best), n_targets)
@@ -410,6 +416,11 @@ def write_leaderboard(out, runs: pd.DataFrame, measures: dict, friedman: Friedma
              f"cases, {from_table} from experiments/suite/targets.csv (rows made for this budget), "
              f"{len(sources) - from_table} from these results (best final value; easiest target the median of "
              f"random_search, else the largest successful final value)."]
+    stale = sources.loc[sources["source"] == "stale", "case"].tolist()
+    if stale:
+        notes.append(f"{len(stale)} of them have a row in targets.csv made for an earlier definition of the problem "
+                     f"(another problem_id), not used: {', '.join(stale)}; run `python -m heurtune.suite "
+                     f"--make-targets` for them.")
     if friedman.skipped:
         notes.append(f"Friedman test not run: {friedman.skipped}.")
     else:

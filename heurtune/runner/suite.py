@@ -335,13 +335,15 @@ def problem_config(suite: Suite, problem: SuiteProblem, algorithm: str, instance
 
 
 # -- targets -----------------------------------------------------------------------------------
-TARGET_COLUMNS = ["problem", "instance", "f_best", "f_random", "random_runs", "random_feasible", "reference",
+# problem_id: the runner's fingerprint of the case (core.problem.problem_fingerprint, the
+# ``problem_id`` of runs.parquet): a row is the answer for that definition of the problem only.
+TARGET_COLUMNS = ["problem", "instance", "problem_id", "f_best", "f_random", "random_runs", "random_feasible", "reference",
                   "reference_multiplier", "budget_multiplier", "commit", "date"]
 
 
 # One row per reference algorithm and case: what each reference algorithm reached, beside the best
 # of them that targets.csv keeps (the evidence of how far independent optimisers agree).
-REFERENCE_RUN_COLUMNS = ["problem", "instance", "algorithm", "f_best", "runs", "evaluations", "converged_at",
+REFERENCE_RUN_COLUMNS = ["problem", "instance", "problem_id", "algorithm", "f_best", "runs", "evaluations", "converged_at",
                          "seconds", "reference_multiplier", "budget_multiplier", "commit", "date"]
 
 
@@ -405,7 +407,7 @@ def reference_run_rows(results_dir, problem: SuiteProblem, reference_multiplier:
         f = scores.loc[g.index, "f"].to_numpy(float)
         best = int(np.argmin(f))
         rows.append(dict(problem=problem.name, instance=int(str(case).lstrip("i")),
-                         algorithm=str(g["algorithm"].iloc[0]), f_best=float(f[best]), runs=int(len(g)),
+                         problem_id=str(g["problem_id"].iloc[0]), algorithm=str(g["algorithm"].iloc[0]), f_best=float(f[best]), runs=int(len(g)),
                          evaluations=int(g["n_evals"].max()), converged_at=int(g["convergence_evals"].iloc[best]),
                          seconds=float(g["wall_time_s"].median()), reference_multiplier=float(reference_multiplier),
                          budget_multiplier=float(budget_multiplier), commit=commit, date=date))
@@ -424,7 +426,9 @@ def load_reference_runs(path=None) -> pd.DataFrame:
 def write_reference_runs(path, new) -> pd.DataFrame:
     """Merge rows (:func:`reference_run_rows`) into the table at ``path``, read and written under a
     lock, atomically: a row replaces the one of the same problem, instance, algorithm and budgets
-    unless its value is the same (then the earlier row, with the commit that made it, stays).
+    unless its value is the same (then the earlier row, with the commit that made it, stays). The
+    rows of a case whose ``problem_id`` differs from a new row's are dropped, every algorithm's:
+    they answered an earlier definition of the problem.
 
     Parameters
     ----------
@@ -439,10 +443,15 @@ def write_reference_runs(path, new) -> pd.DataFrame:
     path = Path(path)
     new = pd.DataFrame(new, columns=REFERENCE_RUN_COLUMNS)
     key = ["problem", "instance", "algorithm", "reference_multiplier", "budget_multiplier"]
+    case = ["problem", "instance", "reference_multiplier", "budget_multiplier"]
     with _table_lock(path):
         old = load_reference_runs(path)
+        redefined = old.merge(new[case + ["problem_id"]].drop_duplicates(), on=case, how="left",
+                              suffixes=("", "_new"))["problem_id_new"]
+        old = old[(redefined.isna() | (redefined == old["problem_id"])).to_numpy()]
         # the same value again (a resumed call that ran nothing new) keeps the row's commit and date
-        same = new.merge(old[key + ["f_best"]], on=key + ["f_best"], how="left", indicator=True)["_merge"] == "both"
+        same = new.merge(old[key + ["problem_id", "f_best"]], on=key + ["problem_id", "f_best"], how="left",
+                         indicator=True)["_merge"] == "both"
         table = pd.concat([old, new[~same.to_numpy()]], ignore_index=True)
         table = table.drop_duplicates(key, keep="last")
         table = table.sort_values(["problem", "instance", "algorithm"], kind="mergesort").reset_index(drop=True)
@@ -533,10 +542,11 @@ def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
     finished; the runs themselves resume from ``out``), and each reference algorithm's own
     values (:func:`reference_run_rows`) to ``reference_runs.csv`` beside it. A row's commit and
     date are those its best run's results folder records. A row already in the table for the same
-    budgets is merged, not replaced: ``f_best`` is the better of the two, ``reference`` names
-    the algorithms of both and ``commit``/``date`` are those of the better value, so the
-    reference algorithms can be run by separate calls (or sessions, or machines) into one
-    table. Rows of other problems and instances are kept.
+    budgets and problem definition (``problem_id``) is merged, not replaced: ``f_best`` is the
+    better of the two, ``reference`` names the algorithms of both and ``commit``/``date`` are
+    those of the better value, so the reference algorithms can be run by separate calls (or
+    sessions, or machines) into one table. A row of another definition is replaced. Rows of
+    other problems and instances are kept.
 
     Parameters
     ----------
@@ -581,6 +591,7 @@ def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
             per_algorithm += reference_run_rows(d, p, reference_multiplier, suite.budget_multiplier)
         d = _run_one(suite, p, "random_search", instances, suite.budget_multiplier, runs, base, jobs, stream)
         rand = _best_feasible(d, p)
+        ids = _problem_ids(per_algorithm, d)
         rows = []
         for k in instances:
             g = rand[rand["case"] == f"i{k}"]["f"].to_numpy(float)
@@ -588,7 +599,7 @@ def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
             # checkout pulled while a long call ran does not relabel what the call computed)
             made = min((r for r in per_algorithm if r["instance"] == k), key=lambda r: r["f_best"],
                        default=dict(commit=started, date=datetime.date.today().isoformat()))
-            rows.append(dict(problem=p.name, instance=k, f_best=best.get(f"i{k}", np.inf),
+            rows.append(dict(problem=p.name, instance=k, problem_id=ids[k], f_best=best.get(f"i{k}", np.inf),
                              f_random=float(np.median(g)) if g.size else np.inf, random_runs=int(g.size),
                              random_feasible=int(np.isfinite(g).sum()), reference="+".join(used),
                              reference_multiplier=reference_multiplier, budget_multiplier=suite.budget_multiplier,
@@ -598,8 +609,26 @@ def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
     return table
 
 
+def _problem_ids(per_algorithm: list, random_dir: Path) -> dict:
+    """Per instance, the ``problem_id`` that the reference and random-search runs of one
+    :func:`make_targets` call solved (they must agree: one definition of the problem)."""
+    seen = {}
+    rand = pd.read_parquet(random_dir / "runs.parquet", columns=["case", "problem_id"])
+    pairs = [(r["instance"], r["problem_id"]) for r in per_algorithm]
+    pairs += [(int(str(c).lstrip("i")), str(i)) for c, i in rand.drop_duplicates().itertuples(index=False)]
+    for k, pid in pairs:
+        seen.setdefault(k, set()).add(pid)
+    split = {k: v for k, v in seen.items() if len(v) > 1}
+    if split:
+        raise RuntimeError(f"suite: the reference and random runs of instance(s) {sorted(split)} solved different "
+                           f"problems ({split}); the problem's definition changed between them")
+    return {k: v.pop() for k, v in seen.items()}
+
+
 def _merge_target(old: dict, new: dict) -> dict:
     """One case's row from an earlier call and this one (:func:`make_targets`)."""
+    if str(old.get("problem_id")) != str(new["problem_id"]):
+        return new  # the problem was redefined: the earlier value answers another problem
     same = all(float(old[k]) == float(new[k]) for k in ("reference_multiplier", "budget_multiplier"))
     if not same:
         return new

@@ -217,8 +217,8 @@ def test_bad_input_is_one_line_and_exit_2(capsys, argv, message):
     assert code == 2 and err.startswith(f"error: {message}") and err.count("\n") == 1
 
 
-def _target_row(problem, instance, f_best, reference, commit, reference_multiplier=50.0):
-    return dict(problem=problem, instance=instance, f_best=f_best, f_random=9.0, random_runs=5, random_feasible=5,
+def _target_row(problem, instance, f_best, reference, commit, reference_multiplier=50.0, problem_id="p0"):
+    return dict(problem=problem, instance=instance, problem_id=problem_id, f_best=f_best, f_random=9.0, random_runs=5, random_feasible=5,
                 reference=reference, reference_multiplier=reference_multiplier, budget_multiplier=100.0,
                 commit=commit, date="2026-12-07")
 
@@ -242,6 +242,11 @@ def test_separate_make_targets_calls_fill_one_table_with_the_better_value(tmp_pa
                                         columns=S.TARGET_COLUMNS))
     row = S.load_targets(path).set_index(["problem", "instance"]).loc[("a", 1)]
     assert (row["f_best"], row["reference"], row["reference_multiplier"]) == (5.0, "jso", 10.0)
+    # so is a row of another definition of the problem, though its value is worse
+    S._write_targets(path, pd.DataFrame([_target_row("a", 2, 1.5, "lshade", "c4", problem_id="p1")],
+                                        columns=S.TARGET_COLUMNS))
+    row = S.load_targets(path).set_index(["problem", "instance"]).loc[("a", 2)]
+    assert (row["f_best"], row["reference"], row["problem_id"], row["commit"]) == (1.5, "lshade", "p1", "c4")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["targets.csv"]  # no temporary or lock file left
 
 
@@ -256,6 +261,11 @@ def test_a_table_row_gives_the_targets_only_of_runs_at_the_budget_it_was_made_fo
     # at 5 x dim the table's targets would be out of reach: the runs' own best and random median
     _, used = lb.targets_table(table, runs, lb.N_TARGETS, multiplier=5.0)
     assert used[["f_best", "f_random", "source"]].values.tolist() == [[3.0, 8.0, "results"]]
+    # runs of the case as it is defined now (problem_id) use the row; runs of a redefined problem do not
+    _, used = lb.targets_table(table, runs.assign(problem_id="p0"), lb.N_TARGETS, multiplier=100.0)
+    assert used["source"].tolist() == ["table"]
+    _, used = lb.targets_table(table, runs.assign(problem_id="p1"), lb.N_TARGETS, multiplier=100.0)
+    assert used[["f_best", "f_random", "source"]].values.tolist() == [[3.0, 8.0, "stale"]]
 
 
 def test_the_shipped_targets_rows_are_made_at_the_suite_budgets_by_a_commit_of_this_history(suite):
@@ -284,8 +294,8 @@ def test_the_shipped_targets_rows_are_made_at_the_suite_budgets_by_a_commit_of_t
             assert known.returncode == 0, f"targets.csv: commit {commit} is not in this checkout's history"
 
 
-def _reference_row(problem, instance, algorithm, f_best, converged_at=10, evaluations=100):
-    return dict(problem=problem, instance=instance, algorithm=algorithm, f_best=f_best, runs=1, evaluations=evaluations,
+def _reference_row(problem, instance, algorithm, f_best, converged_at=10, evaluations=100, problem_id="p0"):
+    return dict(problem=problem, instance=instance, problem_id=problem_id, algorithm=algorithm, f_best=f_best, runs=1, evaluations=evaluations,
                 converged_at=converged_at, seconds=5.0, reference_multiplier=50.0, budget_multiplier=100.0,
                 commit="c1", date="2026-12-07")
 
@@ -309,6 +319,42 @@ def test_the_reference_runs_table_keeps_each_algorithms_value_and_says_how_far_t
     assert agreement["won"] == "cmaes_sqp:2, lshade:1" and agreement["converged_by"] == "cmaes_sqp:90%, lshade:10%"
     report = S._reference_report(S.reference_agreement(S.load_reference_runs(path)))
     assert report.splitlines()[2].startswith("| a | cmaes_sqp+lshade | 2 | 0.01 | 1 |")
+    # instance 2 redefined (another problem_id) and run by one algorithm: the other's row of the
+    # earlier definition goes, whatever its value; instance 1 keeps both
+    table = S.write_reference_runs(path, [_reference_row("a", 2, "lshade", 5.0, problem_id="p1")])
+    assert sorted(table[["instance", "algorithm", "problem_id"]].values.tolist()) == [
+        [1, "cmaes_sqp", "p0"], [1, "lshade", "p0"], [2, "lshade", "p1"]]
+
+
+def test_one_make_targets_call_refuses_runs_of_two_definitions_of_a_case(tmp_path):
+    folder = tmp_path / "random_search"
+    folder.mkdir()
+    pd.DataFrame(dict(case=["i1", "i2"], problem_id=["p0", "p9"])).to_parquet(folder / "runs.parquet")
+    reference = [_reference_row("a", 1, "cmaes_sqp", 2.0), _reference_row("a", 2, "cmaes_sqp", 2.0)]
+    with pytest.raises(RuntimeError, match=r"instance\(s\) \[2\] solved different problems"):
+        S._problem_ids(reference, folder)
+    assert S._problem_ids(reference[:1], folder) == {1: "p0", 2: "p9"}
+
+
+def test_the_shipped_targets_are_for_the_problems_as_defined_now(suite, tmp_path):
+    """Each targets row's problem_id is the fingerprint of its case as problems.toml defines it
+    today: an edited row (bounds, overrides, an integrator) or perturbation table without new
+    reference runs fails here, and names the rows to make again."""
+    from heurtune.core.families import make_experiment
+    from heurtune.core.problem import problem_fingerprint
+    from heurtune.runner.config import load_config
+
+    table = S.load_targets()
+    if table.empty:
+        pytest.skip("experiments/suite/targets.csv is not made yet")
+    stale = []
+    for name, rows in table.groupby("problem"):
+        path = S.problem_config(suite, suite.problem(name), "random_search", sorted(rows["instance"]), 1.0, 1,
+                                tmp_path / f"{name}.toml")
+        experiment = make_experiment(load_config(str(path)))
+        stale += [f"{name} i{k}" for k, pid in zip(rows["instance"], rows["problem_id"])
+                  if problem_fingerprint(experiment.problem(f"i{k}")) != pid]
+    assert not stale, f"targets.csv rows made for another definition: {', '.join(stale)} (--make-targets)"
 
 
 def test_the_shipped_reference_runs_give_the_targets_best_values(suite):
@@ -323,6 +369,7 @@ def test_the_shipped_reference_runs_give_the_targets_best_values(suite):
     assert not runs.duplicated(["problem", "instance", "algorithm", "reference_multiplier", "budget_multiplier"]).any()
     for row in table.itertuples():
         own = runs[(runs["problem"] == row.problem) & (runs["instance"] == row.instance)
+                   & (runs["problem_id"] == row.problem_id)
                    & (runs["reference_multiplier"] == row.reference_multiplier)
                    & (runs["budget_multiplier"] == row.budget_multiplier)]
         names = row.reference.split("+")
@@ -440,6 +487,8 @@ def test_make_targets_writes_the_table_the_leaderboard_reads(tmp_path, suite):
     assert recorded[["instance", "algorithm", "runs"]].values.tolist() == [[1, "cs", 2], [2, "cs", 2]]
     assert_same_bits(recorded["f_best"].to_numpy(), table["f_best"].to_numpy(), because="same code")
     assert table["commit"].tolist() == recorded["commit"].tolist()  # the commit its results folder records
+    assert table["problem_id"].tolist() == ref.groupby("case")["problem_id"].first().tolist()
+    assert recorded["problem_id"].tolist() == table["problem_id"].tolist()
     done = S.run_suite(suite, [problem], ["cs"], [1, 2], tmp_path / "runs", multiplier=2.0, runs=2,
                        stream=open(tmp_path / "log2", "w"))
     S.leaderboard(suite, done, tmp_path / "board", multiplier=2.0, figures=False, ioh=False, targets_path=table_path)
