@@ -347,12 +347,17 @@ REFERENCE_RUN_COLUMNS = ["problem", "instance", "problem_id", "algorithm", "f_be
                          "seconds", "reference_multiplier", "budget_multiplier", "commit", "date"]
 
 
+# Hex strings that read_csv would otherwise take for numbers when their digits allow (a commit
+# 3554307, a problem_id 123e4567...: an integer, a float).
+_TEXT_COLUMNS = {"problem": str, "problem_id": str, "commit": str, "reference": str, "algorithm": str, "date": str}
+
+
 def load_targets(path=None) -> pd.DataFrame:
     """``experiments/suite/targets.csv`` (columns :data:`TARGET_COLUMNS`), empty when absent."""
     path = Path(path) if path is not None else suite_dir() / "targets.csv"
     if not path.is_file():
         return pd.DataFrame(columns=TARGET_COLUMNS)
-    return pd.read_csv(path)
+    return pd.read_csv(path, dtype=_TEXT_COLUMNS)
 
 
 @functools.lru_cache(maxsize=1)
@@ -420,7 +425,7 @@ def load_reference_runs(path=None) -> pd.DataFrame:
     path = Path(path) if path is not None else suite_dir() / "reference_runs.csv"
     if not path.is_file():
         return pd.DataFrame(columns=REFERENCE_RUN_COLUMNS)
-    return pd.read_csv(path)
+    return pd.read_csv(path, dtype=_TEXT_COLUMNS)
 
 
 def write_reference_runs(path, new) -> pd.DataFrame:

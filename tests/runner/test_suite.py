@@ -326,6 +326,21 @@ def test_the_reference_runs_table_keeps_each_algorithms_value_and_says_how_far_t
         [1, "cmaes_sqp", "p0"], [1, "lshade", "p0"], [2, "lshade", "p1"]]
 
 
+def test_commits_and_problem_ids_of_digits_only_are_read_back_as_text(tmp_path):
+    # a commit 3554307 came back as an integer, a problem_id 1e45678901ab would come back as a float
+    S._write_targets(tmp_path / "targets.csv", pd.DataFrame([_target_row("a", 1, 2.0, "cs", "3554307",
+                                                                         problem_id="1e45678901ab")]))
+    S.write_reference_runs(tmp_path / "reference_runs.csv", [{**_reference_row("a", 1, "cs", 2.0, problem_id="0123"),
+                                                              "commit": "0012345"}])
+    row = S.load_targets(tmp_path / "targets.csv").iloc[0]
+    assert (row["commit"], row["problem_id"]) == ("3554307", "1e45678901ab")
+    row = S.load_reference_runs(tmp_path / "reference_runs.csv").iloc[0]
+    assert (row["commit"], row["problem_id"]) == ("0012345", "0123")
+    # and a second write keeps them (the merge compares them as text)
+    S._write_targets(tmp_path / "targets.csv", pd.DataFrame([_target_row("a", 1, 2.0, "cs", "9", problem_id="1e45678901ab")]))
+    assert S.load_targets(tmp_path / "targets.csv").iloc[0]["commit"] == "3554307"
+
+
 def test_one_make_targets_call_refuses_runs_of_two_definitions_of_a_case(tmp_path):
     folder = tmp_path / "random_search"
     folder.mkdir()
