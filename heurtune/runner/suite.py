@@ -337,14 +337,14 @@ def problem_config(suite: Suite, problem: SuiteProblem, algorithm: str, instance
 # -- targets -----------------------------------------------------------------------------------
 # problem_id: the runner's fingerprint of the case (core.problem.problem_fingerprint, the
 # ``problem_id`` of runs.parquet): a row is the answer for that definition of the problem only.
-TARGET_COLUMNS = ["problem", "instance", "problem_id", "f_best", "f_random", "random_runs", "random_feasible", "reference",
-                  "reference_multiplier", "budget_multiplier", "commit", "date"]
+TARGET_COLUMNS = ["problem", "instance", "problem_id", "f_best", "f_random", "random_runs", "random_feasible",
+                  "reference", "reference_multiplier", "budget_multiplier", "commit", "date"]
 
 
 # One row per reference algorithm and case: what each reference algorithm reached, beside the best
 # of them that targets.csv keeps (the evidence of how far independent optimisers agree).
-REFERENCE_RUN_COLUMNS = ["problem", "instance", "problem_id", "algorithm", "f_best", "runs", "evaluations", "converged_at",
-                         "seconds", "reference_multiplier", "budget_multiplier", "commit", "date"]
+REFERENCE_RUN_COLUMNS = ["problem", "instance", "problem_id", "algorithm", "f_best", "runs", "evaluations",
+                         "converged_at", "seconds", "reference_multiplier", "budget_multiplier", "commit", "date"]
 
 
 # Hex strings that read_csv would otherwise take for numbers when their digits allow (a commit
@@ -412,7 +412,8 @@ def reference_run_rows(results_dir, problem: SuiteProblem, reference_multiplier:
         f = scores.loc[g.index, "f"].to_numpy(float)
         best = int(np.argmin(f))
         rows.append(dict(problem=problem.name, instance=int(str(case).lstrip("i")),
-                         problem_id=str(g["problem_id"].iloc[0]), algorithm=str(g["algorithm"].iloc[0]), f_best=float(f[best]), runs=int(len(g)),
+                         problem_id=str(g["problem_id"].iloc[0]), algorithm=str(g["algorithm"].iloc[0]),
+                         f_best=float(f[best]), runs=int(len(g)),
                          evaluations=int(g["n_evals"].max()), converged_at=int(g["convergence_evals"].iloc[best]),
                          seconds=float(g["wall_time_s"].median()), reference_multiplier=float(reference_multiplier),
                          budget_multiplier=float(budget_multiplier), commit=commit, date=date))

@@ -218,9 +218,9 @@ def test_bad_input_is_one_line_and_exit_2(capsys, argv, message):
 
 
 def _target_row(problem, instance, f_best, reference, commit, reference_multiplier=50.0, problem_id="p0"):
-    return dict(problem=problem, instance=instance, problem_id=problem_id, f_best=f_best, f_random=9.0, random_runs=5, random_feasible=5,
-                reference=reference, reference_multiplier=reference_multiplier, budget_multiplier=100.0,
-                commit=commit, date="2026-12-07")
+    return dict(problem=problem, instance=instance, problem_id=problem_id, f_best=f_best, f_random=9.0, random_runs=5,
+                random_feasible=5, reference=reference, reference_multiplier=reference_multiplier,
+                budget_multiplier=100.0, commit=commit, date="2026-12-07")
 
 
 def test_separate_make_targets_calls_fill_one_table_with_the_better_value(tmp_path):
@@ -295,9 +295,9 @@ def test_the_shipped_targets_rows_are_made_at_the_suite_budgets_by_a_commit_of_t
 
 
 def _reference_row(problem, instance, algorithm, f_best, converged_at=10, evaluations=100, problem_id="p0"):
-    return dict(problem=problem, instance=instance, problem_id=problem_id, algorithm=algorithm, f_best=f_best, runs=1, evaluations=evaluations,
-                converged_at=converged_at, seconds=5.0, reference_multiplier=50.0, budget_multiplier=100.0,
-                commit="c1", date="2026-12-07")
+    return dict(problem=problem, instance=instance, problem_id=problem_id, algorithm=algorithm, f_best=f_best, runs=1,
+                evaluations=evaluations, converged_at=converged_at, seconds=5.0, reference_multiplier=50.0,
+                budget_multiplier=100.0, commit="c1", date="2026-12-07")
 
 
 def test_the_reference_runs_table_keeps_each_algorithms_value_and_says_how_far_they_agree(tmp_path):
@@ -337,7 +337,8 @@ def test_commits_and_problem_ids_of_digits_only_are_read_back_as_text(tmp_path):
     row = S.load_reference_runs(tmp_path / "reference_runs.csv").iloc[0]
     assert (row["commit"], row["problem_id"]) == ("0012345", "0123")
     # and a second write keeps them (the merge compares them as text)
-    S._write_targets(tmp_path / "targets.csv", pd.DataFrame([_target_row("a", 1, 2.0, "cs", "9", problem_id="1e45678901ab")]))
+    again = _target_row("a", 1, 2.0, "cs", "9", problem_id="1e45678901ab")
+    S._write_targets(tmp_path / "targets.csv", pd.DataFrame([again]))
     assert S.load_targets(tmp_path / "targets.csv").iloc[0]["commit"] == "3554307"
 
 
