@@ -223,6 +223,24 @@ def read_part(path, spec=None):
     return df, fingerprint
 
 
+class ResultsOfAnotherConfig(ConfigError):
+    """A results folder holds runs that another config made (:meth:`PartCheck.refuse_mismatch`).
+
+    Attributes
+    ----------
+    out_dir : Path
+    runs : int
+        How many of its runs differ.
+    differing : str
+        The differing config keys, as the message names them.
+    """
+
+    def __init__(self, out_dir, runs: int, differing: str):
+        self.out_dir, self.runs, self.differing = Path(out_dir), runs, differing
+        super().__init__(f"{out_dir} holds {runs} run(s) of a different config (differing: {differing}); "
+                         "use --fresh to discard them or another --out")
+
+
 class PartCheck:
     """What :func:`check_parts` found: the reusable run names, the set-aside ones, and the
     mismatches (run name to differing keys)."""
@@ -244,9 +262,7 @@ class PartCheck:
             return
         keys = sorted({k for ks in self.mismatched.values() for k in ks})
         shown = ", ".join(keys[:6]) + (f" and {len(keys) - 6} more" if len(keys) > 6 else "")
-        n = len(self.mismatched)
-        raise ConfigError(f"{out_dir} holds {n} run(s) of a different config (differing: {shown}); "
-                          "use --fresh to discard them or another --out")
+        raise ResultsOfAnotherConfig(out_dir, len(self.mismatched), shown)
 
 
 def check_parts(parts: Path, specs, fingerprints: dict, *, dry=False) -> PartCheck:

@@ -48,6 +48,7 @@ from heurtune.analysis.leaderboard import N_TARGETS, targets_of
 from heurtune.core.errors import ConfigError
 from heurtune.core.io import atomic_path
 from heurtune.runner.config import experiments_dir, list_experiments, load_config
+from heurtune.runner.resultdir import ResultsOfAnotherConfig
 
 __all__ = ["Suite", "SuiteProblem", "load_suite", "instance_plant", "problem_config", "run_suite", "make_targets",
            "load_targets", "load_reference_runs", "reference_run_rows", "write_reference_runs", "reference_agreement",
@@ -707,9 +708,14 @@ def _run_one(suite, problem, algorithm, instances, multiplier, runs, base, jobs,
     folder = Path(base) / problem.name / algorithm
     config = problem_config(suite, problem, algorithm, instances, multiplier, runs,
                             Path(base) / "configs" / f"{problem.name}__{algorithm}.toml")
-    with contextlib.redirect_stdout(io.StringIO()):  # each experiment's summary table: the leaderboard says it
-        run_experiment(str(config), jobs=jobs, out=folder, figures=False, progress_stream=_Notices(stream),
-                       plugins=tuple(plugins))
+    try:
+        with contextlib.redirect_stdout(io.StringIO()):  # each experiment's summary table: the leaderboard says it
+            run_experiment(str(config), jobs=jobs, out=folder, figures=False, progress_stream=_Notices(stream),
+                           plugins=tuple(plugins))
+    except ResultsOfAnotherConfig as err:  # the suite has no --fresh: it never discards results itself
+        raise ConfigError(f"{err.out_dir} holds {err.runs} run(s) of {problem.name} made with another config "
+                          f"(differing: {err.differing}; its row in problems.toml or the budget changed since); "
+                          f"remove that folder to run it again, or use another --out") from None
     print(f"suite: {problem.name} / {algorithm}: {len(instances)} instance(s) x {runs} run(s) in {folder}",
           file=stream, flush=True)
     return folder

@@ -83,6 +83,23 @@ def test_a_problem_config_runs_the_instances_as_cases_with_the_budget(tmp_path, 
     assert config["runs"] == 2 and config["seed"] == suite.seed
 
 
+def test_a_redefined_problem_with_results_is_refused_with_the_folder_to_remove(tmp_path, suite):
+    """The suite has no --fresh: a results folder of an earlier definition of a problem is named in
+    one line with what to do, and nothing in it is touched."""
+    p = suite.problem("pid-nmp-limits")
+    log = open(tmp_path / "log", "w")
+    [(_, _, folder)] = S.run_suite(suite, [p], ["random_search"], [1], tmp_path, multiplier=0.5, runs=1, stream=log)
+    before = sorted(f.name for f in (folder / "parts").iterdir())
+    tighter = dataclasses.replace(p, overrides={**p.overrides, "scenario": {"tolerance": 0.004}})
+    with pytest.raises(ConfigError) as err:
+        S.run_suite(suite, [tighter], ["random_search"], [1], tmp_path, multiplier=0.5, runs=1, stream=log)
+    message = str(err.value)
+    assert message.startswith(f"{folder} holds 1 run(s) of pid-nmp-limits made with another config (differing: "
+                              "problem.scenario.tolerance") and "remove that folder" in message
+    assert "--fresh" not in message and "\n" not in message
+    assert sorted(f.name for f in (folder / "parts").iterdir()) == before
+
+
 @pytest.mark.parametrize("text, message", [
     ("[suite]\ninstances = 0\n[[problem]]\nname='a'\nexperiment='benchmark_qtp'\ncase='min'\n",
      "suite.instances must be an integer >= 1"),
