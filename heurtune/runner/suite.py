@@ -354,11 +354,13 @@ _TEXT_COLUMNS = {"problem": str, "problem_id": str, "commit": str, "reference": 
 
 
 def load_targets(path=None) -> pd.DataFrame:
-    """``experiments/suite/targets.csv`` (columns :data:`TARGET_COLUMNS`), empty when absent."""
+    """``experiments/suite/targets.csv`` (columns :data:`TARGET_COLUMNS`), empty when absent; a
+    table written before a column existed gets it empty (a row without ``problem_id`` is then
+    used for no case: the leaderboard marks it ``stale``)."""
     path = Path(path) if path is not None else suite_dir() / "targets.csv"
     if not path.is_file():
         return pd.DataFrame(columns=TARGET_COLUMNS)
-    return pd.read_csv(path, dtype=_TEXT_COLUMNS)
+    return pd.read_csv(path, dtype=_TEXT_COLUMNS).reindex(columns=TARGET_COLUMNS)
 
 
 @functools.lru_cache(maxsize=1)
@@ -423,11 +425,11 @@ def reference_run_rows(results_dir, problem: SuiteProblem, reference_multiplier:
 
 def load_reference_runs(path=None) -> pd.DataFrame:
     """``experiments/suite/reference_runs.csv`` (columns :data:`REFERENCE_RUN_COLUMNS`), empty when
-    absent."""
+    absent (a column it lacks, empty)."""
     path = Path(path) if path is not None else suite_dir() / "reference_runs.csv"
     if not path.is_file():
         return pd.DataFrame(columns=REFERENCE_RUN_COLUMNS)
-    return pd.read_csv(path, dtype=_TEXT_COLUMNS)
+    return pd.read_csv(path, dtype=_TEXT_COLUMNS).reindex(columns=REFERENCE_RUN_COLUMNS)
 
 
 def write_reference_runs(path, new) -> pd.DataFrame:

@@ -285,12 +285,23 @@ def test_a_table_row_gives_the_targets_only_of_runs_at_the_budget_it_was_made_fo
     assert used[["f_best", "f_random", "source"]].values.tolist() == [[3.0, 8.0, "stale"]]
 
 
+def test_a_targets_table_from_before_the_problem_id_column_is_read_and_not_trusted(tmp_path):
+    path = tmp_path / "targets.csv"
+    pd.DataFrame([_target_row("a", 1, 2.0, "cmaes_sqp", "c1")]).drop(columns="problem_id").to_csv(path, index=False)
+    table = S.load_targets(path)
+    assert list(table.columns) == S.TARGET_COLUMNS and table["problem_id"].isna().all()
+    runs = pd.DataFrame(dict(case=["a/i1"] * 2, problem="a", instance=1, algorithm=["cs", "random_search"],
+                             best_f=[3.0, 8.0], feasible=[True, True], problem_id="p0"))
+    _, used = lb.targets_table(table, runs, lb.N_TARGETS, multiplier=100.0)
+    assert used["source"].tolist() == ["stale"]
+
+
 def test_the_shipped_targets_rows_are_made_at_the_suite_budgets_by_a_commit_of_this_history(suite):
     table = S.load_targets()
     if table.empty:
         pytest.skip("experiments/suite/targets.csv is not made yet")
     names = {p.name: p for p in suite.problems}
-    assert list(table.columns) == S.TARGET_COLUMNS
+    assert list(pd.read_csv(S.suite_dir() / "targets.csv", nrows=0).columns) == S.TARGET_COLUMNS
     assert set(table["problem"]) <= set(names), "a row names a problem the suite no longer has"
     assert table["instance"].between(1, suite.instances).all()
     assert not table.duplicated(["problem", "instance"]).any()
@@ -398,7 +409,7 @@ def test_the_shipped_reference_runs_give_the_targets_best_values(suite):
     table, runs = S.load_targets(), S.load_reference_runs()
     if table.empty:
         pytest.skip("experiments/suite/targets.csv is not made yet")
-    assert list(runs.columns) == S.REFERENCE_RUN_COLUMNS
+    assert list(pd.read_csv(S.suite_dir() / "reference_runs.csv", nrows=0).columns) == S.REFERENCE_RUN_COLUMNS
     assert not runs.duplicated(["problem", "instance", "algorithm", "reference_multiplier", "budget_multiplier"]).any()
     for row in table.itertuples():
         own = runs[(runs["problem"] == row.problem) & (runs["instance"] == row.instance)
