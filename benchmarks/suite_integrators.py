@@ -1,12 +1,13 @@
 """The QTP integrators on a suite problem: cost per evaluation and error, side by side.
 
 Run with ``python benchmarks/suite_integrators.py [PROBLEM ...] [--instance K] [--candidates N]``
-(default: the suite's plain QTP rows, instance 1, 30 candidates). For each problem the suite's
-config is evaluated three ways in one process, one core, BLAS on one thread: the switching
-integrator and the linearised one at the problem's tolerance, and the switching integrator at
-tolerance 1e-7 as the reference. The candidates are uniform in the problem's bounds, the ones
-the problem simulates kept (an early rejection costs microseconds and is not what a study waits
-for). Prints milliseconds per evaluation (median of 3 repeats) and the objective's relative
+(default: the suite's plain QTP rows, instance 1, up to 30 candidates). For each problem the
+suite's config is evaluated three ways in one process, one core (BLAS threads set to 1 unless
+the environment already sets them): the switching integrator and the linearised one at the
+problem's tolerance, and the switching integrator at tolerance 1e-7 as the reference. The
+candidates are uniform in the problem's bounds, the first ones that the switching integrator
+simulates kept (an early rejection costs microseconds and is not what a study waits for; a
+needle problem may give fewer than asked). Prints milliseconds per evaluation (median of 3 repeats) and the objective's relative
 error against the reference, median and largest, per integrator. docs/suite.md, "Integrators",
 quotes it.
 """
