@@ -7,9 +7,9 @@ the environment already sets them): the switching integrator and the linearised 
 problem's tolerance, and the switching integrator at tolerance 1e-7 as the reference. The
 candidates are uniform in the problem's bounds, the first ones that the switching integrator
 simulates kept (an early rejection costs microseconds and is not what a study waits for; a
-needle problem may give fewer than asked). Prints milliseconds per evaluation (median of 3 repeats) and the objective's relative
-error against the reference, median and largest, per integrator. docs/suite.md, "Integrators",
-quotes it.
+needle problem may give fewer than asked). Prints milliseconds per evaluation (median of 3
+repeats) and the objective's relative error against the reference, median and largest, per
+integrator. docs/suite.md, "Integrators", quotes it.
 """
 
 from __future__ import annotations
