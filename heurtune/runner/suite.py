@@ -31,12 +31,10 @@ import argparse
 import contextlib
 import dataclasses
 import datetime
-import functools
 import io
 import json
 import math
 import os
-import subprocess
 import sys
 import tomllib
 from pathlib import Path
@@ -363,15 +361,12 @@ def load_targets(path=None) -> pd.DataFrame:
     return pd.read_csv(path, dtype=_TEXT_COLUMNS).reindex(columns=TARGET_COLUMNS)
 
 
-@functools.lru_cache(maxsize=1)
 def _commit() -> str:
-    # read once per process (make_targets reads it before its first run): see
-    # heurtune.runner.experiment._git_commit
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                              cwd=Path(__file__).resolve().parent, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
+    """The checkout's commit, short, as this process read it first (the runner's cached read:
+    a checkout pulled during a long make_targets call does not relabel it)."""
+    from heurtune.runner.experiment import _git_commit
+
+    return _git_commit()[:7] or "unknown"
 
 
 def _best_feasible(results_dir: Path, problem: SuiteProblem) -> pd.DataFrame:
