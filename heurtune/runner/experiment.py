@@ -739,9 +739,11 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     fingerprints = {s.part_name: run_fingerprint(s, problems[s.case].identity()) for s in specs}
     if out_dir.exists() and not out_dir.is_dir():
         raise ConfigError(f"--out {out_dir} is a file, not a folder")
-    # A first look, writing nothing: parts of another config are refused here.
+    # A first look, writing nothing: parts of another config are refused here. Each part file is
+    # read once per command while it is unchanged (`part_tables`, :func:`read_part`).
+    part_tables = {}
     if not fresh and parts.is_dir():
-        check_parts(parts, specs, fingerprints, dry=True).refuse_mismatch(out_dir)
+        check_parts(parts, specs, fingerprints, dry=True, cache=part_tables).refuse_mismatch(out_dir)
     done = set() if fresh or not parts.is_dir() else {s.part_name for s in specs} & _finished(parts)
     # Measured before anything is written: a config too costly to evaluate is refused here.
     with CompileNotice(exp.name, progress_stream):
@@ -754,7 +756,7 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
                            backend=backend, scheduler=scheduler, executor=executor, device=device,
                            lockstep=lockstep, progress_stream=progress_stream, figures=figures,
                            calibrations=calibrations, shapes=shapes,
-                           plan_key=dict(max_epochs=max_epochs, seed=seed, smoke=smoke))
+                           plan_key=dict(max_epochs=max_epochs, seed=seed, smoke=smoke), part_tables=part_tables)
     finally:
         lock.release()
 
@@ -771,13 +773,13 @@ def _make_folder(out_dir: Path) -> None:
 
 
 def _run_locked(exp, config, specs, fingerprints, ids, out_dir, parts, *, fresh, jobs, backend, scheduler,
-                executor, device, lockstep, progress_stream, figures, calibrations, shapes, plan_key):
+                executor, device, lockstep, progress_stream, figures, calibrations, shapes, plan_key, part_tables):
     """:func:`run_experiment` once it holds the folder's lock: check the parts, run what is
     missing, gather."""
     if fresh:
         clear_folder(out_dir)
     parts.mkdir(parents=True, exist_ok=True)
-    check = check_parts(parts, specs, fingerprints)
+    check = check_parts(parts, specs, fingerprints, cache=part_tables)
     check.refuse_mismatch(out_dir)  # written meanwhile by another config
     done = check.reusable
     pending = [s for s in specs if s.part_name not in done]
@@ -801,7 +803,8 @@ def _run_locked(exp, config, specs, fingerprints, ids, out_dir, parts, *, fresh,
     for case, msg in structure_warnings.items():
         print(f"warning: {case}: {msg}", file=sys.stderr)
     clear_heartbeats(parts)
-    kept = [pd.read_parquet(parts / f"{s.part_name}.run.parquet").iloc[0] for s in specs if s.part_name in done]
+    kept = [read_part(parts / f"{s.part_name}.run.parquet", cache=part_tables)[0].iloc[0] for s in specs
+            if s.part_name in done]
     on_pool = backend != "dask" and executor is None
     workers = (jobs if on_pool or not pending else  # a Dask cluster is asked only when there is work
                _dask_workers(scheduler) if executor is None else getattr(executor, "_max_workers", jobs))
@@ -837,7 +840,8 @@ def _run_locked(exp, config, specs, fingerprints, ids, out_dir, parts, *, fresh,
                                   f"the {kept} finished run(s) are kept in {out_dir}: run the same command "
                                   "again to resume") from None
         bar.close()  # the line ends before the summary
-        _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, fingerprints, figures=figures)
+        _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, fingerprints, figures=figures,
+                part_tables=part_tables)
     except (KeyboardInterrupt, Terminated, SystemError) as exc:
         signal_exc = _signal_of(exc)
         if signal_exc is None:
@@ -998,15 +1002,16 @@ def _run_lockstep(config, pending, parts, bar, fingerprints, *, jobs, backend, s
         raise
 
 
-def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, fingerprints, *, figures):
+def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, fingerprints, *, figures,
+            part_tables=None):
     rows, hists = [], []
     for spec in specs:
         run_file = parts / f"{spec.part_name}.run.parquet"
         if not run_file.exists():
             continue
         try:  # each part against its file name and the run the config plans under it
-            row, found = read_part(run_file, spec)
-            hist, hist_found = read_part(parts / f"{spec.part_name}.history.parquet")
+            row, found = read_part(run_file, spec, cache=part_tables)
+            hist, hist_found = read_part(parts / f"{spec.part_name}.history.parquet", cache=part_tables)
         except (ValueError, FileNotFoundError) as exc:
             raise ConfigError(f"{run_file} changed while the experiment ran ({exc}); run the same command "
                               "again to redo it") from None

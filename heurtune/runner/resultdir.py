@@ -180,7 +180,31 @@ def differing_keys(found: dict, expected: dict, prefix: str = "") -> list:
     return keys
 
 
-def read_part(path, spec=None):
+def _load_part(path, cache):
+    """``(DataFrame, fingerprint text or None)`` of a part file, from ``cache`` while the file is
+    the one read before (the same inode, size and modification time)."""
+    key = None
+    if cache is not None:
+        try:
+            st = os.stat(path)
+            key = (st.st_ino, st.st_size, st.st_mtime_ns)
+        except OSError:  # missing: read_table says so below
+            pass
+        hit = cache.get(str(path))
+        if key is not None and hit is not None and hit[0] == key:
+            return hit[1], hit[2]
+    try:
+        table = pq.read_table(path)
+    except Exception as exc:  # truncated, empty, not parquet: pyarrow raises several types
+        raise ValueError(f"unreadable ({type(exc).__name__})") from None
+    text = (table.schema.metadata or {}).get(METADATA_KEY)
+    df = table.to_pandas()
+    if key is not None:
+        cache[str(path)] = (key, df, text)
+    return df, text
+
+
+def read_part(path, spec=None, *, cache=None):
     """A part's table and fingerprint: ``(DataFrame, dict or None)``. Raises ``ValueError``
     with the reason when the file is damaged or (``spec`` given, a run part) its content names
     another run than its file name.
@@ -191,19 +215,18 @@ def read_part(path, spec=None):
         A part file.
     spec : RunSpec, optional
         The run the part should hold.
+    cache : dict, optional
+        Tables already read in this command (:func:`check_parts` fills it, the gathering of the
+        results reads from it): a file is read once while it is unchanged, and read again when
+        its inode, size or modification time differ. The tables it returns are shared: do not
+        modify them.
 
     Returns
     -------
     tuple
         ``(DataFrame, dict or None)``.
     """
-    try:
-        table = pq.read_table(path)
-    except Exception as exc:  # truncated, empty, not parquet: pyarrow raises several types
-        raise ValueError(f"unreadable ({type(exc).__name__})") from None
-    meta = table.schema.metadata or {}
-    text = meta.get(METADATA_KEY)
-    df = table.to_pandas()
+    df, text = _load_part(path, cache)
     if spec is not None:
         if len(df) != 1:
             raise ValueError(f"{len(df)} rows where a run part has 1")
@@ -265,7 +288,7 @@ class PartCheck:
         raise ResultsOfAnotherConfig(out_dir, len(self.mismatched), shown)
 
 
-def check_parts(parts: Path, specs, fingerprints: dict, *, dry=False) -> PartCheck:
+def check_parts(parts: Path, specs, fingerprints: dict, *, dry=False, cache=None) -> PartCheck:
     """Check the finished parts of the planned runs ``specs`` against ``fingerprints`` (run name
     to the fingerprint the current config gives it).
 
@@ -286,6 +309,8 @@ def check_parts(parts: Path, specs, fingerprints: dict, *, dry=False) -> PartChe
         The fingerprint the current config gives each run.
     dry : bool
         Only report; move nothing.
+    cache : dict, optional
+        Filled with the tables read, for the later reads of the same command (:func:`read_part`).
 
     Returns
     -------
@@ -300,7 +325,7 @@ def check_parts(parts: Path, specs, fingerprints: dict, *, dry=False) -> PartChe
             continue
         expected = fingerprints[name]
         try:
-            _, found = read_part(run_file, spec)
+            _, found = read_part(run_file, spec, cache=cache)
             if found is None:
                 check.legacy.add(name)
                 continue
@@ -312,7 +337,7 @@ def check_parts(parts: Path, specs, fingerprints: dict, *, dry=False) -> PartChe
             if not hist.exists():
                 raise ValueError("its history part is missing")
             try:
-                _, hist_found = read_part(hist)
+                _, hist_found = read_part(hist, cache=cache)
             except ValueError as exc:
                 raise ValueError(f"its history part is {exc}") from None
             if hist_found != found:

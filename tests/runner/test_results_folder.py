@@ -13,11 +13,13 @@ import subprocess
 import sys
 
 import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 from numerics import assert_same_bits
 
 from heurtune.runner.experiment import run, status_table
-from heurtune.runner.resultdir import LOCK_FILE
+from heurtune.runner.resultdir import LOCK_FILE, METADATA_KEY, read_part
 
 BASE = '''extends = "cs_folqi_qtp"
 runs = 2
@@ -462,3 +464,36 @@ def test_an_optimiser_entry_for_no_case_plans_no_runs_and_keeps_its_place(tmp_pa
                        + '[[optimisers]]\nname = "pso"\nmax_evals = 100\n')
     specs = plan(heurtune.load_experiment(str(cfg)))
     assert {s.algorithm for s in specs} == {"pso"} and {s.optimiser_index for s in specs} == {1}
+
+
+def test_a_finished_folder_run_again_reads_each_part_once_and_gathers_the_same(clean, copy, monkeypatch):
+    """The first look, the check under the lock, the progress bar and the gathering share one
+    read of each part file (they read them five times before)."""
+    _, expected = clean
+    cfg, out = copy
+    reads = []
+    real = pq.read_table
+    monkeypatch.setattr(pq, "read_table", lambda path, *a, **k: reads.append(str(path)) or real(path, *a, **k))
+    assert run([str(cfg), "--out", str(out), "--no-figures"]) == 0
+    part_reads = [p for p in reads if "/parts/" in p]
+    assert part_reads and len(part_reads) == len(set(part_reads)), sorted(part_reads)
+    assert len(set(part_reads)) == 2 * len(list((out / "parts").glob("*.run.parquet")))
+    assert_same_bits(results(out), results(expected), because="resume")
+
+
+def test_the_part_cache_reads_a_rewritten_file_again(copy):
+    _, out = copy
+    part = sorted((out / "parts").glob("*.run.parquet"))[0]
+    cache = {}
+    first, fingerprint = read_part(part, cache=cache)
+    again, _ = read_part(part, cache=cache)
+    assert again is first  # unchanged: the table read before
+    table = first.copy()
+    table["wall_time_s"] = table["wall_time_s"] + 1.0
+    tmp = part.with_suffix(".tmp")
+    meta = {METADATA_KEY: json.dumps(fingerprint).encode()}
+    pq.write_table(pa.Table.from_pandas(table, preserve_index=False).replace_schema_metadata(meta), tmp)
+    os.replace(tmp, part)  # a new file in its place, as an atomic write makes it
+    fresh, fresh_fingerprint = read_part(part, cache=cache)
+    assert fresh is not first and fresh_fingerprint == fingerprint
+    assert fresh["wall_time_s"].iloc[0] == first["wall_time_s"].iloc[0] + 1.0
