@@ -76,12 +76,14 @@ from heurtune.runner.config import list_experiments, load_config
 from heurtune.runner.progress import HEARTBEAT_SUFFIX, Heartbeat, Progress, clear_heartbeats
 from heurtune.runner.resultdir import (
     METADATA_KEY,
+    ORIGIN_KEY,
     FolderLock,
     check_parts,
     clear_folder,
     differing_keys,
     fingerprint_digest,
     matching_parts,
+    part_origin,
     read_part,
     run_fingerprint,
     set_aside_file,
@@ -137,8 +139,12 @@ class RunSpec:
 
     @property
     def part_name(self) -> str:
-        safe = self.case.replace("/", "_")
-        return f"{safe}__{self.optimiser_index}-{self.algorithm}__{self.run:04d}"
+        return part_name(self.case, self.optimiser_index, self.algorithm, self.run)
+
+
+def part_name(case: str, optimiser_index: int, algorithm: str, run: int) -> str:
+    """The name of a run's part files in ``parts/`` (and its key in ``meta.json``)."""
+    return f"{case.replace('/', '_')}__{int(optimiser_index)}-{algorithm}__{int(run):04d}"
 
 
 def problem_id(exp, case: str) -> str:
@@ -655,8 +661,10 @@ def _finished(parts: Path) -> set:
 
 
 def _persist(parts: Path, spec: RunSpec, row: dict, hist: pd.DataFrame, fingerprint: dict):
-    # History first; the run file marks the run finished. Both carry what made them.
-    meta = {METADATA_KEY: json.dumps(fingerprint, sort_keys=True).encode()}
+    # History first; the run file marks the run finished. Both carry what made them: the run's
+    # fingerprint and the source of this process (the parent's, read when it started).
+    meta = {METADATA_KEY: json.dumps(fingerprint, sort_keys=True).encode(),
+            ORIGIN_KEY: json.dumps(dict(git_commit=_git_commit(), git_dirty=_git_dirty())).encode()}
     write_parquet(hist, parts / f"{spec.part_name}.history.parquet", meta)
     write_parquet(pd.DataFrame([row]), parts / f"{spec.part_name}.run.parquet", meta)
     (parts / f"{spec.part_name}{HEARTBEAT_SUFFIX}").unlink(missing_ok=True)
@@ -1004,7 +1012,7 @@ def _run_lockstep(config, pending, parts, bar, fingerprints, *, jobs, backend, s
 
 def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warnings, fingerprints, *, figures,
             part_tables=None):
-    rows, hists = [], []
+    rows, hists, origins = [], [], {}
     for spec in specs:
         run_file = parts / f"{spec.part_name}.run.parquet"
         if not run_file.exists():
@@ -1012,6 +1020,7 @@ def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warning
         try:  # each part against its file name and the run the config plans under it
             row, found = read_part(run_file, spec, cache=part_tables)
             hist, hist_found = read_part(parts / f"{spec.part_name}.history.parquet", cache=part_tables)
+            origins[spec.part_name] = part_origin(run_file, cache=part_tables)
         except (ValueError, FileNotFoundError) as exc:
             raise ConfigError(f"{run_file} changed while the experiment ran ({exc}); run the same command "
                               "again to redo it") from None
@@ -1039,7 +1048,7 @@ def _gather(exp, specs, parts, out_dir, ids, config, plan_key, structure_warning
                 structure_warnings=structure_warnings,
                 seeds={s.part_name: dict(seed=s.root_seed, spawn_key=list(s.spawn_key)) for s in specs},
                 problem_ids=ids, versions=_versions(), git_commit=_git_commit(), git_dirty=_git_dirty(),
-                platform=_platform(),
+                run_origins=origins, platform=_platform(),
                 written=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
     with atomic_path(out_dir / "meta.json") as tmp:
         tmp.write_text(json.dumps(meta, indent=2, default=str))

@@ -40,6 +40,7 @@ __all__ = [
     "matching_parts",
     "differing_keys",
     "read_part",
+    "part_origin",
     "PartCheck",
     "check_parts",
     "set_aside",
@@ -47,12 +48,16 @@ __all__ = [
     "clear_folder",
     "FolderLock",
     "METADATA_KEY",
+    "ORIGIN_KEY",
     "LOCK_FILE",
     "CORRUPT_DIR",
 ]
 
 # The parquet metadata key of a part's fingerprint.
 METADATA_KEY = b"heurtune.fingerprint"
+# The parquet metadata key of what made a run part: the git commit and dirty flag of the process
+# that ran it (not part of the fingerprint: the same run made by another commit is reusable).
+ORIGIN_KEY = b"heurtune.origin"
 LOCK_FILE = ".heurtune.lock"
 CORRUPT_DIR = "corrupt"
 # The columns of a run part that must match its file name.
@@ -181,8 +186,8 @@ def differing_keys(found: dict, expected: dict, prefix: str = "") -> list:
 
 
 def _load_part(path, cache):
-    """``(DataFrame, fingerprint text or None)`` of a part file, from ``cache`` while the file is
-    the one read before (the same inode, size and modification time)."""
+    """``(DataFrame, schema metadata)`` of a part file, from ``cache`` while the file is the one
+    read before (the same inode, size and modification time)."""
     key = None
     if cache is not None:
         try:
@@ -197,11 +202,11 @@ def _load_part(path, cache):
         table = pq.read_table(path)
     except Exception as exc:  # truncated, empty, not parquet: pyarrow raises several types
         raise ValueError(f"unreadable ({type(exc).__name__})") from None
-    text = (table.schema.metadata or {}).get(METADATA_KEY)
+    meta = dict(table.schema.metadata or {})
     df = table.to_pandas()
     if key is not None:
-        cache[str(path)] = (key, df, text)
-    return df, text
+        cache[str(path)] = (key, df, meta)
+    return df, meta
 
 
 def read_part(path, spec=None, *, cache=None):
@@ -226,7 +231,8 @@ def read_part(path, spec=None, *, cache=None):
     tuple
         ``(DataFrame, dict or None)``.
     """
-    df, text = _load_part(path, cache)
+    df, meta = _load_part(path, cache)
+    text = meta.get(METADATA_KEY)
     if spec is not None:
         if len(df) != 1:
             raise ValueError(f"{len(df)} rows where a run part has 1")
@@ -244,6 +250,30 @@ def read_part(path, spec=None, *, cache=None):
     except ValueError:
         raise ValueError("its fingerprint is not JSON") from None
     return df, fingerprint
+
+
+def part_origin(path, *, cache=None) -> dict | None:
+    """What made a run part: ``{"git_commit": str, "git_dirty": bool or None}`` as the process that
+    ran it recorded them (:data:`ORIGIN_KEY`), or None for a part written before heurtune recorded
+    it. Raises ``ValueError`` as :func:`read_part` does.
+
+    Parameters
+    ----------
+    path : str or Path
+        A part file.
+    cache : dict, optional
+        As for :func:`read_part`.
+
+    Returns
+    -------
+    dict or None
+    """
+    _, meta = _load_part(path, cache)
+    text = meta.get(ORIGIN_KEY)
+    try:
+        return None if text is None else json.loads(text)
+    except ValueError:
+        raise ValueError("its origin is not JSON") from None
 
 
 class ResultsOfAnotherConfig(ConfigError):

@@ -267,3 +267,29 @@ def test_the_commit_recorded_is_the_checkouts_when_the_process_started(tmp_path,
         assert finished and json.loads((out / "meta.json").read_text())["git_commit"] == "before"
     finally:
         E._git_commit.cache_clear(), E._git_dirty.cache_clear()  # the real checkout for later tests
+
+
+def test_runs_keep_the_commit_that_made_them_when_a_later_process_gathers_the_folder(tmp_path, monkeypatch):
+    """meta.json's git_commit is the last process's (the folder is gathered by every command);
+    run_origins names, per run, the commit of the process that ran it, which a later gathering
+    (a suite scoring finished folders at another commit) must not relabel."""
+    import heurtune.runner.experiment as E
+    from heurtune.runner.resultdir import part_origin
+
+    def run_at(commit):
+        monkeypatch.setattr(E, "_git", lambda *args: commit if args[0] == "rev-parse" else "")
+        E._git_commit.cache_clear(), E._git_dirty.cache_clear()
+        return E.run_experiment("cs_folqi_qtp", runs=1, max_epochs=2, out=tmp_path / "r", figures=False,
+                                progress_stream=open(os.devnull, "w"))
+
+    try:
+        out = run_at("made")
+        out = run_at("later")  # nothing left to run: only the gathering
+    finally:
+        E._git_commit.cache_clear(), E._git_dirty.cache_clear()  # the real checkout for later tests
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["git_commit"] == "later"
+    parts = sorted((out / "parts").glob("*.run.parquet"))
+    assert parts and set(meta["run_origins"]) == {p.name[:-len(".run.parquet")] for p in parts}
+    assert all(o == {"git_commit": "made", "git_dirty": False} for o in meta["run_origins"].values())
+    assert part_origin(parts[0]) == {"git_commit": "made", "git_dirty": False}

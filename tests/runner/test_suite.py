@@ -1,6 +1,7 @@
 """The tuning suite (``python -m heurtune.suite``): its table, instances, targets, measures and command."""
 
 import dataclasses
+import json
 import shutil
 import subprocess
 import sys
@@ -542,3 +543,25 @@ def test_make_targets_writes_the_table_the_leaderboard_reads(tmp_path, suite):
     for row in used.itertuples():
         k = int(row.case.split("/i")[1])
         assert row.f_best <= table.loc[table["instance"] == k, "f_best"].iloc[0]
+
+
+def test_a_reference_row_names_the_commit_of_its_best_run_not_of_the_last_gathering(suite, tmp_path):
+    # a reference folder gathered again at a later commit (a resumed call that ran nothing) kept
+    # its runs' commits in run_origins; meta.json's git_commit names the later process
+    from heurtune.runner.experiment import part_name
+
+    folder = tmp_path / "cmaes_sqp"
+    folder.mkdir()
+    runs = pd.DataFrame(dict(case=["i1", "i1"], problem_id="p0", algorithm="cmaes_sqp", optimiser_index=0, run=[0, 1],
+                             best_f=[2.0, 1.5], feasible=True, n_evals=100, convergence_evals=[40, 60],
+                             wall_time_s=5.0))
+    runs.to_parquet(folder / "runs.parquet")
+    origins = {part_name("i1", 0, "cmaes_sqp", 0): {"git_commit": "aaaaaaa111", "git_dirty": False},
+               part_name("i1", 0, "cmaes_sqp", 1): {"git_commit": "bbbbbbb222", "git_dirty": False}}
+    meta = dict(git_commit="ccccccc333", written="2026-12-07T10:00:00", run_origins=origins)
+    (folder / "meta.json").write_text(json.dumps(meta))
+    [row] = S.reference_run_rows(folder, suite.problem("pid-min"), 50.0, 100.0)
+    assert (row["f_best"], row["converged_at"], row["commit"]) == (1.5, 60, "bbbbbbb")
+    # a folder from before run_origins: the folder's commit
+    (folder / "meta.json").write_text(json.dumps({k: v for k, v in meta.items() if k != "run_origins"}))
+    assert S.reference_run_rows(folder, suite.problem("pid-min"), 50.0, 100.0)[0]["commit"] == "ccccccc"
