@@ -294,7 +294,9 @@ def problem_config(suite: Suite, problem: SuiteProblem, algorithm: str, instance
     algorithm : str
         A registered optimiser, run with its default settings.
     instances : sequence of int
-        The instances, 1-based: cases ``i<k>``.
+        The instances to run, 1-based (cases ``i<k>``). Every instance of the suite is a case of
+        the config, so that instance k's runs have the same seeds whichever are selected; the
+        optimiser entry's ``cases`` restricts it to these.
     multiplier : float
         Budget per run, in evaluations per dimension.
     runs : int
@@ -307,10 +309,18 @@ def problem_config(suite: Suite, problem: SuiteProblem, algorithm: str, instance
     Path
     """
     path = Path(path)
-    cases = [f"i{k}" for k in instances]
+    # Every instance is a case, in order, whatever the selection: a run's seed follows its case's
+    # place in the config (``SeedSequence(seed, spawn_key=(case index, ...))``), so instance k is
+    # the same runs in a full suite and alone; the optimiser tunes the selected ones.
+    everyone = list(range(1, suite.instances + 1))
+    cases = [f"i{k}" for k in everyone]
+    selected = [f"i{k}" for k in sorted(set(instances))]
+    bad = sorted(set(instances) - set(everyone))
+    if bad:
+        raise ConfigError(f"suite: instance {bad[0]} out of range; allowed: 1 to {suite.instances}")
     model = load_config(problem.experiment).get("plant", {}).get("model", "qtp")
     table = {"plant": {"cases": cases, "custom": {c: instance_plant(problem.case, k, suite, model)
-                                                  for c, k in zip(cases, instances)}}}
+                                                  for c, k in zip(cases, everyone)}}}
     table = _merge(table, problem.overrides)
     head = [f"extends = {json.dumps(problem.experiment)}",
             f"description = {json.dumps(f'suite problem {problem.name}: {problem.experiment}, plant {problem.case}')}",
@@ -320,6 +330,8 @@ def problem_config(suite: Suite, problem: SuiteProblem, algorithm: str, instance
         lines = list(head)
         _toml_table("", table, lines)
         lines += ["[[optimisers]]", f"name = {json.dumps(algorithm)}", f"max_evals = {budget}"]
+        if selected != cases:
+            lines.append(f"cases = {json.dumps(selected)}")
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".toml.tmp")
         tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
@@ -328,7 +340,7 @@ def problem_config(suite: Suite, problem: SuiteProblem, algorithm: str, instance
     write(1)
     from heurtune.core.families import make_experiment
 
-    dim = make_experiment(load_config(str(path))).problem(cases[0]).dim
+    dim = make_experiment(load_config(str(path))).problem(selected[0]).dim
     write(max(1, int(round(multiplier * dim))))
     return path
 

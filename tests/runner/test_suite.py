@@ -76,12 +76,33 @@ def test_a_problem_config_runs_the_instances_as_cases_with_the_budget(tmp_path, 
     p = suite.problem("pid-nmp-limits")
     path = S.problem_config(suite, p, "cs", [1, 3], 7.0, 2, tmp_path / "x.toml")
     config = load_config(str(path))
-    assert config["plant"]["cases"] == ["i1", "i3"]
+    # every instance is a case (its place sets its runs' seeds); the optimiser tunes the selected
+    assert config["plant"]["cases"] == [f"i{k}" for k in range(1, suite.instances + 1)]
     assert config["plant"]["custom"]["i3"] == S.instance_plant("nmp", 3, suite)
     assert config["problem"]["bounds"]["Kp1"] == [0.0, 1.5]  # the row's override
     assert config["scenario"]["limits"] == "physical"  # the experiment's own
-    assert config["optimisers"] == [{"name": "cs", "max_evals": 42}]  # 7 x 6 dimensions
+    assert config["optimisers"] == [{"name": "cs", "max_evals": 42, "cases": ["i1", "i3"]}]  # 7 x 6 dimensions
     assert config["runs"] == 2 and config["seed"] == suite.seed
+    every = load_config(str(S.problem_config(suite, p, "cs", list(range(1, suite.instances + 1)), 7.0, 2,
+                                             tmp_path / "all.toml")))
+    assert every["optimisers"] == [{"name": "cs", "max_evals": 42}]  # all instances: no restriction
+
+
+def test_an_instance_run_alone_makes_the_runs_it_makes_in_the_full_suite(tmp_path, suite):
+    """A run's seed follows its case's place in the config: instance 2 selected alone has the
+    seeds, and so the results, that it has among instances 1-2 (it had the seeds of instance 1
+    when the config held the selected instances only)."""
+    p = suite.problem("pid-min")
+    log = open(tmp_path / "log", "w")
+    [(_, _, both)] = S.run_suite(suite, [p], ["random_search"], [1, 2], tmp_path / "both", multiplier=1.0, runs=1,
+                                 stream=log)
+    [(_, _, alone)] = S.run_suite(suite, [p], ["random_search"], [2], tmp_path / "alone", multiplier=1.0, runs=1,
+                                  stream=log)
+    runs_both = pd.read_parquet(both / "runs.parquet").set_index("case")
+    runs_alone = pd.read_parquet(alone / "runs.parquet").set_index("case")
+    assert list(runs_alone.index) == ["i2"]
+    assert runs_alone.loc["i2", "seed_key"] == runs_both.loc["i2", "seed_key"] == "1.0.0"
+    assert_same_bits(runs_alone.loc["i2", "best_f"], runs_both.loc["i2", "best_f"], because="same seed")
 
 
 def test_a_redefined_problem_with_results_is_refused_with_the_folder_to_remove(tmp_path, suite):
