@@ -662,9 +662,10 @@ def _finished(parts: Path) -> set:
 
 def _persist(parts: Path, spec: RunSpec, row: dict, hist: pd.DataFrame, fingerprint: dict):
     # History first; the run file marks the run finished. Both carry what made them: the run's
-    # fingerprint and the source of this process (the parent's, read when it started).
+    # fingerprint, the source of this process (the parent's, read when it started) and when.
+    origin = dict(git_commit=_git_commit(), git_dirty=_git_dirty(), written=time.strftime("%Y-%m-%dT%H:%M:%S%z"))
     meta = {METADATA_KEY: json.dumps(fingerprint, sort_keys=True).encode(),
-            ORIGIN_KEY: json.dumps(dict(git_commit=_git_commit(), git_dirty=_git_dirty())).encode()}
+            ORIGIN_KEY: json.dumps(origin).encode()}
     write_parquet(hist, parts / f"{spec.part_name}.history.parquet", meta)
     write_parquet(pd.DataFrame([row]), parts / f"{spec.part_name}.run.parquet", meta)
     (parts / f"{spec.part_name}{HEARTBEAT_SUFFIX}").unlink(missing_ok=True)

@@ -253,9 +253,11 @@ def read_part(path, spec=None, *, cache=None):
 
 
 def part_origin(path, *, cache=None) -> dict | None:
-    """What made a run part: ``{"git_commit": str, "git_dirty": bool or None}`` as the process that
-    ran it recorded them (:data:`ORIGIN_KEY`), or None for a part written before heurtune recorded
-    it. Raises ``ValueError`` as :func:`read_part` does.
+    """What made a run part: ``{"git_commit": str, "git_dirty": bool or None, "written": str}`` as
+    the process that ran it recorded them (:data:`ORIGIN_KEY`; ``written`` the local time of the
+    writing, ISO 8601 with its UTC offset, absent from parts written before heurtune recorded it),
+    or None for a part written before heurtune recorded its origin. Raises ``ValueError`` as
+    :func:`read_part` does.
 
     Parameters
     ----------

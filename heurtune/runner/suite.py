@@ -397,8 +397,9 @@ def reference_run_rows(results_dir, problem: SuiteProblem, reference_multiplier:
     """Rows of :data:`REFERENCE_RUN_COLUMNS` for one reference algorithm's results folder (one
     per case): its best feasible score over the runs (inf where none was feasible), the number
     of runs, their evaluations, the best run's ``convergence_evals``, the median seconds per
-    run, the commit of the process that ran the best run (``meta.json``'s ``run_origins``; the
-    folder's ``git_commit`` for runs made before heurtune recorded it) and the folder's date.
+    run, the commit of the process that ran the best run and its date (``meta.json``'s
+    ``run_origins``; the folder's ``git_commit`` and date for runs made before heurtune recorded
+    them).
 
     Parameters
     ----------
@@ -420,16 +421,17 @@ def reference_run_rows(results_dir, problem: SuiteProblem, reference_multiplier:
     meta = json.loads((results_dir / "meta.json").read_text(encoding="utf-8"))
     folder_commit = str(meta.get("git_commit") or "unknown")[:7]
     origins = meta.get("run_origins") or {}
-    date = str(meta.get("written", ""))[:10] or datetime.date.today().isoformat()
+    folder_date = str(meta.get("written", ""))[:10] or datetime.date.today().isoformat()
     rows = []
     for case, g in runs.groupby("case", sort=True):
         f = scores.loc[g.index, "f"].to_numpy(float)
         best = int(np.argmin(f))
-        # the commit of the process that ran the best run where its part records it (a folder
-        # gathered again later names the later process), else the folder's
+        # the commit and date of the process that ran the best run where its part records them (a
+        # folder gathered again later names the later process), else the folder's
         r = g.iloc[best]
         origin = origins.get(part_name(str(case), r["optimiser_index"], str(r["algorithm"]), r["run"])) or {}
         commit = str(origin.get("git_commit") or "")[:7] or folder_commit
+        date = str(origin.get("written") or "")[:10] or folder_date
         rows.append(dict(problem=problem.name, instance=int(str(case).lstrip("i")),
                          problem_id=str(g["problem_id"].iloc[0]), algorithm=str(g["algorithm"].iloc[0]),
                          f_best=float(f[best]), runs=int(len(g)),

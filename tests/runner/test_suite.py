@@ -577,12 +577,20 @@ def test_a_reference_row_names_the_commit_of_its_best_run_not_of_the_last_gather
                              best_f=[2.0, 1.5], feasible=True, n_evals=100, convergence_evals=[40, 60],
                              wall_time_s=5.0))
     runs.to_parquet(folder / "runs.parquet")
-    origins = {part_name("i1", 0, "cmaes_sqp", 0): {"git_commit": "aaaaaaa111", "git_dirty": False},
-               part_name("i1", 0, "cmaes_sqp", 1): {"git_commit": "bbbbbbb222", "git_dirty": False}}
+    origins = {part_name("i1", 0, "cmaes_sqp", 0): {"git_commit": "aaaaaaa111", "git_dirty": False,
+                                                    "written": "2026-12-01T09:00:00+0000"},
+               part_name("i1", 0, "cmaes_sqp", 1): {"git_commit": "bbbbbbb222", "git_dirty": False,
+                                                    "written": "2026-12-02T09:00:00+0000"}}
     meta = dict(git_commit="ccccccc333", written="2026-12-07T10:00:00", run_origins=origins)
     (folder / "meta.json").write_text(json.dumps(meta))
     [row] = S.reference_run_rows(folder, suite.problem("pid-min"), 50.0, 100.0)
-    assert (row["f_best"], row["converged_at"], row["commit"]) == (1.5, 60, "bbbbbbb")
-    # a folder from before run_origins: the folder's commit
+    assert (row["f_best"], row["converged_at"], row["commit"], row["date"]) == (1.5, 60, "bbbbbbb", "2026-12-02")
+    # an origin from before heurtune recorded its date: the folder's date beside the run's commit
+    del origins[part_name("i1", 0, "cmaes_sqp", 1)]["written"]
+    (folder / "meta.json").write_text(json.dumps(meta))
+    row = S.reference_run_rows(folder, suite.problem("pid-min"), 50.0, 100.0)[0]
+    assert (row["commit"], row["date"]) == ("bbbbbbb", "2026-12-07")
+    # a folder from before run_origins: the folder's commit and date
     (folder / "meta.json").write_text(json.dumps({k: v for k, v in meta.items() if k != "run_origins"}))
-    assert S.reference_run_rows(folder, suite.problem("pid-min"), 50.0, 100.0)[0]["commit"] == "ccccccc"
+    row = S.reference_run_rows(folder, suite.problem("pid-min"), 50.0, 100.0)[0]
+    assert (row["commit"], row["date"]) == ("ccccccc", "2026-12-07")
