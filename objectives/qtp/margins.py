@@ -54,8 +54,10 @@ range that extends two decades beyond the slowest and the fastest pole of the lo
 the Oustaloup filter's slow (~1e-3 rad/s) and fast (~700 rad/s) poles are covered. A crossover
 is bracketed where the samples change sign, as python-control's
 :func:`control.stability_margins` brackets them, and found by Brent's method on the exact
-response ``L(jw)`` (python-control evaluates it from the state space) rather than on a spline
-through the samples: exact to 2e-12 rad/s and 4-5 times faster (docs/speed_history.md).
+response ``L(jw)`` rather than on a spline through the samples: exact to 2e-12 rad/s. The
+response is SLICOT's TB05AD method (Hessenberg form once, one Hessenberg solve per frequency),
+compiled over the whole grid (:mod:`heurtune.objectives.qtp.margins_kernels`) where
+python-control calls TB05AD once per frequency from Python (docs/speed_history.md).
 """
 
 from __future__ import annotations
@@ -66,6 +68,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from heurtune.objectives.qtp.margins_kernels import hessenberg_response
 from heurtune.objectives.qtp.model import linearise, operating_point
 
 __all__ = ["loop_margins", "multivariable_margins", "siso_margins", "return_ratio", "element_loop",
@@ -107,16 +110,40 @@ def frequency_grid(poles, *, decades_beyond: float = 2.0,
     return np.logspace(lo, hi, int((hi - lo) * points_per_decade) + 1)
 
 
+def _frequency_response(sys):
+    """``w -> L(jw)`` on an array of frequencies for a SISO ``sys``: a state space by the compiled
+    Hessenberg evaluation (:mod:`heurtune.objectives.qtp.margins_kernels`, what SLICOT's TB05AD,
+    python-control's evaluator, does per frequency from Python), anything else by python-control."""
+    import control
+    import scipy.linalg
+
+    if not isinstance(sys, control.StateSpace) or sys.nstates == 0:
+        return lambda w: np.asarray(np.squeeze(sys(1j * np.asarray(w))), dtype=complex).ravel()
+    A = np.asarray(sys.A, dtype=np.float64)
+    H, Q = scipy.linalg.hessenberg(A, calc_q=True)
+    H = np.ascontiguousarray(H)
+    b = np.ascontiguousarray(Q.T @ np.asarray(sys.B, dtype=np.float64)[:, 0])
+    c = np.ascontiguousarray(np.asarray(sys.C, dtype=np.float64)[0] @ Q)
+    d = float(np.asarray(sys.D, dtype=np.float64)[0, 0])
+
+    def evaluate(w):
+        w = np.ascontiguousarray(w, dtype=np.float64)
+        out = np.empty(w.size, dtype=np.complex128)
+        hessenberg_response(H, b, c, d, w, out)
+        return out
+
+    return evaluate
+
+
 def _crossings(sys, omega) -> tuple:
     """The phase crossovers (L real negative) and gain crossovers (|L| = 1) of a SISO ``sys``.
 
     The search of python-control's ``stability_margins`` for sampled data: a crossover lies
     between two grid points where ``arg(-L)`` (with ``Re L <= 0`` at the first) or ``|L| - 1``
     changes sign, and Brent's method finds it. Here the root is found on ``L(jw)`` itself,
-    evaluated by python-control from the state space, not on a spline through the samples:
-    exact to the root finder's tolerance (2e-12 rad/s) and 4-5 times faster per loop, the
-    sampling included (the spline's evaluations and the stability margin, which heurtune does
-    not report, were most of python-control's time; ``benchmarks/bench_qtp_margins.py``).
+    evaluated from the state space (:func:`_frequency_response`), not on a spline through the
+    samples: exact to the root finder's tolerance (2e-12 rad/s) and faster per loop, the
+    sampling included (``benchmarks/bench_qtp_margins.py``).
 
     Returns
     -------
@@ -125,11 +152,13 @@ def _crossings(sys, omega) -> tuple:
     """
     from scipy.optimize import brentq
 
+    sampled = _frequency_response(sys)
+
     def response(w):
-        return complex(np.squeeze(sys(1j * w)))
+        return complex(sampled(np.array([w], dtype=np.float64))[0])
 
     with np.errstate(all="ignore"):  # a pole on the grid: an infinite sample, no interval there
-        values = np.asarray(np.squeeze(sys(1j * omega)), dtype=complex).ravel()
+        values = sampled(omega)
     finite = np.isfinite(values)
     usable = finite[:-1] & finite[1:]
     arg = np.angle(-values)
