@@ -674,7 +674,7 @@ def _persist(parts: Path, spec: RunSpec, row: dict, hist: pd.DataFrame, fingerpr
 def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed=None, out=None,
                    smoke=False, fresh=False, backend="loky", scheduler=None, plugins=(),
                    progress_stream=None, figures=True, executor=None, device: str = "cpu",
-                   lockstep: bool | None = None, force: bool = False) -> Path:
+                   lockstep: bool | None = None, force: bool = False, cases_alike: bool = False) -> Path:
     """Run (or resume) an experiment; returns its output folder. See the module docstring.
 
     ``jobs``, ``backend`` and ``scheduler`` say where the runs go (:class:`heurtune.core.execution.Pool`);
@@ -718,6 +718,9 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
         Advance the pending runs together (default: on for the batched devices).
     force : bool
         Run even when one evaluation is predicted to take more than a minute.
+    cases_alike : bool
+        The cases are instances of one problem (the suite's): the first case with runs to do is
+        calibrated (and checked for dead variables) for all of them.
 
     Returns
     -------
@@ -756,7 +759,8 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     done = set() if fresh or not parts.is_dir() else {s.part_name for s in specs} & _finished(parts)
     # Measured before anything is written: a config too costly to evaluate is refused here.
     with CompileNotice(exp.name, progress_stream):
-        calibrations, shapes = _calibrate(exp, config, [s for s in specs if s.part_name not in done], force=force)
+        calibrations, shapes = _calibrate(exp, config, [s for s in specs if s.part_name not in done], force=force,
+                                          alike=cases_alike)
     _make_folder(out_dir)
     lock = FolderLock(out_dir)
     lock.acquire()
@@ -764,7 +768,7 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
         return _run_locked(exp, config, specs, fingerprints, ids, out_dir, parts, fresh=fresh, jobs=jobs,
                            backend=backend, scheduler=scheduler, executor=executor, device=device,
                            lockstep=lockstep, progress_stream=progress_stream, figures=figures,
-                           calibrations=calibrations, shapes=shapes,
+                           calibrations=calibrations, shapes=shapes, cases_alike=cases_alike,
                            plan_key=dict(max_epochs=max_epochs, seed=seed, smoke=smoke), part_tables=part_tables)
     finally:
         lock.release()
@@ -782,7 +786,8 @@ def _make_folder(out_dir: Path) -> None:
 
 
 def _run_locked(exp, config, specs, fingerprints, ids, out_dir, parts, *, fresh, jobs, backend, scheduler,
-                executor, device, lockstep, progress_stream, figures, calibrations, shapes, plan_key, part_tables):
+                executor, device, lockstep, progress_stream, figures, calibrations, shapes, plan_key, part_tables,
+                cases_alike=False):
     """:func:`run_experiment` once it holds the folder's lock: check the parts, run what is
     missing, gather."""
     if fresh:
@@ -793,7 +798,8 @@ def _run_locked(exp, config, specs, fingerprints, ids, out_dir, parts, *, fresh,
     done = check.reusable
     pending = [s for s in specs if s.part_name not in done]
     if any(s.case not in calibrations and not s.baseline for s in pending):  # parts set aside
-        more, more_shapes = _calibrate(exp, config, [s for s in pending if s.case not in calibrations], force=True)
+        more, more_shapes = _calibrate(exp, config, [s for s in pending if s.case not in calibrations], force=True,
+                                       alike=cases_alike)
         calibrations, shapes = {**calibrations, **more}, {**shapes, **more_shapes}
     with atomic_path(out_dir / "plan.json") as tmp:
         tmp.write_text(json.dumps(plan_key))
@@ -863,16 +869,23 @@ def _run_locked(exp, config, specs, fingerprints, ids, out_dir, parts, *, fresh,
     return out_dir
 
 
-def _calibrate(exp, config, pending, *, force: bool) -> dict:
+def _calibrate(exp, config, pending, *, force: bool, alike: bool = False) -> dict:
     """Calibrate one evaluation of every case with runs to do (a fresh problem each, on the
-    configured device); refuse a case whose evaluation would exceed the limit unless ``force``."""
+    configured device); refuse a case whose evaluation would exceed the limit unless ``force``.
+    With ``alike`` (instances of one problem) the first such case stands for all of them."""
     cases = sorted({s.case for s in pending if not s.baseline}, key=list(exp.cases).index)
     calibrations, shapes = {}, {}
-    for case in cases:
+    for case in cases[:1] if alike else cases:
         prob = exp.problem(case)
         prob.set_device(config.get("device", "cpu"))
         calibrations[case] = calibrate(prob)
         shapes[case] = (prob.dim, len(prob.constraint_names), len(prob.objective_names or ()) or 1)
+    if alike and cases:
+        first = calibrations[cases[0]]
+        for case in cases[1:]:
+            calibrations[case] = dataclasses.replace(first, case=case)
+            shapes[case] = shapes[cases[0]]
+        cases = cases[:1]
     calibrations = borrow_step_cost(calibrations)
     if not force:
         for cal in calibrations.values():

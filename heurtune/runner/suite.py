@@ -97,6 +97,8 @@ class Suite:
     runs: int
     seed: int
     perturbation: dict
+    random_runs: int = 5
+    """Random search's runs per instance behind a targets row's ``f_random`` (their median)."""
 
     def problem(self, name: str) -> SuiteProblem:
         """The problem called ``name`` (ConfigError naming the allowed ones otherwise)."""
@@ -132,12 +134,14 @@ def load_suite(path=None) -> Suite:
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{src}: not valid TOML: {exc}") from None
     settings = raw.get("suite", {})
-    unknown = sorted(set(settings) - {"instances", "budget_multiplier", "runs", "seed", "perturbation"})
+    unknown = sorted(set(settings) - {"instances", "budget_multiplier", "runs", "random_runs", "seed",
+                                      "perturbation"})
     if unknown:
         raise ConfigError(f"{src}: suite.{unknown[0]}: unknown key; allowed: budget_multiplier, instances, "
-                          f"perturbation, runs, seed")
+                          f"perturbation, random_runs, runs, seed")
     instances = _positive_int(settings.get("instances", 5), f"{src}: suite.instances")
-    runs = _positive_int(settings.get("runs", 5), f"{src}: suite.runs")
+    runs = _positive_int(settings.get("runs", 3), f"{src}: suite.runs")
+    random_runs = _positive_int(settings.get("random_runs", 5), f"{src}: suite.random_runs")
     seed = settings.get("seed", 0)
     if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
         raise ConfigError(f"{src}: suite.seed must be an integer >= 0, got {seed!r}")
@@ -176,7 +180,7 @@ def load_suite(path=None) -> Suite:
                                      row.get("overrides", {}), objectives, reference))
     if not problems:
         raise ConfigError(f"{src}: no [[problem]] tables")
-    return Suite(tuple(problems), instances, multiplier, runs, seed, perturbation)
+    return Suite(tuple(problems), instances, multiplier, runs, seed, perturbation, random_runs)
 
 
 def _objectives(row: dict, where: str) -> tuple:
@@ -588,7 +592,7 @@ def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
         Runs per reference algorithm and instance (default 1: one long run, as COCO's best
         known values come from the best long runs).
     runs : int, optional
-        Random search's runs per instance (default the suite's).
+        Random search's runs per instance (default the suite's ``random_runs``).
     jobs : int
     path : str or Path, optional
         The table written (default ``experiments/suite/targets.csv``).
@@ -600,7 +604,7 @@ def make_targets(suite: Suite, problems, instances, out, *, reference=REFERENCE,
     pandas.DataFrame
         The table written.
     """
-    runs = suite.runs if runs is None else runs
+    runs = suite.random_runs if runs is None else runs
     base = Path(out) / "reference"
     reference = tuple(reference)
     path = Path(path) if path is not None else suite_dir() / "targets.csv"
@@ -731,7 +735,7 @@ def _run_one(suite, problem, algorithm, instances, multiplier, runs, base, jobs,
     try:
         with contextlib.redirect_stdout(io.StringIO()):  # each experiment's summary table: the leaderboard says it
             run_experiment(str(config), jobs=jobs, out=folder, figures=False, progress_stream=_Notices(stream),
-                           plugins=tuple(plugins))
+                           plugins=tuple(plugins), cases_alike=True)
     except ResultsOfAnotherConfig as err:  # the suite has no --fresh: it never discards results itself
         raise ConfigError(f"{err.out_dir} holds {err.runs} run(s) of {problem.name} made with another config "
                           f"(differing: {err.differing}; its row in problems.toml or the budget changed since); "

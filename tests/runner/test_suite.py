@@ -127,6 +127,10 @@ def test_a_redefined_problem_with_results_is_refused_with_the_folder_to_remove(t
      "suite.instances must be an integer >= 1"),
     ("[suite]\nbudget_multiplier = -1\n[[problem]]\nname='a'\nexperiment='benchmark_qtp'\ncase='min'\n",
      "suite.budget_multiplier must be a number > 0"),
+    ("[suite]\nrandom_runs = 0\n[[problem]]\nname='a'\nexperiment='benchmark_qtp'\ncase='min'\n",
+     "suite.random_runs must be an integer >= 1"),
+    ("[suite]\nrandom_run = 5\n[[problem]]\nname='a'\nexperiment='benchmark_qtp'\ncase='min'\n",
+     "suite.random_run: unknown key; allowed: budget_multiplier, instances, perturbation, random_runs, runs, seed"),
     ("[suite.perturbation.qtp]\nA = 1.5\n[[problem]]\nname='a'\nexperiment='benchmark_qtp'\ncase='min'\n",
      "suite.perturbation.qtp.A must be a number in [0, 1)"),
     ("[suite.perturbation]\nA = 0.1\n[[problem]]\nname='a'\nexperiment='benchmark_qtp'\ncase='min'\n",
@@ -332,7 +336,7 @@ def test_the_shipped_targets_rows_are_made_at_the_suite_budgets_by_a_commit_of_t
         kind = S.MULTI_OBJECTIVE_REFERENCE if names[row.problem].multi_objective else S.REFERENCE
         assert set(row.reference.split("+")) <= set(kind), f"{row.problem}: reference {row.reference}"
         assert np.isfinite(row.f_best) and row.f_best <= row.f_random, row  # the reference beats random's median
-        assert row.random_runs == suite.runs and len(str(row.commit)) >= 7
+        assert row.random_runs == suite.random_runs and len(str(row.commit)) >= 7
     root = S.suite_dir().parents[1]
     if shutil.which("git") is None or not (root / ".git").exists():
         return
@@ -594,3 +598,25 @@ def test_a_reference_row_names_the_commit_of_its_best_run_not_of_the_last_gather
     (folder / "meta.json").write_text(json.dumps({k: v for k, v in meta.items() if k != "run_origins"}))
     row = S.reference_run_rows(folder, suite.problem("pid-min"), 50.0, 100.0)[0]
     assert (row["commit"], row["date"]) == ("ccccccc", "2026-12-07")
+
+
+def test_a_suite_folder_calibrates_its_first_instance_for_all(tmp_path, suite, monkeypatch):
+    """The instances of a problem cost alike: the runner calibrates (and checks for dead
+    variables) the first instance with runs to do and plans the others with its figure."""
+    import heurtune.runner.experiment as E
+
+    calibrated, checked = [], []
+    real_calibrate, real_warn = E.calibrate, E._warn_dead_variables
+    monkeypatch.setattr(E, "calibrate", lambda prob, *a, **k: calibrated.append(prob.case) or real_calibrate(prob))
+    monkeypatch.setattr(E, "_warn_dead_variables",
+                        lambda exp, case, *a: checked.append(case) or real_warn(exp, case, *a))
+    log = open(tmp_path / "log", "w")
+    [(_, _, folder)] = S.run_suite(suite, [suite.problem("lqi-nmp")], ["random_search"], [2, 3, 4], tmp_path,
+                                   multiplier=0.5, runs=1, stream=log)
+    assert calibrated == ["i2"] and checked == ["i2"]
+    assert sorted(pd.read_parquet(folder / "runs.parquet")["case"]) == ["i2", "i3", "i4"]
+    # an experiment's own cases are each calibrated (they may be different problems)
+    calibrated.clear()
+    E.run_experiment(str(tmp_path / "configs" / "lqi-nmp__random_search.toml"), out=tmp_path / "own",
+                     figures=False, progress_stream=log)
+    assert calibrated == ["i2", "i3", "i4"]
