@@ -6,7 +6,8 @@ candidates of every case of every shipped experiment on each CPU device (``cpu``
 sample_time``) and under all their scenarios at once; a TITO problem, which simulates only the
 candidates its frequency check passes, also simulates one, ``ga_pi_ccts`` (on the
 continuous loop to its tolerance) runs on that loop's fixed step too, and ``cs_folqi_qtp`` with
-the linearised integrator. Every kernel those evaluations call
+the linearised integrator; the margins that a results folder reports are computed for one
+candidate of each case. Every kernel those evaluations call
 is compiled and written to numba's cache (``__pycache__`` beside the sources, or
 ``NUMBA_CACHE_DIR``), so a later run, test or worker process loads it instead of compiling.
 ``make setup`` and ``make test`` call it; with a filled cache it takes seconds.
@@ -76,6 +77,11 @@ def _warm_problem(prob, rng, devices=DEVICES) -> None:
     if hasattr(prob, "simulated_metrics"):
         with contextlib.suppress(Exception):
             prob.simulated_metrics(X[0])
+    # the margins of the best runs that a folder's gathering reports (QTP: a compiled response),
+    # with the one-candidate kernels (one process compiles each kernel)
+    if hasattr(prob, "margins") and "cpu" in devices:
+        with contextlib.suppress(Exception):
+            prob.margins(X[0])
 
 
 def warm(names: list[str]) -> list[str]:
