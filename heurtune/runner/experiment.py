@@ -746,7 +746,8 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     out_dir = Path(out) if out else Path("results") / exp.name
     parts = out_dir / "parts"
     specs = plan(exp, runs=runs, max_epochs=max_epochs, seed=seed, smoke=smoke)
-    problems = {case: exp.problem(case) for case in exp.cases}
+    # the cases with runs (a suite's config holds every instance, its optimiser tunes some)
+    problems = {case: exp.problem(case) for case in exp.cases if any(s.case == case for s in specs)}
     ids = {case: problem_fingerprint(prob) for case, prob in problems.items()}
     fingerprints = {s.part_name: run_fingerprint(s, problems[s.case].identity()) for s in specs}
     if out_dir.exists() and not out_dir.is_dir():

@@ -400,7 +400,7 @@ def test_the_compiled_response_is_the_state_space_response_python_control_evalua
     checked = 0
     for name in ("cs_folqi_qtp", "cs_pid_qtp", "cs_fopid_qtp"):
         prob = heurtune.load_experiment(name).problem("min")
-        while checked < 12 * (1 + ("pid" in name) + ("fopid" in name)):
+        while checked < 4 * (2 + ("pid" in name) + ("fopid" in name)):  # 2, 1 and 1 candidates
             x = prob.lower + rng.random(prob.dim) * (prob.upper - prob.lower)
             try:
                 systems = heurtune.objectives.qtp.margins.linear_systems(prob, x)
