@@ -15,6 +15,7 @@ anything else, so objects of a plugin's classes reach them intact.
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import hashlib
 import os
 import pickle
@@ -27,16 +28,35 @@ import cloudpickle
 from heurtune.core.errors import ConfigError
 from heurtune.core.plugins import load_plugins, loaded
 
-__all__ = ["Pool", "BACKENDS", "shared", "kill_workers"]
+__all__ = ["Pool", "BACKENDS", "shared", "kill_workers", "process_executor"]
 
 BACKENDS = ("loky", "dask")
 
 _SHARED = {}  # this process's shared object (set by the initialiser or the task)
+_INSTALLING = threading.Lock()  # the tasks of a user's thread executor install theirs at once
+_HERE = threading.local()  # the shared object of the task this thread runs, where it is not the process's
 
 
 def shared():
     """The ``shared`` object of the pool this task runs in."""
-    return _SHARED["value"]
+    value = getattr(_HERE, "value", _HERE)
+    return _SHARED["value"] if value is _HERE else value
+
+
+@contextlib.contextmanager
+def _shared_here(value):
+    """Make ``value`` this thread's shared object while the block runs: the tasks of several
+    pools may run in threads of one process at once (in-process pools of the suite's folders
+    side by side, a user's thread executor)."""
+    previous = getattr(_HERE, "value", _HERE)
+    _HERE.value = value
+    try:
+        yield value
+    finally:
+        if previous is _HERE:
+            del _HERE.value
+        else:
+            _HERE.value = previous
 
 
 _LOKY = []  # the loky executors this process's pools have opened (see kill_workers)
@@ -70,6 +90,21 @@ def kill_workers() -> None:
         _kill(reusable_executor._executor)
 
 
+def process_executor(n_jobs: int) -> concurrent.futures.Executor:
+    """The persistent loky pool of ``n_jobs`` worker processes that a :class:`Pool` of that size
+    without a shared object uses, as an executor that several Pools can share at once (the
+    suite's folders side by side); :func:`kill_workers` kills it.
+
+    Parameters
+    ----------
+    n_jobs : int
+        Workers, at least 2 (one worker is this process: :class:`Pool` runs its tasks here).
+    """
+    if isinstance(n_jobs, bool) or not isinstance(n_jobs, int) or n_jobs < 2:
+        raise ConfigError(f"a process executor needs n_jobs >= 2, got {n_jobs!r}")
+    return Pool(n_jobs).open()._loky
+
+
 _CONTROLLER = []  # one threadpoolctl controller per process (building one costs milliseconds)
 
 
@@ -87,11 +122,12 @@ def _install(plugins, key, payload):
     The plugins are loaded first: the payload may hold objects of a plugin's classes, which a
     fresh worker can only unpickle once the plugin's module exists there.
     """
-    if _SHARED.get("key") != key:
-        load_plugins(plugins)
-        _SHARED["value"] = pickle.loads(payload) if payload is not None else None
-        _SHARED["key"] = key
-    return _SHARED["value"]
+    with _INSTALLING:
+        if _SHARED.get("key") != key:
+            load_plugins(plugins)
+            _SHARED["value"] = pickle.loads(payload) if payload is not None else None
+            _SHARED["key"] = key
+        return _SHARED["value"]
 
 
 class WorkerDied(Exception):
@@ -142,8 +178,7 @@ def _task(fn, item):
 
 def _task_with(plugins, key, payload, fn, item):
     """A task that brings its plugins and shared object along (Dask, user executors)."""
-    _install(plugins, key, payload)
-    with _blas_one_thread():
+    with _shared_here(_install(plugins, key, payload)), _blas_one_thread():
         return fn(item)
 
 
@@ -255,13 +290,8 @@ class Pool:
     # -- work ---------------------------------------------------------------------------------
     def _run_here(self, fn, items) -> list:
         """``[fn(item) ...]`` in this process, with this pool's shared object and BLAS on one thread."""
-        previous = _SHARED.get("value"), _SHARED.get("key")
-        _SHARED["value"], _SHARED["key"] = self.value, self._key
-        try:
-            with _blas_one_thread():
-                return [fn(item) for item in items]
-        finally:
-            _SHARED["value"], _SHARED["key"] = previous
+        with _shared_here(self.value), _blas_one_thread():
+            return [fn(item) for item in items]
 
     def _submit_all(self, fn, items):
         self.open()

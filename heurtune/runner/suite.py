@@ -28,6 +28,7 @@ apart (``OUT/multiobjective/``), since its algorithms are not the single-objecti
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import contextlib
 import dataclasses
 import datetime
@@ -35,7 +36,9 @@ import io
 import json
 import math
 import os
+import signal
 import sys
+import threading
 import tomllib
 from pathlib import Path
 
@@ -724,18 +727,22 @@ class _Notices(io.TextIOBase):
         return len(text)
 
 
-def _run_one(suite, problem, algorithm, instances, multiplier, runs, base, jobs, stream, plugins=()) -> Path:
-    """Run (or resume) one problem and algorithm; returns its results folder."""
+def _run_one(suite, problem, algorithm, instances, multiplier, runs, base, jobs, stream, plugins=(),
+             executor=None) -> Path:
+    """Run (or resume) one problem and algorithm; returns its results folder. With an
+    ``executor`` (:func:`_side_by_side`) its runs go there, and the caller silences stdout."""
     from heurtune.runner.experiment import run_experiment
 
     stream = sys.stderr if stream is None else stream
     folder = Path(base) / problem.name / algorithm
     config = problem_config(suite, problem, algorithm, instances, multiplier, runs,
                             Path(base) / "configs" / f"{problem.name}__{algorithm}.toml")
+    # each experiment's summary table goes nowhere: the leaderboard says it
+    silent = contextlib.redirect_stdout(io.StringIO()) if executor is None else contextlib.nullcontext()
     try:
-        with contextlib.redirect_stdout(io.StringIO()):  # each experiment's summary table: the leaderboard says it
+        with silent:
             run_experiment(str(config), jobs=jobs, out=folder, figures=False, progress_stream=_Notices(stream),
-                           plugins=tuple(plugins), cases_alike=True)
+                           plugins=tuple(plugins), cases_alike=True, executor=executor)
     except ResultsOfAnotherConfig as err:  # the suite has no --fresh: it never discards results itself
         raise ConfigError(f"{err.out_dir} holds {err.runs} run(s) of {problem.name} made with another config "
                           f"(differing: {err.differing}; its row in problems.toml or the budget changed since); "
@@ -789,8 +796,61 @@ def run_suite(suite: Suite, problems, algorithms, instances, out, *, multiplier=
             kind = f"{len(p.objectives)} objectives" if p.multi_objective else "one objective"
             print(f"suite: {p.name}: skipped, no algorithm of --algorithms takes {kind}", file=stream or sys.stderr,
                   flush=True)
-    return [(p, alg, _run_one(suite, p, alg, instances, multiplier, runs, out, jobs, stream, plugins))
-            for p, alg in pairs]
+    if jobs > 1 and len(pairs) > 1:
+        folders = _side_by_side(suite, pairs, instances, multiplier, runs, out, jobs, stream, plugins)
+    else:
+        folders = [_run_one(suite, p, alg, instances, multiplier, runs, out, jobs, stream, plugins) for p, alg in pairs]
+    return [(p, alg, folder) for (p, alg), folder in zip(pairs, folders)]
+
+
+# Seconds a stopped suite waits for its folders' threads to let go of their folders (each sees its
+# runs fail once the workers are killed; one calibrating finishes its calibration first).
+STOP_WAIT_S = 10.0
+
+
+def _side_by_side(suite, pairs, instances, multiplier, runs, out, jobs, stream, plugins) -> list:
+    """Run the pairs' folders side by side (:func:`run_suite` with several workers); returns
+    their folders in the pairs' order.
+
+    Up to ``jobs + 1`` folders are open at once, each in a thread of this process that
+    prepares, calibrates and gathers it as :func:`run_experiment` does, and all their runs go,
+    whole and first come first served, to one pool of ``jobs`` worker processes. So no worker
+    waits while a folder is calibrated or gathered, or while a folder's last run ends, as one
+    folder after another would make it. Each run's numbers are those of any other way of running
+    it (its seed is its own).
+
+    The first folder that fails stops the others (their workers are killed, their finished runs
+    kept) and its error is raised; Ctrl-C or SIGTERM in this thread does the same and is raised.
+    """
+    from heurtune.core.execution import kill_workers, process_executor
+
+    executor = process_executor(jobs)
+    threads = concurrent.futures.ThreadPoolExecutor(max_workers=jobs + 1, thread_name_prefix="heurtune-suite")
+    futures = []
+
+    def stop():
+        for fut in futures:
+            fut.cancel()
+        kill_workers()
+        threads.shutdown(wait=False)
+        concurrent.futures.wait(futures, timeout=STOP_WAIT_S)
+
+    with contextlib.redirect_stdout(io.StringIO()):  # the experiments' summary tables (see _run_one)
+        try:
+            futures += [threads.submit(_run_one, suite, p, alg, instances, multiplier, runs, out, jobs, stream,
+                                       plugins, executor) for p, alg in pairs]
+            waiting = set(futures)
+            while waiting:  # a timeout, so that a signal reaches this thread between waits
+                done, waiting = concurrent.futures.wait(waiting, timeout=1.0,
+                                                        return_when=concurrent.futures.FIRST_EXCEPTION)
+                failed = [fut for fut in futures if fut in done and fut.exception() is not None]
+                if failed:
+                    raise failed[0].exception()
+        except BaseException:
+            stop()
+            raise
+    threads.shutdown()
+    return [fut.result() for fut in futures]
 
 
 # -- the command -------------------------------------------------------------------------------
@@ -887,10 +947,15 @@ def _algorithms(text) -> list:
 
 
 def run(argv=None) -> int:
-    """Command-line entry point; returns the exit code."""
+    """Command-line entry point; returns the exit code (130 after Ctrl-C, 143 after SIGTERM)."""
     from heurtune.core.cli import UsageError
+    from heurtune.core.execution import kill_workers
+    from heurtune.runner.experiment import Interrupted, Terminated, _raise_terminated, _signal_of
 
     stream = sys.stderr
+    previous_handler = None
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) != signal.SIG_IGN:
+        previous_handler = signal.signal(signal.SIGTERM, _raise_terminated)  # else started ignored: it stays so
     try:
         args = _parser().parse_args(argv)
         from heurtune.core.families import load_registering_plugin
@@ -952,9 +1017,20 @@ def run(argv=None) -> int:
         print(f"error: {exc.filename or 'the output folder'}: {exc.strerror or exc}; the finished runs are kept: "
               f"fix that and run the same command again", file=stream)
         return 2
-    except KeyboardInterrupt:
+    except Interrupted as exc:  # one folder at a time: its run_experiment stopped
+        print(f"\ninterrupted: {exc.kept} of {exc.planned} runs kept in {exc.out_dir}, and every finished run "
+              "of the suite; run the same command again to resume", file=stream)
+        return exc.code
+    except (KeyboardInterrupt, Terminated, SystemError) as exc:
+        signal_exc = _signal_of(exc)
+        if signal_exc is None:
+            raise
+        kill_workers()
         print("\ninterrupted: the finished runs are kept; run the same command again to resume", file=stream)
-        return 130
+        return 143 if isinstance(signal_exc, Terminated) else 130
+    finally:
+        if previous_handler is not None:
+            signal.signal(signal.SIGTERM, previous_handler)
     return 0
 
 
@@ -1041,4 +1117,9 @@ def main() -> None:
     from heurtune import _startup
 
     _startup.release()
-    sys.exit(_startup.run_command(run))
+    code = _startup.run_command(run)
+    if code in (130, 143):  # leave at once, as an experiment does (heurtune.runner.experiment.main)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)

@@ -2,6 +2,7 @@
 
 import concurrent.futures
 import operator
+import threading
 
 import numpy as np
 import pytest
@@ -88,3 +89,19 @@ def test_pool_runs_tasks_in_order_and_as_they_finish():
 
 def _plus_shared(x):
     return x + shared()
+
+
+def test_in_process_pools_in_threads_each_see_their_own_shared_object():
+    # the suite's folders side by side: each thread's in-process pools (the work plan's dry runs)
+    both_inside = threading.Barrier(2)
+
+    def read(_):
+        both_inside.wait(timeout=30)
+        return shared()
+
+    def one(value):
+        with Pool(1, shared=value) as pool:
+            return pool.map(read, [0])[0]
+
+    with concurrent.futures.ThreadPoolExecutor(2) as threads:
+        assert list(threads.map(one, ["first", "second"])) == ["first", "second"]

@@ -14,6 +14,7 @@ import sys
 import threading
 import time
 
+import pandas as pd
 import pytest
 
 ARGS = ["cs_folqi_qtp", "--runs", "2", "--max-epochs", "4", "--jobs", "2", "--seed", "5"]
@@ -264,3 +265,33 @@ def test_a_signal_raised_inside_a_c_call_counts_as_the_signal():
     assert isinstance(_signal_of(wrapped(Terminated())), Terminated)
     assert isinstance(_signal_of(wrapped(KeyboardInterrupt())), KeyboardInterrupt)
     assert _signal_of(SystemError("unrelated")) is None and _signal_of(ValueError()) is None
+
+
+@pytest.mark.long  # 30 s on the EPYC
+# two workers: the suite's folders side by side; one: one after another, each stopped by its run_experiment
+@pytest.mark.parametrize("jobs, sig, code", [("2", signal.SIGINT, 130), ("1", signal.SIGTERM, 143)])
+def test_a_suite_interrupted_after_its_first_folder_resumes(tmp_path, jobs, sig, code):
+    out = tmp_path / "suite"
+    args = ["-m", "heurtune.suite", "--smoke", "--algorithms", "pso,cs", "--jobs", jobs, "--no-figures", "--no-ioh",
+            "--out", str(out)]
+    proc = subprocess.Popen([sys.executable, "-c", LAUNCH, "default", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    before = []
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and not any(" / " in line for line in before):
+        line = proc.stderr.readline()  # "suite: <problem> / <algorithm>: ..." once a folder is done
+        if not line:
+            break
+        before.append(line)
+    assert any(" / " in line for line in before), before
+    got, err, elapsed, masks = interrupt(proc, sig)
+    err = "".join(before) + err
+    assert got == code and elapsed < 15, (got, elapsed, err, masks)
+    assert "Traceback" not in err
+    assert "run the same command again to resume" in interrupted_line(err)
+    assert not list(out.rglob(".heurtune.lock")), "a folder is still locked"
+    done = subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    for problem in ("iolqi-min-limits", "pid-min"):
+        for alg in ("pso", "cs"):
+            assert len(pd.read_parquet(out / problem / alg / "runs.parquet")) == 4
