@@ -39,6 +39,7 @@ then counts the evaluations done of the total and the time left, from inside run
 from __future__ import annotations
 
 import argparse
+import collections
 import dataclasses
 import functools
 import hashlib
@@ -255,8 +256,13 @@ def _check_population_memory(exp) -> None:
                               f"{total / 2**30:,.0f} GiB: lower it")
 
 
-# Per-process cache: workers rebuild each case's problem once.
-_PROBLEMS = {}
+# Per-process cache: workers rebuild each case's problem once. The problems used last are kept:
+# a worker that serves many experiments (the suite's folders side by side, every instance of each)
+# would otherwise hold every problem it ever built, and loky restarts a worker whose memory grows
+# by 300 MB. The threads of the suite's folders share it (a lock).
+_PROBLEMS = collections.OrderedDict()
+_PROBLEMS_KEPT = 32
+_PROBLEMS_LOCK = threading.Lock()
 
 
 class Terminated(BaseException):
@@ -292,12 +298,20 @@ class Interrupted(Exception):
 
 def _problem(config: dict, case: str):
     key = (config["name"], json.dumps(config, sort_keys=True, default=str), case)
-    if key not in _PROBLEMS:
-        with quiet_config_warnings():  # the command loaded this config, and warned, before any run
-            prob = make_experiment(config).problem(case)
-        prob.set_device(config.get("device", "cpu"))
-        _PROBLEMS[key] = prob
-    return _PROBLEMS[key]
+    with _PROBLEMS_LOCK:
+        prob = _PROBLEMS.get(key)
+        if prob is not None:
+            _PROBLEMS.move_to_end(key)
+            return prob
+    with quiet_config_warnings():  # the command loaded this config, and warned, before any run
+        prob = make_experiment(config).problem(case)
+    prob.set_device(config.get("device", "cpu"))
+    with _PROBLEMS_LOCK:
+        prob = _PROBLEMS.setdefault(key, prob)  # one built meanwhile by another thread is kept
+        _PROBLEMS.move_to_end(key)
+        while len(_PROBLEMS) > _PROBLEMS_KEPT:
+            _PROBLEMS.popitem(last=False)
+    return prob
 
 
 def execute(config: dict, spec: RunSpec, evaluator: Evaluator | None = None, *, parts=None):
@@ -747,7 +761,8 @@ def run_experiment(name: str, *, runs=None, max_epochs=None, jobs: int = 1, seed
     parts = out_dir / "parts"
     specs = plan(exp, runs=runs, max_epochs=max_epochs, seed=seed, smoke=smoke)
     # the cases with runs (a suite's config holds every instance, its optimiser tunes some)
-    problems = {case: exp.problem(case) for case in exp.cases if any(s.case == case for s in specs)}
+    planned_cases = {s.case for s in specs}
+    problems = {case: exp.problem(case) for case in exp.cases if case in planned_cases}
     ids = {case: problem_fingerprint(prob) for case, prob in problems.items()}
     fingerprints = {s.part_name: run_fingerprint(s, problems[s.case].identity()) for s in specs}
     if out_dir.exists() and not out_dir.is_dir():

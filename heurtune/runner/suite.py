@@ -40,6 +40,7 @@ import signal
 import sys
 import threading
 import tomllib
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -835,7 +836,11 @@ def _side_by_side(suite, pairs, instances, multiplier, runs, out, jobs, stream, 
         threads.shutdown(wait=False)
         concurrent.futures.wait(futures, timeout=STOP_WAIT_S)
 
-    with contextlib.redirect_stdout(io.StringIO()):  # the experiments' summary tables (see _run_one)
+    with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():  # summaries: see _run_one
+        # loky replaces a worker whose memory grew 300 MB past its first task's (a worker that
+        # serves every folder loads the kernels of every plant); its queued runs go on on the new
+        # worker, but with runs queued loky warns of a "too short worker timeout or memory leak"
+        warnings.filterwarnings("ignore", message="A worker stopped while some jobs were given", category=UserWarning)
         try:
             futures += [threads.submit(_run_one, suite, p, alg, instances, multiplier, runs, out, jobs, stream,
                                        plugins, executor) for p, alg in pairs]

@@ -298,3 +298,19 @@ def test_runs_keep_the_commit_that_made_them_when_a_later_process_gathers_the_fo
     assert origin == meta["run_origins"][parts[0].name[:-len(".run.parquet")]]
     # the time of the run's writing, not of the later gathering
     assert origin["written"] < meta["written"]
+
+
+def test_the_problem_cache_keeps_the_problems_used_last(monkeypatch):
+    # a suite worker serves many folders: it keeps the last problems it used, not every one
+    from heurtune.runner import experiment as E
+    from heurtune.runner.config import load_config
+
+    monkeypatch.setattr(E, "_PROBLEMS", type(E._PROBLEMS)())
+    monkeypatch.setattr(E, "_PROBLEMS_KEPT", 2)
+    config = load_config("cs_pid_qtp")
+    first, second = (E._problem(dict(config, name=f"cache_{k}"), "min") for k in (1, 2))
+    assert E._problem(dict(config, name="cache_1"), "min") is first  # used again: now the newest
+    E._problem(dict(config, name="cache_3"), "min")
+    assert len(E._PROBLEMS) == 2
+    assert E._problem(dict(config, name="cache_1"), "min") is first
+    assert E._problem(dict(config, name="cache_2"), "min") is not second  # the oldest went: built anew

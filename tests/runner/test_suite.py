@@ -622,7 +622,7 @@ def test_a_suite_folder_calibrates_its_first_instance_for_all(tmp_path, suite, m
     assert calibrated == ["i2", "i3", "i4"]
 
 
-def test_folders_side_by_side_make_the_runs_one_folder_after_another_makes(tmp_path, suite):
+def test_folders_side_by_side_make_the_runs_one_after_another_makes_and_stop_at_a_failure(tmp_path, suite):
     # two workers and two folders: the folders open side by side, their runs on one shared pool
     problems = [suite.problem("pid-min"), suite.problem("iolqi-min-limits")]
     one = S.run_suite(suite, problems, ["pso"], [2], tmp_path / "one", multiplier=5.0, runs=2, jobs=1)
@@ -631,13 +631,9 @@ def test_folders_side_by_side_make_the_runs_one_folder_after_another_makes(tmp_p
     for (_, _, a), (_, _, b) in zip(one, two):
         ra, rb = (pd.read_parquet(d / "runs.parquet").drop(columns="wall_time_s") for d in (a, b))
         assert_same_bits(rb, ra, because="workers")
-        assert not (b / ".heurtune.lock").exists()
-
-
-def test_a_failing_folder_stops_the_folders_beside_it(tmp_path, suite, monkeypatch):
-    problems = [suite.problem("pid-min"), suite.problem("iolqi-min-limits")]
-    S.run_suite(suite, problems[1:], ["pso"], [2], tmp_path, multiplier=5.0, runs=1, jobs=1)
-    # the same folder's config changes under it: that folder fails, as one after another
-    with pytest.raises(ConfigError, match="iolqi-min-limits made with another config"):
-        S.run_suite(suite, problems, ["pso"], [2], tmp_path, multiplier=6.0, runs=1, jobs=2)
+    # another budget: pid-min's folder starts anew, iolqi's holds runs of another config and fails,
+    # which stops pid-min's folder beside it
+    shutil.rmtree(two[0][2])
+    with pytest.raises(ConfigError, match="made with another config"):
+        S.run_suite(suite, problems, ["pso"], [2], tmp_path / "two", multiplier=6.0, runs=2, jobs=2)
     assert not list(tmp_path.rglob(".heurtune.lock"))
