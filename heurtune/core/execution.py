@@ -99,6 +99,11 @@ def process_executor(n_jobs: int) -> concurrent.futures.Executor:
     ----------
     n_jobs : int
         Workers, at least 2 (one worker is this process: :class:`Pool` runs its tasks here).
+
+    Returns
+    -------
+    concurrent.futures.Executor
+        joblib's loky executor; give it to :class:`Pool` as ``executor``.
     """
     if isinstance(n_jobs, bool) or not isinstance(n_jobs, int) or n_jobs < 2:
         raise ConfigError(f"a process executor needs n_jobs >= 2, got {n_jobs!r}")
