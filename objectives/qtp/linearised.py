@@ -94,7 +94,9 @@ def controller_matrices(ctrl) -> tuple:
     else:
         Ac, Bc, Cc, Dc = ctrl.minimal_realisation()
         Br, Dr = np.zeros((Ac.shape[0], 2)), np.zeros((2, 2))
-    out = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in (Ac, Bc, Cc, Dc, Br, Dr))
+    # writeable, as the kernels' types are: a structure's own frozen matrices (those that read
+    # the reference pass ctrl.B) would otherwise compile a second copy of each kernel
+    out = tuple(np.require(a, np.float64, ("C", "W")) for a in (Ac, Bc, Cc, Dc, Br, Dr))
     object.__setattr__(ctrl, "_linearised_matrices", out)
     return out
 
