@@ -287,6 +287,27 @@ def _signal_of(exc: BaseException):
     return None
 
 
+def signal_exit(exc: BaseException):
+    """The exit code of a command that ``exc`` stopped, its workers killed.
+
+    Parameters
+    ----------
+    exc : BaseException
+        What the command caught: KeyboardInterrupt, Terminated, or a SystemError a signal caused.
+
+    Returns
+    -------
+    int or None
+        130 after Ctrl-C, 143 after SIGTERM; None when ``exc`` is no signal (the caller raises
+        it again).
+    """
+    signal_exc = _signal_of(exc)
+    if signal_exc is None:
+        return None
+    kill_workers()
+    return 143 if isinstance(signal_exc, Terminated) else 130
+
+
 class Interrupted(Exception):
     """An experiment stopped by Ctrl-C (``code`` 130) or SIGTERM (143), its workers killed:
     ``kept`` of ``planned`` runs are on disk in ``out_dir`` and a rerun resumes from them."""
@@ -1349,12 +1370,11 @@ def run(argv=None) -> int:
               "run the same command again to resume", file=sys.stderr)
         return exc.code
     except (KeyboardInterrupt, Terminated, SystemError) as exc:
-        signal_exc = _signal_of(exc)
-        if signal_exc is None:
+        code = signal_exit(exc)
+        if code is None:
             raise
-        kill_workers()
         print("\ninterrupted before any run started", file=sys.stderr)
-        return 143 if isinstance(signal_exc, Terminated) else 130
+        return code
     finally:
         if previous_handler is not None:
             signal.signal(signal.SIGTERM, previous_handler)

@@ -954,8 +954,7 @@ def _algorithms(text) -> list:
 def run(argv=None) -> int:
     """Command-line entry point; returns the exit code (130 after Ctrl-C, 143 after SIGTERM)."""
     from heurtune.core.cli import UsageError
-    from heurtune.core.execution import kill_workers
-    from heurtune.runner.experiment import Interrupted, Terminated, _raise_terminated, _signal_of
+    from heurtune.runner.experiment import Interrupted, Terminated, _raise_terminated, signal_exit
 
     stream = sys.stderr
     previous_handler = None
@@ -1027,12 +1026,11 @@ def run(argv=None) -> int:
               "of the suite; run the same command again to resume", file=stream)
         return exc.code
     except (KeyboardInterrupt, Terminated, SystemError) as exc:
-        signal_exc = _signal_of(exc)
-        if signal_exc is None:
+        code = signal_exit(exc)
+        if code is None:
             raise
-        kill_workers()
         print("\ninterrupted: the finished runs are kept; run the same command again to resume", file=stream)
-        return 143 if isinstance(signal_exc, Terminated) else 130
+        return code
     finally:
         if previous_handler is not None:
             signal.signal(signal.SIGTERM, previous_handler)
