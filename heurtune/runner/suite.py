@@ -815,10 +815,10 @@ def _side_by_side(suite, pairs, instances, multiplier, runs, out, jobs, stream, 
 
     Up to ``jobs + 1`` folders are open at once, each in a thread of this process that
     prepares, calibrates and gathers it as :func:`run_experiment` does, and all their runs go,
-    whole and first come first served, to one pool of ``jobs`` worker processes. So no worker
-    waits while a folder is calibrated or gathered, or while a folder's last run ends, as one
-    folder after another would make it. Each run's numbers are those of any other way of running
-    it (its seed is its own).
+    whole and first come first served, to one pool of ``jobs`` worker processes. So the workers
+    wait only for the first folders' calibrations and for the suite's last runs, not for each
+    folder's calibration, gathering and last run as one folder after another made them. Each
+    run's numbers are those of any other way of running it (its seed is its own).
 
     The first folder that fails stops the others (their workers are killed, their finished runs
     kept) and its error is raised; Ctrl-C or SIGTERM in this thread does the same and is raised.
