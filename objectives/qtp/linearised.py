@@ -94,8 +94,8 @@ def controller_matrices(ctrl) -> tuple:
     else:
         Ac, Bc, Cc, Dc = ctrl.minimal_realisation()
         Br, Dr = np.zeros((Ac.shape[0], 2)), np.zeros((2, 2))
-    # writeable, as the kernels' types are: a structure's own frozen matrices (those that read
-    # the reference pass ctrl.B) would otherwise compile a second copy of each kernel
+    # writeable, as the kernels' types are: a frozen design's matrices (FOLQI's) and a fresh
+    # realisation's (the 2-DOF PI's) would otherwise compile two copies of each kernel
     out = tuple(np.require(a, np.float64, ("C", "W")) for a in (Ac, Bc, Cc, Dc, Br, Dr))
     object.__setattr__(ctrl, "_linearised_matrices", out)
     return out

@@ -204,8 +204,8 @@ def test_bad_integrators_are_one_line_errors(changes, message):
 
 @pytest.mark.parametrize("kind", ["pi2dof", "folqi"])
 def test_the_kernels_get_writeable_matrices_whatever_the_structure(kind):
-    # the kernels' types include writeability: a structure passing its frozen matrices (those
-    # that read the reference pass ctrl.B) compiled a second linearised lane (34 s in a fresh clone)
+    # the kernels' types include writeability: FOLQI's frozen design matrices beside the 2-DOF
+    # PI's fresh ones compiled a second linearised lane (34 s in a fresh clone)
     loop = ClosedLoop(preset("min"), kind)
     ctrl = next(iter(stable_controllers(loop, 1, 1)))
     assert all(a.flags.writeable and a.flags.c_contiguous for a in linearised.controller_matrices(ctrl))
