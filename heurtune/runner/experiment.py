@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import contextlib
 import dataclasses
 import functools
 import hashlib
@@ -271,6 +272,23 @@ class Terminated(BaseException):
 
 def _raise_terminated(signum, frame):
     raise Terminated
+
+
+@contextlib.contextmanager
+def sigterm_raises():
+    """While the block runs, SIGTERM raises :class:`Terminated` in the main thread, as Ctrl-C
+    raises KeyboardInterrupt, so that a command stops its workers and exits with 143; the previous
+    handler is restored after. Nothing is installed in another thread (Python only lets the main
+    thread set handlers) or where SIGTERM was ignored at start (a caller that ignores it keeps
+    it so)."""
+    previous = None
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) != signal.SIG_IGN:
+        previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    try:
+        yield
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 def _signal_of(exc: BaseException):
@@ -1317,9 +1335,12 @@ def _parser():
 def run(argv=None) -> int:
     """Command-line entry point; returns the exit code (130 after Ctrl-C, 143 after SIGTERM)."""
     args = _parser().parse_args(argv)
-    previous_handler = None
-    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) != signal.SIG_IGN:
-        previous_handler = signal.signal(signal.SIGTERM, _raise_terminated)  # else started ignored: it stays so
+    with sigterm_raises():
+        return _run(args)
+
+
+def _run(args) -> int:
+    """:func:`run` on parsed arguments, SIGTERM raising :class:`Terminated`."""
     try:
         for spec in args.plugin:
             load_registering_plugin(spec)
@@ -1375,9 +1396,6 @@ def run(argv=None) -> int:
             raise
         print("\ninterrupted before any run started", file=sys.stderr)
         return code
-    finally:
-        if previous_handler is not None:
-            signal.signal(signal.SIGTERM, previous_handler)
     return 0
 
 

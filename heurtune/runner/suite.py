@@ -36,9 +36,7 @@ import io
 import json
 import math
 import os
-import signal
 import sys
-import threading
 import tomllib
 import warnings
 from pathlib import Path
@@ -953,13 +951,18 @@ def _algorithms(text) -> list:
 
 def run(argv=None) -> int:
     """Command-line entry point; returns the exit code (130 after Ctrl-C, 143 after SIGTERM)."""
+    from heurtune.runner.experiment import sigterm_raises
+
+    with sigterm_raises():
+        return _run(argv)
+
+
+def _run(argv) -> int:
+    """:func:`run`, SIGTERM raising ``Terminated``."""
     from heurtune.core.cli import UsageError
-    from heurtune.runner.experiment import Interrupted, Terminated, _raise_terminated, signal_exit
+    from heurtune.runner.experiment import Interrupted, Terminated, signal_exit
 
     stream = sys.stderr
-    previous_handler = None
-    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGTERM) != signal.SIG_IGN:
-        previous_handler = signal.signal(signal.SIGTERM, _raise_terminated)  # else started ignored: it stays so
     try:
         args = _parser().parse_args(argv)
         from heurtune.core.families import load_registering_plugin
@@ -1031,9 +1034,6 @@ def run(argv=None) -> int:
             raise
         print("\ninterrupted: the finished runs are kept; run the same command again to resume", file=stream)
         return code
-    finally:
-        if previous_handler is not None:
-            signal.signal(signal.SIGTERM, previous_handler)
     return 0
 
 
