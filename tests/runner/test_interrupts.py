@@ -295,3 +295,42 @@ def test_a_suite_interrupted_after_its_first_folder_resumes(tmp_path, jobs, sig,
     for problem in ("iolqi-min-limits", "pid-min"):
         for alg in ("pso", "cs"):
             assert len(pd.read_parquet(out / problem / alg / "runs.parquet")) == 4
+
+
+def test_sigterm_raises_only_in_its_block_in_the_main_thread_and_keeps_an_ignored_signal_ignored():
+    """Both commands' SIGTERM handler (``experiment.sigterm_raises``): inside the block SIGTERM
+    raises ``Terminated``; after it the previous handler is back; a SIGTERM ignored at start stays
+    ignored; and a thread, where Python sets no handler, leaves the handler as it was."""
+    from heurtune.runner.experiment import Terminated, sigterm_raises
+
+    saved = signal.getsignal(signal.SIGTERM)
+
+    def previous(signum, frame):  # a caller's own handler, to see it restored
+        pass
+
+    try:
+        signal.signal(signal.SIGTERM, previous)
+        with pytest.raises(Terminated), sigterm_raises():
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)  # the handler runs between bytecodes, well before this ends
+        assert signal.getsignal(signal.SIGTERM) is previous
+
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        with sigterm_raises():
+            assert signal.getsignal(signal.SIGTERM) == signal.SIG_IGN
+        assert signal.getsignal(signal.SIGTERM) == signal.SIG_IGN
+
+        signal.signal(signal.SIGTERM, previous)
+        seen = []
+
+        def in_a_thread():
+            with sigterm_raises():
+                seen.append(signal.getsignal(signal.SIGTERM))
+
+        worker = threading.Thread(target=in_a_thread)
+        worker.start()
+        worker.join()
+        assert seen == [previous]
+        assert signal.getsignal(signal.SIGTERM) is previous
+    finally:
+        signal.signal(signal.SIGTERM, saved)
